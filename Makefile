@@ -1,0 +1,40 @@
+# Two commands do everything on a fresh machine: `make demo` and `make test`.
+PY ?= python3
+VENV ?= .venv
+BIN := $(VENV)/bin
+TORCH ?= torch==2.13.0
+STAMP := $(VENV)/.installed
+
+.PHONY: demo test slow lint benchmark reproduce clean
+
+$(STAMP): setup.cfg pyproject.toml
+	$(PY) -m venv $(VENV)
+	$(BIN)/pip install -q --upgrade pip
+	# torch first and pinned: an unpinned torch pulls several GB of CUDA wheels
+	$(BIN)/pip install -q "$(TORCH)"
+	$(BIN)/pip install -q -e ".[tests,zoo,gif]"
+	touch $(STAMP)
+
+demo: $(STAMP)
+	$(BIN)/python examples/demo.py
+
+test: $(STAMP)
+	# pytest exits 5 when it collects nothing: that fails make, as it should
+	$(BIN)/python -m pytest -q
+
+slow: $(STAMP)
+	$(BIN)/python -m pytest -q -m slow
+
+lint: $(STAMP)
+	$(BIN)/ruff check sb3_crowdnav tests examples benchmarks
+
+benchmark: $(STAMP)
+	$(BIN)/python benchmarks/env_speed.py
+	$(BIN)/python benchmarks/network_speed.py
+	$(BIN)/python benchmarks/lookahead_speed.py
+
+reproduce: $(STAMP)
+	$(BIN)/python examples/reproduce.py
+
+clean:
+	rm -rf $(VENV) build *.egg-info
