@@ -1,0 +1,23 @@
+"""The ground floor: numpy + pyrvo only (no torch, no gymnasium)."""
+
+from sb3_crowdnav.sim.actions import N_ACTIONS, action_table, apply_action, nearest_action, wrap_angle
+from sb3_crowdnav.sim.config import RewardConfig, SceneConfig
+from sb3_crowdnav.sim.orca import OrcaPolicy
+from sb3_crowdnav.sim.rewards import RewardTerms, closest_approach, compute_reward, walking_direction
+from sb3_crowdnav.sim.simulator import CrowdSimulator
+
+__all__ = [
+    "N_ACTIONS",
+    "CrowdSimulator",
+    "OrcaPolicy",
+    "RewardConfig",
+    "RewardTerms",
+    "SceneConfig",
+    "action_table",
+    "apply_action",
+    "closest_approach",
+    "compute_reward",
+    "nearest_action",
+    "walking_direction",
+    "wrap_angle",
+]

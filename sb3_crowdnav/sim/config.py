@@ -1,0 +1,190 @@
+"""Frozen, validated configuration of a crowd scene and of the reward.
+
+Every field is checked in ``__post_init__``; bad values raise ``ValueError`` or
+``TypeError`` naming the field and what is allowed.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+from numbers import Integral, Real
+from typing import Any
+
+SCENARIOS = ("circle_crossing", "square_crossing")
+KINEMATICS = ("unicycle", "holonomic")
+HUMAN_POLICIES = ("orca", "linear")
+REWARDS = ("crowdnav", "comfort", "comfort_angular")
+
+
+def _check_number(name: str, value: Any, *, positive: bool = True, allow_zero: bool = False) -> None:
+    if isinstance(value, bool) or not isinstance(value, Real):
+        raise TypeError(f"{name} must be a real number, got {value!r} ({type(value).__name__})")
+    if not math.isfinite(value):
+        raise ValueError(f"{name} must be finite, got {value!r}")
+    if positive and (value < 0 or (value == 0 and not allow_zero)):
+        allowed = ">= 0" if allow_zero else "> 0"
+        raise ValueError(f"{name} must be {allowed}, got {value!r}")
+
+
+def _check_int(name: str, value: Any, minimum: int) -> None:
+    if isinstance(value, bool) or not isinstance(value, Integral):
+        raise TypeError(f"{name} must be an int, got {value!r} ({type(value).__name__})")
+    if value < minimum:
+        raise ValueError(f"{name} must be >= {minimum}, got {value!r}")
+
+
+def _check_choice(name: str, value: Any, choices: tuple[str, ...]) -> None:
+    if value not in choices:
+        raise ValueError(f"{name} must be one of {choices}, got {value!r}")
+
+
+def check_unknown_keys(cls: type, kwargs: dict[str, Any]) -> None:
+    """Raise ``TypeError`` for keys that are not fields of dataclass ``cls``."""
+    known = {f.name for f in fields(cls)}
+    unknown = sorted(set(kwargs) - known)
+    if unknown:
+        raise TypeError(f"unknown keyword argument(s) {unknown} for {cls.__name__}; allowed: {sorted(known)}")
+
+
+@dataclass(frozen=True)
+class SceneConfig:
+    """Geometry, agents and dynamics of a crowd scene (defaults: the paper's Table 1).
+
+    :param num_humans: number of pedestrians, an int or an inclusive ``(min, max)`` range drawn per episode
+    :param max_humans: observation capacity (padded slots are masked)
+    :param time_step: Δt [s]
+    :param time_limit: episode time limit [s]; reaching it truncates the episode
+    :param robot_radius: [m]
+    :param human_radius: [m]
+    :param robot_v_pref: robot preferred (and maximum) speed [m/s]
+    :param human_v_pref: pedestrian preferred speed [m/s]
+    :param scenario: ``"circle_crossing"`` or ``"square_crossing"``
+    :param circle_radius: radius of the crossing circle [m]
+    :param square_width: side of the square-crossing area [m]
+    :param start_noise: uniform noise on each start coordinate, ± [m]
+    :param robot_visible: whether pedestrians see (and avoid) the robot
+    :param kinematics: ``"unicycle"`` (direction = rotation of the heading) or ``"holonomic"``
+    :param rotation_range: width of the direction fan [rad]; 2π = all directions
+    :param human_policy: ``"orca"`` (pyrvo) or ``"linear"`` (constant velocity towards the goal; for tests)
+    :param history_length: T, number of past pedestrian states in the observation
+    :param orca_neighbor_dist: [m]
+    :param orca_max_neighbors:
+    :param orca_time_horizon: [s]
+    :param orca_time_horizon_obst: [s]
+    """
+
+    num_humans: int | tuple[int, int] = 6
+    max_humans: int = 10
+    time_step: float = 0.25
+    time_limit: float = 25.0
+    robot_radius: float = 0.3
+    human_radius: float = 0.3
+    robot_v_pref: float = 1.0
+    human_v_pref: float = 1.0
+    scenario: str = "circle_crossing"
+    circle_radius: float = 4.0
+    square_width: float = 10.0
+    start_noise: float = 0.5
+    robot_visible: bool = False
+    kinematics: str = "unicycle"
+    rotation_range: float = 2 * math.pi
+    human_policy: str = "orca"
+    history_length: int = 5
+    orca_neighbor_dist: float = 10.0
+    orca_max_neighbors: int = 10
+    orca_time_horizon: float = 5.0
+    orca_time_horizon_obst: float = 5.0
+
+    def __post_init__(self) -> None:
+        _check_int("max_humans", self.max_humans, 1)
+        lo, hi = self.humans_range
+        for name, v in (("num_humans", lo), ("num_humans", hi)):
+            _check_int(name, v, 0)
+        if lo > hi:
+            raise ValueError(f"num_humans range must satisfy min <= max, got {self.num_humans!r}")
+        if hi > self.max_humans:
+            raise ValueError(f"num_humans must be <= max_humans ({self.max_humans}), got {self.num_humans!r}")
+        for name in ("time_step", "time_limit", "robot_radius", "human_radius", "robot_v_pref", "human_v_pref",
+                     "circle_radius", "square_width", "orca_neighbor_dist", "orca_time_horizon",
+                     "orca_time_horizon_obst"):
+            _check_number(name, getattr(self, name))
+        _check_number("start_noise", self.start_noise, allow_zero=True)
+        _check_number("rotation_range", self.rotation_range)
+        if self.rotation_range > 2 * math.pi + 1e-9:
+            raise ValueError(f"rotation_range must be in (0, 2π], got {self.rotation_range!r}")
+        if self.time_step > self.time_limit:
+            raise ValueError(f"time_step ({self.time_step}) must not exceed time_limit ({self.time_limit})")
+        if not isinstance(self.robot_visible, bool):
+            raise TypeError(f"robot_visible must be a bool, got {self.robot_visible!r}")
+        _check_choice("scenario", self.scenario, SCENARIOS)
+        _check_choice("kinematics", self.kinematics, KINEMATICS)
+        _check_choice("human_policy", self.human_policy, HUMAN_POLICIES)
+        _check_int("history_length", self.history_length, 1)
+        _check_int("orca_max_neighbors", self.orca_max_neighbors, 1)
+
+    @property
+    def humans_range(self) -> tuple[int, int]:
+        """Inclusive (min, max) number of pedestrians."""
+        n = self.num_humans
+        if isinstance(n, (tuple, list)):
+            if len(n) != 2:
+                raise ValueError(f"num_humans must be an int or a (min, max) pair, got {n!r}")
+            return n[0], n[1]
+        return n, n
+
+    @property
+    def max_steps(self) -> int:
+        """Number of steps before truncation (25 s / 0.25 s = 100)."""
+        return int(round(self.time_limit / self.time_step))
+
+
+@dataclass(frozen=True)
+class RewardConfig:
+    """Reward setting (paper Eq. 9-14, SPEC §2.3).
+
+    :param name: ``"crowdnav"`` (Table 3), ``"comfort"`` (APG_CRL) or ``"comfort_angular"`` (APG_CARL)
+    :param success_reward: reward for reaching the goal (Eq. 12 prints 2; Table 3's returns imply 1)
+    :param collision_penalty: reward on collision (negative)
+    :param discomfort_dist: surface distance of the ``"crowdnav"`` discomfort term [m]
+    :param discomfort_factor: slope of the discomfort term, times Δt
+    :param comfort_person: d_person, comfort-ellipse semi-axis along the walking direction [m]
+    :param comfort_side: d_side, comfort-ellipse semi-axis to the side [m]
+    :param social_penalty: r_p of Eq. 11
+    :param angular_penalty: r_angle of Eq. 13 (subtracted)
+    :param angular_penalty_threshold: heading change per step that triggers Eq. 13 [rad]
+    """
+
+    name: str = "crowdnav"
+    success_reward: float = 1.0
+    collision_penalty: float = -0.25
+    discomfort_dist: float = 0.2
+    discomfort_factor: float = 0.5
+    comfort_person: float = 1.2
+    comfort_side: float = 0.7
+    social_penalty: float = 0.02
+    angular_penalty: float = 0.02
+    angular_penalty_threshold: float = math.pi / 2
+
+    def __post_init__(self) -> None:
+        _check_choice("reward", self.name, REWARDS)
+        _check_number("success_reward", self.success_reward, positive=False)
+        _check_number("collision_penalty", self.collision_penalty, positive=False)
+        if self.collision_penalty > 0:
+            raise ValueError(f"collision_penalty must be <= 0, got {self.collision_penalty!r}")
+        for name in ("discomfort_dist", "discomfort_factor", "social_penalty", "angular_penalty"):
+            _check_number(name, getattr(self, name), allow_zero=True)
+        for name in ("comfort_person", "comfort_side", "angular_penalty_threshold"):
+            _check_number(name, getattr(self, name))
+
+    @property
+    def uses_social(self) -> bool:
+        return self.name in ("comfort", "comfort_angular")
+
+    @property
+    def uses_angular(self) -> bool:
+        return self.name == "comfort_angular"
+
+    @property
+    def uses_discomfort(self) -> bool:
+        return self.name == "crowdnav"

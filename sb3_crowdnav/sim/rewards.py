@@ -1,0 +1,175 @@
+"""The reward terms of SPEC §2.3 (paper Eq. 9-14), implemented once.
+
+The env calls :func:`compute_reward` on one transition; the lookahead calls it on all
+(batch x 80) propagated transitions. Everything broadcasts over leading dimensions.
+
+Conventions (decisions on the paper's ambiguities, also in the README):
+
+* Collision: the robot and a pedestrian overlap at some moment of the step; both move on
+  straight lines during Δt and the closest approach of the two segments is checked.
+  A collision takes precedence over reaching the goal.
+* Success: the robot's centre within its radius of the goal at the end of the step.
+* On a terminal step (collision or success) the shaping terms are zero: the reward is the
+  success reward or the collision penalty alone.
+* ``"crowdnav"`` discomfort: ``(d - 0.2) * 0.5 * Δt`` with d the minimum *surface* distance
+  to any pedestrian during the step, when d < 0.2 m.
+* Social penalty (Eq. 9-11): in each pedestrian's frame (origin at its centre, x-axis along its
+  walking direction) the robot's offset is measured **between surfaces**: the centre-to-centre
+  vector shortened by the sum of the radii. ``w = sqrt(x0² d_side² / d_person² + y0²)`` and
+  ``R = -r_p (exp(-(w - d_side)) - 1)`` when ``w <= d_side`` (inside the ellipse) and
+  ``x0 >= 0`` (in front of the pedestrian). Penalties of several pedestrians are **summed**.
+* Angular penalty (Eq. 13): ``-r_angle`` when ``|wrap(θ_t - θ_{t-1})| >= threshold``.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from sb3_crowdnav.sim.actions import wrap_angle
+from sb3_crowdnav.sim.config import RewardConfig
+
+STILL_SPEED = 1e-3  # [m/s] below this a pedestrian counts as standing still
+
+
+class RewardTerms(NamedTuple):
+    """Every term of one (batch of) transition(s); arrays of shape (...)."""
+
+    reward: np.ndarray
+    success: np.ndarray
+    collision: np.ndarray
+    success_term: np.ndarray
+    collision_term: np.ndarray
+    discomfort_term: np.ndarray
+    social_term: np.ndarray
+    angular_term: np.ndarray
+    min_distance: np.ndarray  # minimum surface distance to any present pedestrian during the step [m]
+    in_comfort_zone: np.ndarray  # the robot is inside at least one comfort ellipse at the end of the step
+
+
+def closest_approach(
+    a0: np.ndarray, a1: np.ndarray, b0: np.ndarray, b1: np.ndarray
+) -> np.ndarray:
+    """Minimum centre distance between two points moving on straight lines a0→a1 and b0→b1 over one step.
+
+    :param a0, a1, b0, b1: (..., 2), broadcast together
+    :return: (...)
+    """
+    d0 = a0 - b0
+    dv = (a1 - a0) - (b1 - b0)
+    dv2 = np.sum(dv * dv, axis=-1)
+    safe = np.where(dv2 > 1e-12, dv2, 1.0)
+    t = np.clip(-np.sum(d0 * dv, axis=-1) / safe, 0.0, 1.0)
+    t = np.where(dv2 > 1e-12, t, 0.0)
+    closest = d0 + t[..., None] * dv
+    return np.sqrt(np.sum(closest * closest, axis=-1))
+
+
+def walking_direction(
+    velocities: np.ndarray, human_pos: np.ndarray, robot_pos: np.ndarray
+) -> np.ndarray:
+    """Unit walking direction of each pedestrian from its velocity history.
+
+    The most recent velocity faster than ``STILL_SPEED`` gives the direction (a pedestrian
+    standing still keeps its last walking direction); a pedestrian still over the whole
+    window faces the robot.
+
+    :param velocities: (..., T, N, 2), oldest first
+    :param human_pos: (..., N, 2)
+    :param robot_pos: (..., 2)
+    :return: (..., N, 2)
+    """
+    speed = np.linalg.norm(velocities, axis=-1)  # (..., T, N)
+    moving = speed > STILL_SPEED
+    t_len = velocities.shape[-3]
+    # index of the last moving step (or -1)
+    idx = np.where(moving, np.arange(t_len)[:, None], -1).max(axis=-2)  # (..., N)
+    chosen = np.take_along_axis(velocities, np.maximum(idx, 0)[..., None, :, None], axis=-3)[..., 0, :, :]
+    chosen_speed = np.linalg.norm(chosen, axis=-1, keepdims=True)
+    facing = robot_pos[..., None, :] - human_pos
+    facing_norm = np.linalg.norm(facing, axis=-1, keepdims=True)
+    facing = np.where(facing_norm > 1e-9, facing / np.maximum(facing_norm, 1e-9), np.array([1.0, 0.0]))
+    return np.where((idx >= 0)[..., None], chosen / np.maximum(chosen_speed, 1e-12), facing)
+
+
+def social_penalty(
+    rel_pos: np.ndarray, direction: np.ndarray, radius_sum: np.ndarray, mask: np.ndarray, cfg: RewardConfig
+) -> tuple[np.ndarray, np.ndarray]:
+    """Summed comfort-zone penalty (Eq. 9-11) and whether the robot is inside any zone.
+
+    :param rel_pos: (..., N, 2) robot centre minus pedestrian centre
+    :param direction: (..., N, 2) unit walking direction
+    :param radius_sum: (..., N)
+    :param mask: (..., N) boolean
+    :return: ``(penalty (...), inside_any (...))``
+    """
+    dist = np.linalg.norm(rel_pos, axis=-1)
+    scale = np.maximum(dist - radius_sum, 0.0) / np.maximum(dist, 1e-9)
+    surf = rel_pos * scale[..., None]
+    x0 = np.sum(surf * direction, axis=-1)
+    y0 = surf[..., 1] * direction[..., 0] - surf[..., 0] * direction[..., 1]
+    w = np.sqrt(x0**2 * (cfg.comfort_side / cfg.comfort_person) ** 2 + y0**2)
+    inside = (w <= cfg.comfort_side) & (x0 >= 0) & mask
+    pen = np.where(inside, -cfg.social_penalty * (np.exp(-(w - cfg.comfort_side)) - 1.0), 0.0)
+    return pen.sum(axis=-1), inside.any(axis=-1)
+
+
+def compute_reward(
+    cfg: RewardConfig,
+    time_step: float,
+    robot_pos0: np.ndarray,
+    robot_pos1: np.ndarray,
+    heading0: np.ndarray,
+    heading1: np.ndarray,
+    goal: np.ndarray,
+    robot_radius: np.ndarray,
+    human_pos0: np.ndarray,
+    human_pos1: np.ndarray,
+    human_dir: np.ndarray,
+    human_radius: np.ndarray,
+    mask: np.ndarray,
+) -> RewardTerms:
+    """Reward of the transitions robot_pos0 → robot_pos1 while pedestrians move human_pos0 → human_pos1.
+
+    Shapes: robot positions and goal (..., 2); headings and robot radius (...);
+    pedestrian positions and walking directions (..., N, 2); radius and mask (..., N).
+    """
+    mask = mask.astype(bool)
+    radius_sum = human_radius + robot_radius[..., None]
+    centre = closest_approach(robot_pos0[..., None, :], robot_pos1[..., None, :], human_pos0, human_pos1)
+    surface = np.where(mask, centre - radius_sum, np.inf)
+    min_distance = surface.min(axis=-1) if surface.shape[-1] else np.full(surface.shape[:-1], np.inf)
+    collision = min_distance < 0
+    success = ~collision & (np.linalg.norm(robot_pos1 - goal, axis=-1) < robot_radius)
+    terminal = collision | success
+    zero = np.zeros(collision.shape)
+
+    success_term = np.where(success, cfg.success_reward, 0.0)
+    collision_term = np.where(collision, cfg.collision_penalty, 0.0)
+    social, inside = social_penalty(robot_pos1[..., None, :] - human_pos1, human_dir, radius_sum, mask, cfg)
+    discomfort = zero
+    if cfg.uses_discomfort:
+        discomfort = np.where(
+            ~terminal & (min_distance < cfg.discomfort_dist),
+            (min_distance - cfg.discomfort_dist) * cfg.discomfort_factor * time_step,
+            0.0,
+        )
+    social_term = np.where(~terminal, social, 0.0) if cfg.uses_social else zero
+    angular_term = zero
+    if cfg.uses_angular:
+        turn = np.abs(wrap_angle(heading1 - heading0))
+        angular_term = np.where(~terminal & (turn >= cfg.angular_penalty_threshold - 1e-9), -cfg.angular_penalty, 0.0)
+    reward = success_term + collision_term + discomfort + social_term + angular_term
+    return RewardTerms(
+        reward=reward,
+        success=success,
+        collision=collision,
+        success_term=success_term,
+        collision_term=collision_term,
+        discomfort_term=discomfort,
+        social_term=social_term,
+        angular_term=angular_term,
+        min_distance=min_distance,
+        in_comfort_zone=inside,
+    )
