@@ -1,0 +1,393 @@
+"""``APGValue``: value learning with batched one-step lookahead and ORCA imitation pre-training."""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections import deque
+from typing import Any, ClassVar, TypeVar
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.buffers import DictReplayBuffer
+from stable_baselines3.her.her_replay_buffer import HerReplayBuffer
+from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+from stable_baselines3.common.policies import BasePolicy
+from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
+from stable_baselines3.common.utils import polyak_update, safe_mean
+from stable_baselines3.common.vec_env import VecEnv, VecFrameStack, VecNormalize, unwrap_vec_wrapper
+from torch.nn import functional as F
+
+from sb3_crowdnav.apg_value.policies import (
+    OBS_KEYS,
+    CadrlPolicy,
+    LmPolicy,
+    LstmRlPolicy,
+    SarlPolicy,
+    SfPolicy,
+    ValueLookaheadPolicy,
+    check_observation_space,
+)
+from sb3_crowdnav.sim.layout import Robot
+from sb3_crowdnav.sim.orca import OrcaPolicy
+
+SelfAPGValue = TypeVar("SelfAPGValue", bound="APGValue")
+
+
+def check_env_compatible(env: VecEnv | None) -> None:
+    """Refuse wrappers that corrupt the physical states the lookahead propagates."""
+    if env is None:
+        return
+    for wrapper in (VecNormalize, VecFrameStack):
+        if unwrap_vec_wrapper(env, wrapper) is not None:
+            raise ValueError(
+                f"APGValue cannot use {wrapper.__name__}: the lookahead propagates the raw physical observation "
+                "(positions, velocities) one step ahead; remove the wrapper"
+            )
+
+
+class APGValue(OffPolicyAlgorithm):
+    """State-value learning with one-step lookahead over the 80 actions (paper §1, §2.3, §3).
+
+    Before RL, ``imitation_episodes`` episodes of the ORCA robot are collected; V is regressed
+    on their discounted returns at ``imitation_learning_rate`` and the transitions also seed the
+    replay buffer. Then TD(0) on V with uniform replay and a fixed target network,
+    target ``r + γ^(Δt·v_pref) · V_target(s') · (1 - terminated)`` (timeouts bootstrap), acting
+    ε-greedily per env with ε decaying linearly **by episodes**.
+
+    :param policy: ``"ApgPolicy"`` (or another alias, or a :class:`ValueLookaheadPolicy` subclass)
+    :param env: a CrowdNav env (or id), or a VecEnv of them; n_envs > 1 share one batched lookahead
+    :param learning_rate: RL learning rate (Table 1: 0.001); may be a schedule
+    :param buffer_size: replay capacity [transitions]
+    :param learning_starts: transitions to collect (greedy lookahead, no random warm-up) before training
+    :param batch_size: Table 1: 100
+    :param tau: target-network update coefficient (1 = hard copy)
+    :param gamma: discount per second at v_pref = 1 (Table 1: 0.9); a step is discounted by γ^(Δt·v_pref)
+    :param train_freq: train every ``train_freq`` env steps (per env)
+    :param gradient_steps: gradient steps per training call
+    :param target_update_interval: copy V into V_target every this many env transitions
+    :param exploration_initial_eps: ε at the first RL episode (0.5)
+    :param exploration_final_eps: ε after ``exploration_episodes`` (0.1)
+    :param exploration_episodes: RL episodes over which ε decays linearly (5,000)
+    :param imitation_episodes: ORCA-robot episodes collected before RL (3,000; 0 disables imitation)
+    :param imitation_learning_rate: learning rate of the imitation regression (0.01)
+    :param imitation_epochs: passes over the imitation data
+    :param imitation_safety_space: extra radius the ORCA demonstrator keeps from pedestrians [m]
+    :param max_grad_norm: gradient clipping
+    :param torch_threads: ``torch.set_num_threads`` at construction (1 is fastest on small CPUs); None leaves it
+    """
+
+    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {
+        "ApgPolicy": ValueLookaheadPolicy,
+        "ValueLookaheadPolicy": ValueLookaheadPolicy,
+        "CadrlPolicy": CadrlPolicy,
+        "SfPolicy": SfPolicy,
+        "LmPolicy": LmPolicy,
+        "LstmRlPolicy": LstmRlPolicy,
+        "SarlPolicy": SarlPolicy,
+    }
+    policy: ValueLookaheadPolicy
+
+    def __init__(
+        self,
+        policy: str | type[ValueLookaheadPolicy],
+        env: GymEnv | str,
+        learning_rate: float | Schedule = 1e-3,
+        buffer_size: int = 100_000,
+        learning_starts: int = 0,
+        batch_size: int = 100,
+        tau: float = 1.0,
+        gamma: float = 0.9,
+        train_freq: int | tuple[int, str] = 1,
+        gradient_steps: int = 1,
+        target_update_interval: int = 2_000,
+        exploration_initial_eps: float = 0.5,
+        exploration_final_eps: float = 0.1,
+        exploration_episodes: int = 5_000,
+        imitation_episodes: int = 3_000,
+        imitation_learning_rate: float = 0.01,
+        imitation_epochs: int = 50,
+        imitation_safety_space: float = 0.15,
+        max_grad_norm: float = 10.0,
+        replay_buffer_class: type[DictReplayBuffer] | None = None,
+        replay_buffer_kwargs: dict[str, Any] | None = None,
+        stats_window_size: int = 100,
+        tensorboard_log: str | None = None,
+        policy_kwargs: dict[str, Any] | None = None,
+        verbose: int = 0,
+        seed: int | None = None,
+        device: th.device | str = "auto",
+        torch_threads: int | None = 1,
+        _init_setup_model: bool = True,
+    ) -> None:
+        if torch_threads is not None:
+            th.set_num_threads(int(torch_threads))
+        if replay_buffer_class is not None and issubclass(replay_buffer_class, HerReplayBuffer):
+            raise ValueError("APGValue does not support HerReplayBuffer: CrowdNav has no goal relabelling")
+        for name, value, lo, hi in (
+            ("exploration_initial_eps", exploration_initial_eps, 0.0, 1.0),
+            ("exploration_final_eps", exploration_final_eps, 0.0, 1.0),
+            ("gamma", gamma, 1e-9, 1.0),
+            ("tau", tau, 1e-9, 1.0),
+        ):
+            if not lo <= value <= hi:
+                raise ValueError(f"{name} must be in [{lo}, {hi}], got {value!r}")
+        for name, value, minimum in (
+            ("exploration_episodes", exploration_episodes, 1),
+            ("imitation_episodes", imitation_episodes, 0),
+            ("imitation_epochs", imitation_epochs, 0),
+            ("target_update_interval", target_update_interval, 1),
+            ("batch_size", batch_size, 1),
+        ):
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
+                raise ValueError(f"{name} must be an int >= {minimum}, got {value!r}")
+        if not imitation_learning_rate > 0:
+            raise ValueError(f"imitation_learning_rate must be > 0, got {imitation_learning_rate!r}")
+        if not imitation_safety_space >= 0:
+            raise ValueError(f"imitation_safety_space must be >= 0, got {imitation_safety_space!r}")
+        super().__init__(
+            policy,
+            env,
+            learning_rate,
+            buffer_size,
+            learning_starts,
+            batch_size,
+            tau,
+            gamma,
+            train_freq,
+            gradient_steps,
+            action_noise=None,
+            replay_buffer_class=replay_buffer_class,
+            replay_buffer_kwargs=replay_buffer_kwargs,
+            policy_kwargs=policy_kwargs,
+            stats_window_size=stats_window_size,
+            tensorboard_log=tensorboard_log,
+            verbose=verbose,
+            device=device,
+            seed=seed,
+            sde_support=False,
+            supported_action_spaces=(spaces.Discrete,),
+            support_multi_env=True,
+        )
+        check_observation_space(self.observation_space)
+        check_env_compatible(self.env)
+        self.exploration_initial_eps = exploration_initial_eps
+        self.exploration_final_eps = exploration_final_eps
+        self.exploration_episodes = exploration_episodes
+        self.target_update_interval = target_update_interval
+        self.imitation_episodes = imitation_episodes
+        self.imitation_learning_rate = imitation_learning_rate
+        self.imitation_epochs = imitation_epochs
+        self.imitation_safety_space = imitation_safety_space
+        self.max_grad_norm = max_grad_norm
+        self.exploration_rate = exploration_initial_eps
+        self.imitation_done = imitation_episodes == 0
+        self._n_calls = 0
+        if _init_setup_model:
+            self._setup_model()
+
+    # ------------------------------------------------------------------ set-up
+    def _env_settings(self) -> dict[str, Any]:
+        """The env's scene and reward settings that the lookahead must share (read once, at set-up)."""
+        if self.env is None:
+            return {}
+        try:
+            scene = self.env.get_attr("scene")[0]
+            reward = self.env.get_attr("reward_config")[0]
+        except AttributeError:
+            return {}
+        return {
+            "time_step": scene.time_step,
+            "kinematics": scene.kinematics,
+            "rotation_range": scene.rotation_range,
+            "reward": dataclasses.asdict(reward),
+        }
+
+    def _setup_model(self) -> None:
+        settings = self._env_settings()
+        for key, value in settings.items():
+            given = self.policy_kwargs.get(key, value)
+            if given != value:
+                raise ValueError(f"policy_kwargs[{key!r}] = {given!r} does not match the env's {key} = {value!r}")
+            self.policy_kwargs[key] = value
+        given_gamma = self.policy_kwargs.setdefault("gamma", self.gamma)
+        if given_gamma != self.gamma:
+            raise ValueError(f"policy_kwargs['gamma'] = {given_gamma!r} differs from the algorithm's gamma = {self.gamma!r}")
+        super()._setup_model()
+        self._explore_rng = np.random.default_rng(self.seed)
+        self._outcomes: deque[str] = deque(maxlen=self._stats_window_size)
+        self._nav_times: deque[float] = deque(maxlen=self._stats_window_size)
+        self._min_seps: deque[float] = deque(maxlen=self._stats_window_size)
+
+    def set_env(self, env: GymEnv, force_reset: bool = True) -> None:
+        super().set_env(env, force_reset)
+        check_env_compatible(self.env)
+
+    # ------------------------------------------------------------------ acting
+    def _update_exploration(self) -> None:
+        frac = min(1.0, self._episode_num / self.exploration_episodes)
+        self.exploration_rate = self.exploration_initial_eps + frac * (self.exploration_final_eps - self.exploration_initial_eps)
+
+    def predict(self, observation, state=None, episode_start=None, deterministic: bool = False):
+        """Greedy lookahead; with ``deterministic=False`` each env explores with probability ε (its own draw)."""
+        if deterministic or self.exploration_rate <= 0:
+            return self.policy.predict(observation, state, episode_start, deterministic=True)
+        robot = np.asarray(observation["robot"])
+        n = robot.shape[0] if robot.ndim == 2 else 1
+        explore = self._explore_rng.random(n) < self.exploration_rate
+        random_actions = self._explore_rng.integers(0, self.action_space.n, n)
+        if explore.all():
+            actions = random_actions
+        else:
+            actions, state = self.policy.predict(observation, state, episode_start, deterministic=True)
+            actions = np.where(explore, random_actions, np.atleast_1d(actions))
+        return (actions if robot.ndim == 2 else actions[0]), state
+
+    # ------------------------------------------------------------------ learning
+    def _on_step(self) -> None:
+        self._n_calls += 1
+        if self._n_calls % max(self.target_update_interval // self.n_envs, 1) == 0:
+            polyak_update(self.policy.value_net.parameters(), self.policy.value_net_target.parameters(), self.tau)
+        self._update_exploration()
+        self.logger.record("rollout/exploration_rate", self.exploration_rate)
+
+    def _td_target(self, rewards: th.Tensor, next_obs: dict[str, th.Tensor], obs: dict[str, th.Tensor],
+                   dones: th.Tensor) -> th.Tensor:
+        with th.no_grad():
+            v_next = self.policy.values(next_obs, target=True)
+            discount = self.gamma ** (self.policy.time_step * obs["robot"][:, Robot.V_PREF])
+            return rewards + discount * (1.0 - dones) * v_next
+
+    def train(self, gradient_steps: int, batch_size: int = 100) -> None:
+        self.policy.set_training_mode(True)
+        self._update_learning_rate(self.policy.optimizer)
+        losses = []
+        for _ in range(gradient_steps):
+            data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
+            target = self._td_target(data.rewards.flatten(), data.next_observations, data.observations, data.dones.flatten())
+            loss = F.mse_loss(self.policy.values(data.observations), target)
+            self.policy.optimizer.zero_grad()
+            loss.backward()
+            th.nn.utils.clip_grad_norm_(self.policy.value_net.parameters(), self.max_grad_norm)
+            self.policy.optimizer.step()
+            losses.append(loss.item())
+        self._n_updates += gradient_steps
+        self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
+        self.logger.record("train/loss", float(np.mean(losses)))
+
+    # ------------------------------------------------------------------ imitation
+    def _collect_imitation(self) -> tuple[dict[str, np.ndarray], np.ndarray]:
+        """Run the ORCA robot for ``imitation_episodes`` episodes; return observations and discounted returns."""
+        env = self.env
+        assert env is not None
+        demo = OrcaPolicy(env.get_attr("scene")[0], safety_space=self.imitation_safety_space)
+        obs = env.reset()
+        self._last_obs = obs
+        n = env.num_envs
+        pending: list[list[tuple[dict[str, np.ndarray], float]]] = [[] for _ in range(n)]
+        data: dict[str, list[np.ndarray]] = {k: [] for k in OBS_KEYS}
+        returns: list[float] = []
+        episodes = 0
+        outcomes = {"success": 0, "collision": 0, "timeout": 0}
+        while episodes < self.imitation_episodes:
+            actions, _ = demo.predict(obs)
+            new_obs, rewards, dones, infos = env.step(actions)
+            self._store_transition(self.replay_buffer, actions.reshape(n, -1), new_obs, rewards, dones, infos)  # type: ignore[arg-type]
+            for i in range(n):
+                pending[i].append(({k: obs[k][i] for k in OBS_KEYS}, float(rewards[i])))
+                if dones[i]:
+                    if episodes < self.imitation_episodes:
+                        g = 0.0
+                        for step_obs, r in reversed(pending[i]):
+                            g = r + self.gamma ** (self.policy.time_step * float(step_obs["robot"][Robot.V_PREF])) * g
+                            returns.append(g)
+                            for k in OBS_KEYS:
+                                data[k].append(step_obs[k])
+                        episodes += 1
+                        outcomes[infos[i]["outcome"]] += 1
+                    pending[i] = []
+            obs = new_obs
+        total = max(episodes, 1)
+        for key, count in outcomes.items():
+            self.logger.record(f"imitation/{key}_rate", count / total)
+        return {k: np.stack(v) for k, v in data.items()}, np.asarray(returns, dtype=np.float32)
+
+    def _run_imitation(self) -> None:
+        start = time.time()
+        obs, returns = self._collect_imitation()
+        collect_time = time.time() - start
+        net = self.policy.value_net
+        optimizer = self.policy.optimizer_class(net.parameters(), lr=self.imitation_learning_rate,
+                                                **self.policy.optimizer_kwargs)
+        tensors = {k: th.as_tensor(v, dtype=th.float32, device=self.device) for k, v in obs.items()}
+        targets = th.as_tensor(returns, device=self.device)
+        size = len(returns)
+        gen = th.Generator().manual_seed(int(self._explore_rng.integers(2**31)))
+        self.policy.set_training_mode(True)
+        for epoch in range(self.imitation_epochs):
+            perm = th.randperm(size, generator=gen)
+            losses = []
+            for begin in range(0, size, self.batch_size):
+                idx = perm[begin : begin + self.batch_size]
+                loss = F.mse_loss(net({k: v[idx] for k, v in tensors.items()}), targets[idx])
+                optimizer.zero_grad()
+                loss.backward()
+                th.nn.utils.clip_grad_norm_(net.parameters(), self.max_grad_norm)
+                optimizer.step()
+                losses.append(loss.item())
+            self.logger.record("train/imitation_loss", float(np.mean(losses)))
+            self.logger.record("train/imitation_epoch", epoch + 1)
+            self.logger.dump(step=epoch + 1 - self.imitation_epochs)
+        self.policy.set_training_mode(False)
+        self.policy.value_net_target.load_state_dict(net.state_dict())
+        self.imitation_done = True
+        if self.verbose >= 1:
+            print(f"imitation: {len(returns)} states from {self.imitation_episodes} ORCA episodes in {collect_time:.0f} s, "
+                  f"{self.imitation_epochs} epochs in {time.time() - start - collect_time:.0f} s")
+
+    def _setup_learn(self, total_timesteps: int, callback: MaybeCallback = None, reset_num_timesteps: bool = True,
+                     tb_log_name: str = "run", progress_bar: bool = False):
+        result = super()._setup_learn(total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar)
+        if not self.imitation_done:
+            self._run_imitation()
+            self._last_obs = self.env.reset()  # type: ignore[union-attr]
+            self._last_episode_starts = np.ones((self.env.num_envs,), dtype=bool)  # type: ignore[union-attr]
+        self._update_exploration()
+        return result
+
+    def learn(self: SelfAPGValue, total_timesteps: int, callback: MaybeCallback = None, log_interval: int = 4,
+              tb_log_name: str = "APGValue", reset_num_timesteps: bool = True, progress_bar: bool = False) -> SelfAPGValue:
+        """Imitation pre-training (once, if not done yet), then ``total_timesteps`` RL env steps."""
+        return super().learn(total_timesteps=total_timesteps, callback=callback, log_interval=log_interval,
+                             tb_log_name=tb_log_name, reset_num_timesteps=reset_num_timesteps, progress_bar=progress_bar)
+
+    # ------------------------------------------------------------------ logging
+    def _update_info_buffer(self, infos: list[dict[str, Any]], dones: np.ndarray | None = None) -> None:
+        super()._update_info_buffer(infos, dones)
+        for info in infos:
+            stats = info.get("episode_stats")
+            if stats is None:
+                continue
+            self._outcomes.append(stats["outcome"])
+            self._min_seps.append(stats["min_separation"])
+            if stats["outcome"] == "success":
+                self._nav_times.append(stats["navigation_time"])
+
+    def dump_logs(self) -> None:
+        if self._outcomes:
+            # rollout/success_rate comes from SB3 (info["is_success"])
+            for outcome in ("collision", "timeout"):
+                self.logger.record(f"rollout/{outcome}_rate", self._outcomes.count(outcome) / len(self._outcomes))
+            if self._nav_times:
+                self.logger.record("rollout/navigation_time", safe_mean(list(self._nav_times)))
+            finite = [d for d in self._min_seps if np.isfinite(d)]
+            if finite:
+                self.logger.record("rollout/min_separation", safe_mean(finite))
+        super().dump_logs()
+
+    def _excluded_save_params(self) -> list[str]:
+        return [*super()._excluded_save_params(), "_explore_rng", "_outcomes", "_nav_times", "_min_seps"]
+
+    def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
+        return ["policy", "policy.optimizer"], []

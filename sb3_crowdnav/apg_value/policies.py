@@ -1,0 +1,221 @@
+"""``ValueLookaheadPolicy``: a state-value network that acts by one-step lookahead over the 80 actions."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.policies import BasePolicy
+from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, create_mlp
+from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
+from torch import nn
+
+from sb3_crowdnav.apg_value.propagation import Propagated, PropagationModel
+from sb3_crowdnav.nn import EXTRACTORS, ApgExtractor
+from sb3_crowdnav.sim.actions import N_ACTIONS
+from sb3_crowdnav.sim.config import KINEMATICS, RewardConfig
+from sb3_crowdnav.sim.layout import HUMAN_DIM, ROBOT_DIM
+
+OBS_KEYS = ("robot", "humans", "humans_mask")
+
+
+def check_observation_space(observation_space: spaces.Space) -> tuple[int, int]:
+    """Validate a CrowdNav observation space; return ``(history_length, max_humans)``."""
+    if not isinstance(observation_space, spaces.Dict) or set(OBS_KEYS) - set(observation_space.spaces):
+        raise ValueError(
+            f"ValueLookaheadPolicy needs the Dict observation of CrowdNav-v0 with keys {OBS_KEYS}, got {observation_space}; "
+            "do not flatten, normalise or frame-stack the observation"
+        )
+    robot, humans, mask = (observation_space[k] for k in OBS_KEYS)
+    m = int(np.prod(mask.shape))
+    if robot.shape != (ROBOT_DIM,) or len(humans.shape) != 1 or humans.shape[0] % (m * HUMAN_DIM):
+        raise ValueError(
+            f"observation shapes robot {robot.shape}, humans {humans.shape}, humans_mask {mask.shape} do not match "
+            f"CrowdNav-v0's layout (robot ({ROBOT_DIM},), humans (T*max_humans*{HUMAN_DIM},), humans_mask (max_humans,))"
+        )
+    return humans.shape[0] // (m * HUMAN_DIM), m
+
+
+class ValueNetwork(nn.Module):
+    """V(s) = ψ_M([features]) with ψ_M = MLP ``net_arch`` then a linear output (paper Table 2: [150, 100, 100, 1])."""
+
+    def __init__(self, features_extractor: BaseFeaturesExtractor, net_arch: list[int], activation_fn: type[nn.Module]):
+        super().__init__()
+        self.features_extractor = features_extractor
+        self.head = nn.Sequential(*create_mlp(features_extractor.features_dim, 1, net_arch, activation_fn))
+
+    def forward(self, obs: dict[str, th.Tensor]) -> th.Tensor:
+        """:return: values (batch,)"""
+        return self.head(self.features_extractor(obs)).squeeze(-1)
+
+
+class ValueLookaheadPolicy(BasePolicy):
+    """State-value policy acting by one-step lookahead (paper Eq. 1).
+
+    For every observation in the batch and every one of the 80 actions the
+    :class:`PropagationModel` gives the next observation and R(s, a); V is evaluated on all
+    B x 80 propagated states in **one** forward pass, and the action maximising
+    ``R + γ^(Δt·v_pref) · V(s')`` (zero future value for terminal successors) is taken.
+
+    :param observation_space: the env's Dict observation space
+    :param action_space: ``Discrete(80)``
+    :param lr_schedule: learning-rate schedule (RL phase)
+    :param time_step: Δt of the env [s]
+    :param gamma: discount per second at v_pref = 1
+    :param kinematics: ``"unicycle"`` or ``"holonomic"`` (must match the env)
+    :param rotation_range: direction fan of the action table [rad] (must match the env)
+    :param reward: the env's reward setting as a dict of :class:`RewardConfig` fields (``name`` = reward name)
+    :param net_arch: hidden sizes of the value head ψ_M
+    :param activation_fn: activation of the value head
+    :param features_extractor_class: encoder of the joint state (default: APG + temporal attention + LSTM)
+    :param features_extractor_kwargs: its keyword arguments
+    :param optimizer_class: optimiser (default SGD with momentum 0.9, as the field's reference code)
+    :param optimizer_kwargs: its keyword arguments
+    """
+
+    def __init__(
+        self,
+        observation_space: spaces.Dict,
+        action_space: spaces.Discrete,
+        lr_schedule: Schedule,
+        time_step: float = 0.25,
+        gamma: float = 0.9,
+        kinematics: str = "unicycle",
+        rotation_range: float = 2 * math.pi,
+        reward: dict[str, Any] | None = None,
+        net_arch: list[int] | None = None,
+        activation_fn: type[nn.Module] = nn.ReLU,
+        features_extractor_class: type[BaseFeaturesExtractor] = ApgExtractor,
+        features_extractor_kwargs: dict[str, Any] | None = None,
+        normalize_images: bool = False,
+        optimizer_class: type[th.optim.Optimizer] = th.optim.SGD,
+        optimizer_kwargs: dict[str, Any] | None = None,
+    ) -> None:
+        self.history_length, self.max_humans = check_observation_space(observation_space)
+        if not isinstance(action_space, spaces.Discrete) or action_space.n != N_ACTIONS:
+            raise ValueError(f"ValueLookaheadPolicy needs Discrete({N_ACTIONS}) actions, got {action_space}")
+        if kinematics not in KINEMATICS:
+            raise ValueError(f"kinematics must be one of {KINEMATICS}, got {kinematics!r}")
+        if not time_step > 0:
+            raise ValueError(f"time_step must be > 0, got {time_step!r}")
+        if not 0 < gamma <= 1:
+            raise ValueError(f"gamma must be in (0, 1], got {gamma!r}")
+        if optimizer_kwargs is None:
+            optimizer_kwargs = {"momentum": 0.9} if optimizer_class is th.optim.SGD else {}
+        super().__init__(
+            observation_space,
+            action_space,
+            features_extractor_class,
+            features_extractor_kwargs or {},
+            optimizer_class=optimizer_class,
+            optimizer_kwargs=optimizer_kwargs,
+            normalize_images=normalize_images,
+        )
+        self.time_step = float(time_step)
+        self.gamma = float(gamma)
+        self.kinematics = kinematics
+        self.rotation_range = float(rotation_range)
+        reward = dict(reward or {"name": "crowdnav"})
+        self.reward = reward
+        self.reward_config = RewardConfig(**reward)
+        self.net_arch = list(net_arch) if net_arch is not None else [150, 100, 100]
+        self.activation_fn = activation_fn
+        self.propagation = PropagationModel(self.time_step, kinematics, self.rotation_range, self.reward_config,
+                                            self.history_length, self.gamma)
+        self._build(lr_schedule)
+
+    def _build(self, lr_schedule: Schedule) -> None:
+        self.value_net = ValueNetwork(self.make_features_extractor(), self.net_arch, self.activation_fn)
+        self.value_net_target = ValueNetwork(self.make_features_extractor(), self.net_arch, self.activation_fn)
+        self.value_net_target.load_state_dict(self.value_net.state_dict())
+        self.value_net_target.train(False)
+        self.optimizer = self.optimizer_class(self.value_net.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs)
+
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        data = super()._get_constructor_parameters()
+        data.update(
+            time_step=self.time_step,
+            gamma=self.gamma,
+            kinematics=self.kinematics,
+            rotation_range=self.rotation_range,
+            reward=self.reward,
+            net_arch=self.net_arch,
+            activation_fn=self.activation_fn,
+            features_extractor_class=self.features_extractor_class,
+            features_extractor_kwargs=self.features_extractor_kwargs,
+        )
+        return data
+
+    # ------------------------------------------------------------------ values
+    def _as_tensors(self, robot: np.ndarray, humans: np.ndarray, mask: np.ndarray) -> dict[str, th.Tensor]:
+        return {
+            "robot": th.as_tensor(robot, dtype=th.float32, device=self.device),
+            "humans": th.as_tensor(humans, dtype=th.float32, device=self.device),
+            "humans_mask": th.as_tensor(mask, dtype=th.float32, device=self.device),
+        }
+
+    def values(self, observation: dict[str, th.Tensor], target: bool = False) -> th.Tensor:
+        """V(s) of a batch of observations (tensors) with the online or the target network; (batch,)."""
+        net = self.value_net_target if target else self.value_net
+        return net(observation)
+
+    def lookahead(self, observation: dict[str, np.ndarray]) -> tuple[np.ndarray, Propagated]:
+        """R + γ^(Δt·v_pref)·V(s') for every action of a batch of numpy observations: (B, 80)."""
+        prop = self.propagation(observation["robot"], observation["humans"], observation["humans_mask"])
+        b = prop.reward.shape[0]
+        robot = prop.robot.reshape(b * N_ACTIONS, -1)
+        humans = np.broadcast_to(prop.humans[:, None], (b, N_ACTIONS, prop.humans.shape[-1])).reshape(b * N_ACTIONS, -1)
+        mask = np.broadcast_to(prop.humans_mask[:, None], (b, N_ACTIONS, self.max_humans)).reshape(b * N_ACTIONS, -1)
+        with th.no_grad():
+            v = self.value_net(self._as_tensors(robot, humans, mask)).reshape(b, N_ACTIONS).cpu().numpy()
+        q = prop.reward + prop.discount[:, None] * np.where(prop.terminal, 0.0, v)
+        return q, prop
+
+    def action_values(self, observation: dict[str, np.ndarray]) -> np.ndarray:
+        """Lookahead value of each of the 80 actions, (B, 80) (Fig. 11's action-value map)."""
+        obs = {k: np.asarray(observation[k]) for k in OBS_KEYS}
+        if obs["robot"].ndim == 1:
+            obs = {k: v[None] for k, v in obs.items()}
+        return self.lookahead(obs)[0]
+
+    # ------------------------------------------------------------------ acting
+    def forward(self, obs: PyTorchObs, deterministic: bool = True) -> th.Tensor:
+        return self._predict(obs, deterministic)
+
+    def _predict(self, observation: PyTorchObs, deterministic: bool = True) -> th.Tensor:
+        assert isinstance(observation, dict)
+        q = self.action_values({k: observation[k].cpu().numpy() for k in OBS_KEYS})
+        return th.as_tensor(q.argmax(axis=1), device=self.device)
+
+    def predict(self, observation, state=None, episode_start=None, deterministic: bool = False):
+        """Greedy lookahead action(s); same contract as SB3's ``BasePolicy.predict`` (numpy in, numpy out)."""
+        self.set_training_mode(False)
+        if isinstance(observation, tuple) and len(observation) == 2 and isinstance(observation[1], dict):
+            raise ValueError("predict() got a (obs, info) tuple: pass the observation only (Gym API vs VecEnv API)")
+        if not isinstance(observation, dict) or set(OBS_KEYS) - set(observation):
+            raise ValueError(f"observation must be a dict with keys {OBS_KEYS}")
+        vectorized = np.asarray(observation["robot"]).ndim == 2
+        actions = self.action_values(observation).argmax(axis=1)
+        return (actions if vectorized else actions[0]), state
+
+    def set_training_mode(self, mode: bool) -> None:
+        self.value_net.train(mode)
+        self.training = mode
+
+
+def _alias(name: str, extractor: type[BaseFeaturesExtractor], doc: str) -> type[ValueLookaheadPolicy]:
+    def __init__(self, *args, features_extractor_class=extractor, **kwargs):  # noqa: N807
+        ValueLookaheadPolicy.__init__(self, *args, features_extractor_class=features_extractor_class, **kwargs)
+
+    return type(name, (ValueLookaheadPolicy,), {"__init__": __init__, "__doc__": doc, "__module__": __name__})
+
+
+ApgPolicy = ValueLookaheadPolicy
+CadrlPolicy = _alias("CadrlPolicy", EXTRACTORS["cadrl"], "ValueLookaheadPolicy with the CADRL encoder.")
+SfPolicy = _alias("SfPolicy", EXTRACTORS["sf"], "ValueLookaheadPolicy with the social-force (SF_RL) encoder.")
+LmPolicy = _alias("LmPolicy", EXTRACTORS["lm"], "ValueLookaheadPolicy with the local-map (LM_RL) encoder.")
+LstmRlPolicy = _alias("LstmRlPolicy", EXTRACTORS["lstm_rl"], "ValueLookaheadPolicy with the LSTM-RL encoder.")
+SarlPolicy = _alias("SarlPolicy", EXTRACTORS["sarl"], "ValueLookaheadPolicy with the SARL encoder.")

@@ -1,0 +1,108 @@
+"""The state-propagation model of the one-step lookahead (paper Eq. 1-2).
+
+From a batch of observations and all 80 actions: the observations one Δt ahead (robot by
+the env's own kinematics and action table, pedestrians at constant velocity, history window
+shifted) and the reward R(s, a) with its terminal flags.
+
+Decision: the propagation runs in numpy and calls the *same* functions as the env
+(:func:`~sb3_crowdnav.sim.actions.apply_action`, :func:`~sb3_crowdnav.sim.rewards.compute_reward`,
+:func:`~sb3_crowdnav.sim.rewards.walking_direction`), so the robot part and the reward equal the
+env's by construction rather than by a second implementation kept in sync. Only the value
+network runs in torch, on the (B x 80) propagated states in one forward pass.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from sb3_crowdnav.sim.actions import N_ACTIONS, action_table, apply_action
+from sb3_crowdnav.sim.config import RewardConfig
+from sb3_crowdnav.sim.layout import HUMAN_DIM, Human, Robot
+from sb3_crowdnav.sim.rewards import compute_reward, walking_direction
+
+
+@dataclass(frozen=True)
+class Propagated:
+    """Result for B observations x 80 actions."""
+
+    robot: np.ndarray  # (B, 80, 9)
+    humans: np.ndarray  # (B, T*M*5) -- the same for every action (constant-velocity pedestrians)
+    humans_mask: np.ndarray  # (B, M)
+    reward: np.ndarray  # (B, 80)
+    terminal: np.ndarray  # (B, 80) collision or success
+    discount: np.ndarray  # (B,) γ^(Δt·v_pref)
+
+
+class PropagationModel:
+    """Propagates observations of ``CrowdNav-v0`` under every action.
+
+    :param time_step: Δt [s]
+    :param kinematics: ``"unicycle"`` or ``"holonomic"``
+    :param rotation_range: width of the direction fan [rad]
+    :param reward: the env's :class:`RewardConfig`
+    :param history_length: T
+    :param gamma: discount per second at v_pref = 1 (the lookahead discount is γ^(Δt·v_pref))
+    """
+
+    def __init__(self, time_step: float, kinematics: str, rotation_range: float, reward: RewardConfig,
+                 history_length: int, gamma: float) -> None:
+        self.time_step = time_step
+        self.kinematics = kinematics
+        self.reward = reward
+        self.history_length = history_length
+        self.gamma = gamma
+        speeds, self.directions = action_table(1.0, rotation_range)
+        self.speed_fractions = speeds  # speeds at v_pref = 1, scaled per state
+
+    def __call__(self, robot: np.ndarray, humans: np.ndarray, mask: np.ndarray) -> Propagated:
+        """:param robot: (B, 9); :param humans: (B, T*M*5); :param mask: (B, M)."""
+        robot = np.asarray(robot, dtype=np.float64)
+        humans = np.asarray(humans, dtype=np.float64)
+        mask = np.asarray(mask) > 0.5
+        b, m = mask.shape
+        if robot.ndim != 2 or robot.shape[0] != b or humans.shape != (b, self.history_length * m * HUMAN_DIM):
+            raise ValueError(
+                f"expected robot (B, 9), humans (B, {self.history_length}*M*{HUMAN_DIM}), mask (B, M); got "
+                f"{robot.shape}, {humans.shape}, {mask.shape}"
+            )
+        hist = humans.reshape(b, self.history_length, m, HUMAN_DIM)
+        pos0, goal = robot[:, Robot.POS], robot[:, Robot.GOAL]
+        heading0, v_pref, radius = robot[:, Robot.HEADING], robot[:, Robot.V_PREF], robot[:, Robot.RADIUS]
+
+        speeds = v_pref[:, None] * self.speed_fractions[None, :]  # (B, 80)
+        new_pos, new_heading, vel = apply_action(
+            pos0[:, None, :], heading0[:, None], goal[:, None, :], speeds, self.directions[None, :],
+            self.kinematics, self.time_step,
+        )  # (B, 80, 2), (B, 80), (B, 80, 2)
+
+        latest = hist[:, -1].copy()  # (B, M, 5)
+        hpos0 = hist[:, -1, :, Human.POS]
+        latest[:, :, Human.POS] = hpos0 + hist[:, -1, :, Human.VEL] * self.time_step
+        latest[:, :, Human.POS] = np.where(mask[..., None], latest[:, :, Human.POS], 0.0)
+        new_hist = np.concatenate([hist[:, 1:], latest[:, None]], axis=1)  # (B, T, M, 5)
+
+        hpos1 = latest[:, :, Human.POS]
+        dirs = walking_direction(new_hist[:, None, :, :, Human.VEL], hpos1[:, None], new_pos)  # (B, 80, M, 2)
+        full = (b, N_ACTIONS)
+        terms = compute_reward(
+            self.reward, self.time_step,
+            np.broadcast_to(pos0[:, None, :], (*full, 2)), new_pos,
+            np.broadcast_to(heading0[:, None], full), new_heading,
+            np.broadcast_to(goal[:, None, :], (*full, 2)), np.broadcast_to(radius[:, None], full),
+            np.broadcast_to(hpos0[:, None], (*full, m, 2)), np.broadcast_to(hpos1[:, None], (*full, m, 2)), dirs,
+            np.broadcast_to(latest[:, None, :, Human.RADIUS], (*full, m)), np.broadcast_to(mask[:, None], (*full, m)),
+        )
+        new_robot = np.repeat(robot[:, None, :], N_ACTIONS, axis=1)
+        new_robot[:, :, Robot.POS] = new_pos
+        new_robot[:, :, Robot.VEL] = vel
+        new_robot[:, :, Robot.HEADING] = new_heading
+        return Propagated(
+            robot=new_robot,
+            humans=new_hist.reshape(b, -1),
+            humans_mask=mask.astype(np.float32),
+            reward=terms.reward,
+            terminal=terms.success | terms.collision,
+            discount=self.gamma ** (self.time_step * v_pref),
+        )
