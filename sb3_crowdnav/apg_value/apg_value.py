@@ -170,8 +170,8 @@ class APGValue(OffPolicyAlgorithm):
             supported_action_spaces=(spaces.Discrete,),
             support_multi_env=True,
         )
-        check_observation_space(self.observation_space)
         check_env_compatible(self.env)
+        check_observation_space(self.observation_space)
         self.exploration_initial_eps = exploration_initial_eps
         self.exploration_final_eps = exploration_final_eps
         self.exploration_episodes = exploration_episodes
@@ -231,7 +231,10 @@ class APGValue(OffPolicyAlgorithm):
 
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = False):
         """Greedy lookahead; with ``deterministic=False`` each env explores with probability ε (its own draw)."""
-        if deterministic or self.exploration_rate <= 0:
+        if deterministic:
+            return self.policy.predict(observation, state, episode_start, deterministic=True)
+        self._update_exploration()  # ε of the episodes finished so far, whatever the env count
+        if self.exploration_rate <= 0:
             return self.policy.predict(observation, state, episode_start, deterministic=True)
         robot = np.asarray(observation["robot"])
         n = robot.shape[0] if robot.ndim == 2 else 1
@@ -313,10 +316,8 @@ class APGValue(OffPolicyAlgorithm):
             self.logger.record(f"imitation/{key}_rate", count / total)
         return {k: np.stack(v) for k, v in data.items()}, np.asarray(returns, dtype=np.float32)
 
-    def _run_imitation(self) -> None:
-        start = time.time()
-        obs, returns = self._collect_imitation()
-        collect_time = time.time() - start
+    def _fit_imitation(self, obs: dict[str, np.ndarray], returns: np.ndarray, epochs: int) -> list[float]:
+        """Regress V on the demonstrations' discounted returns; return the loss of each epoch."""
         net = self.policy.value_net
         optimizer = self.policy.optimizer_class(net.parameters(), lr=self.imitation_learning_rate,
                                                 **self.policy.optimizer_kwargs)
@@ -325,7 +326,8 @@ class APGValue(OffPolicyAlgorithm):
         size = len(returns)
         gen = th.Generator().manual_seed(int(self._explore_rng.integers(2**31)))
         self.policy.set_training_mode(True)
-        for epoch in range(self.imitation_epochs):
+        epoch_losses = []
+        for epoch in range(epochs):
             perm = th.randperm(size, generator=gen)
             losses = []
             for begin in range(0, size, self.batch_size):
@@ -336,11 +338,19 @@ class APGValue(OffPolicyAlgorithm):
                 th.nn.utils.clip_grad_norm_(net.parameters(), self.max_grad_norm)
                 optimizer.step()
                 losses.append(loss.item())
-            self.logger.record("train/imitation_loss", float(np.mean(losses)))
+            epoch_losses.append(float(np.mean(losses)))
+            self.logger.record("train/imitation_loss", epoch_losses[-1])
             self.logger.record("train/imitation_epoch", epoch + 1)
-            self.logger.dump(step=epoch + 1 - self.imitation_epochs)
+            self.logger.dump(step=epoch + 1 - epochs)
         self.policy.set_training_mode(False)
         self.policy.value_net_target.load_state_dict(net.state_dict())
+        return epoch_losses
+
+    def _run_imitation(self) -> None:
+        start = time.time()
+        obs, returns = self._collect_imitation()
+        collect_time = time.time() - start
+        self._fit_imitation(obs, returns, self.imitation_epochs)
         self.imitation_done = True
         if self.verbose >= 1:
             print(f"imitation: {len(returns)} states from {self.imitation_episodes} ORCA episodes in {collect_time:.0f} s, "

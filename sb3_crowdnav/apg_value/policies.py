@@ -167,8 +167,8 @@ class ValueLookaheadPolicy(BasePolicy):
         prop = self.propagation(observation["robot"], observation["humans"], observation["humans_mask"])
         b = prop.reward.shape[0]
         robot = prop.robot.reshape(b * N_ACTIONS, -1)
-        humans = np.broadcast_to(prop.humans[:, None], (b, N_ACTIONS, prop.humans.shape[-1])).reshape(b * N_ACTIONS, -1)
-        mask = np.broadcast_to(prop.humans_mask[:, None], (b, N_ACTIONS, self.max_humans)).reshape(b * N_ACTIONS, -1)
+        humans = np.repeat(prop.humans, N_ACTIONS, axis=0)  # pedestrians are the same under every action
+        mask = np.repeat(prop.humans_mask, N_ACTIONS, axis=0)
         with th.no_grad():
             v = self.value_net(self._as_tensors(robot, humans, mask)).reshape(b, N_ACTIONS).cpu().numpy()
         q = prop.reward + prop.discount[:, None] * np.where(prop.terminal, 0.0, v)

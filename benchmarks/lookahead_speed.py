@@ -1,0 +1,68 @@
+"""Lookahead decision time of APGValue (SPEC §7): one env, and per env with 16 envs batched.
+
+Usage: python benchmarks/lookahead_speed.py [--extractor apg] [--decisions 300]
+Prints median milliseconds; one torch thread.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+
+import numpy as np
+import torch as th
+from stable_baselines3.common.env_util import make_vec_env
+
+import sb3_crowdnav  # noqa: F401
+from sb3_crowdnav.apg_value import APGValue
+from sb3_crowdnav.nn import EXTRACTORS
+
+
+def observations(n_envs: int, count: int) -> list[dict[str, np.ndarray]]:
+    """Real mid-episode observations (ORCA robot driving), batched over n_envs."""
+    from sb3_crowdnav import OrcaPolicy
+
+    vec = make_vec_env("CrowdNav-v0", n_envs=n_envs, seed=0)
+    orca = OrcaPolicy.from_env(vec)
+    obs = vec.reset()
+    out = []
+    for _ in range(count):
+        out.append({k: v.copy() for k, v in obs.items()})
+        obs, *_ = vec.step(orca.predict(obs)[0])
+    return out
+
+
+def time_decisions(model: APGValue, batch: list[dict[str, np.ndarray]], single: bool) -> float:
+    times = []
+    for obs in batch:
+        o = {k: v[0] for k, v in obs.items()} if single else obs
+        t = time.perf_counter()
+        model.predict(o, deterministic=True)
+        times.append(time.perf_counter() - t)
+    return statistics.median(times) * 1e3
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--extractor", default="apg", choices=sorted(EXTRACTORS))
+    parser.add_argument("--decisions", type=int, default=300)
+    args = parser.parse_args()
+    th.set_num_threads(1)
+    model = APGValue("ApgPolicy", "CrowdNav-v0", imitation_episodes=0, seed=0,
+                     policy_kwargs=dict(features_extractor_class=EXTRACTORS[args.extractor]))
+    one = time_decisions(model, observations(1, args.decisions), single=True)
+    sixteen = time_decisions(model, observations(16, max(args.decisions // 4, 20)), single=False)
+    prop = model.policy.propagation
+    obs16 = observations(16, 20)
+    t_prop = statistics.median(
+        [(lambda o: (time.perf_counter(), prop(o["robot"], o["humans"], o["humans_mask"]), time.perf_counter()))(o)
+         for o in obs16], key=lambda x: x[2] - x[0])
+    print(f"extractor={args.extractor} torch_threads={th.get_num_threads()} humans=6 T=5")
+    print(f"single env decision: {one:.2f} ms (target < 3 ms; reference code ~92 ms)")
+    print(f"16 envs batched: {sixteen:.2f} ms per call = {sixteen / 16:.3f} ms per env (target < 0.5 ms)")
+    print(f"  of which propagation + reward model for 16 x 80 states: {(t_prop[2] - t_prop[0]) * 1e3:.2f} ms")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,70 @@
+"""Training throughput of APGValue with the paper's settings, and the projected full schedule.
+
+Measures (one torch thread, 6 pedestrians):
+  (1) ORCA imitation collection [episodes/s] and the imitation regression [s per epoch per 1,000 states];
+  (2) RL training [env steps/s and episodes/h] (ε-greedy lookahead + one gradient step of batch 100 per env step);
+  (3) the projected wall time of 3,000 IL + 10,000 RL episodes, for the measured RL episode length and for
+      45-step episodes (a trained policy reaches the goal in ~11 s = 44 steps).
+
+Usage: python benchmarks/training_speed.py [--n-envs 1] [--rl-steps 3000] [--il-episodes 200]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import torch as th
+from stable_baselines3.common.env_util import make_vec_env
+from stable_baselines3.common.logger import configure
+
+import sb3_crowdnav  # noqa: F401
+from sb3_crowdnav.apg_value import APGValue
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__)
+    p.add_argument("--n-envs", type=int, default=1)
+    p.add_argument("--rl-steps", type=int, default=3000)
+    p.add_argument("--il-episodes", type=int, default=200)
+    p.add_argument("--imitation-epochs", type=int, default=50)
+    p.add_argument("--il-schedule", type=int, default=3000)
+    p.add_argument("--rl-schedule", type=int, default=10000)
+    args = p.parse_args()
+    th.set_num_threads(1)
+    env = make_vec_env("CrowdNav-v0", n_envs=args.n_envs, seed=0)
+    model = APGValue("ApgPolicy", env, seed=0, imitation_episodes=args.il_episodes, imitation_epochs=2)
+
+    model.set_logger(configure(None, [""]))
+    t0 = time.perf_counter()
+    obs, returns = model._collect_imitation()
+    collect = time.perf_counter() - t0
+    states_per_episode = len(returns) / args.il_episodes
+    t1 = time.perf_counter()
+    model._fit_imitation(obs, returns, epochs=2)
+    per_epoch_per_k = (time.perf_counter() - t1) / 2 / (len(returns) / 1000)
+    model.imitation_done = True
+
+    t2 = time.perf_counter()
+    model.learn(args.rl_steps, reset_num_timesteps=False)
+    rl = time.perf_counter() - t2
+    episodes = max(model._episode_num, 1)
+    steps_per_s = args.rl_steps / rl
+    ep_len = args.rl_steps / episodes
+
+    il_collect_s = args.il_schedule / (args.il_episodes / collect)
+    il_regress_s = per_epoch_per_k * args.imitation_epochs * args.il_schedule * states_per_episode / 1000
+    print(f"n_envs={args.n_envs} torch_threads={th.get_num_threads()}")
+    print(f"imitation collection: {args.il_episodes / collect:.1f} episodes/s ({states_per_episode:.1f} states/episode)")
+    print(f"imitation regression: {per_epoch_per_k:.3f} s per epoch per 1,000 states")
+    print(f"RL: {steps_per_s:.0f} env steps/s, mean episode length {ep_len:.1f} steps, "
+          f"{3600 * steps_per_s / ep_len:.0f} episodes/h")
+    for label, length in (("measured episode length", ep_len), ("45-step episodes", 45.0)):
+        total = il_collect_s + il_regress_s + args.rl_schedule * length / steps_per_s
+        print(f"projected {args.il_schedule} IL ({args.imitation_epochs} epochs) + {args.rl_schedule} RL episodes "
+              f"[{label}]: {total / 60:.1f} min (IL collect {il_collect_s / 60:.1f}, IL regress {il_regress_s / 60:.1f}, "
+              f"RL {args.rl_schedule * length / steps_per_s / 60:.1f})")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,9 @@
+"""Shared test set-up: one torch thread (two are many times slower on small shared CPUs), headless matplotlib."""
+
+import os
+
+os.environ.setdefault("MPLBACKEND", "Agg")
+
+import torch  # noqa: E402
+
+torch.set_num_threads(1)

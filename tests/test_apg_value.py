@@ -1,0 +1,180 @@
+"""APGValue: propagation model vs the env, lookahead, learning smoke tests, save/load, refusals."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch as th
+from gymnasium.wrappers import FlattenObservation
+from stable_baselines3.common.env_util import make_vec_env
+from stable_baselines3.common.vec_env import DummyVecEnv, VecFrameStack, VecNormalize
+from stable_baselines3.her.her_replay_buffer import HerReplayBuffer
+
+import sb3_crowdnav  # noqa: F401  (registers the envs)
+from sb3_crowdnav.apg_value import APGValue, ValueLookaheadPolicy
+from sb3_crowdnav.sim.actions import N_ACTIONS, wrap_angle
+from sb3_crowdnav.sim.layout import Robot
+
+TINY = dict(imitation_episodes=2, imitation_epochs=1, batch_size=16, buffer_size=2_000)
+
+
+def _replay(env, seed, actions):
+    obs, _ = env.reset(seed=seed)
+    for a in actions:
+        obs, *_ = env.step(a)
+    return obs
+
+
+def _batched(obs):
+    return {k: v[None] for k, v in obs.items()}
+
+
+@pytest.mark.parametrize("kinematics", ["unicycle", "holonomic"])
+def test_propagated_robot_equals_env_for_every_action(kinematics):
+    env = gym.make("CrowdNav-v0", human_policy="linear", kinematics=kinematics, rotation_range=np.pi)
+    model = APGValue("ApgPolicy", env, imitation_episodes=0, seed=0)
+    prefix = [3, 17, 40]
+    obs = _replay(env, 7, prefix)
+    _, prop = model.policy.lookahead(_batched(obs))
+    for a in range(N_ACTIONS):
+        nxt = _replay(env, 7, [*prefix, a])
+        diff = prop.robot[0, a] - nxt["robot"]
+        diff[Robot.HEADING] = wrap_angle(diff[Robot.HEADING])
+        np.testing.assert_allclose(diff, 0.0, atol=2e-5, err_msg=f"action {a}")
+        # pedestrians move at constant velocity in the linear scene: the propagated history matches too
+        np.testing.assert_allclose(prop.humans[0], nxt["humans"], atol=2e-5)
+
+
+@pytest.mark.parametrize("reward", ["crowdnav", "comfort", "comfort_angular"])
+@pytest.mark.parametrize("kinematics", ["unicycle", "holonomic"])
+def test_reward_model_equals_env_reward(reward, kinematics):
+    # a small circle crowded with 10 pedestrians walking at constant velocity: the robot meets them at the centre
+    env = gym.make("CrowdNav-v0", human_policy="linear", reward=reward, kinematics=kinematics, num_humans=10,
+                   circle_radius=3.0)
+    model = APGValue("ApgPolicy", env, imitation_episodes=0, seed=0)
+    rng = np.random.default_rng(0)
+    checked = nonzero = terminal = 0
+    for seed in range(12):
+        obs, _ = env.reset(seed=seed)
+        for t in range(13):  # linear pedestrians keep a constant velocity until ~1 m from their goals (t >= 14)
+            q, prop = model.policy.lookahead(_batched(obs))
+            a = int(rng.integers(5)) * 16 + int(rng.choice([0, 0, 1, 15, 8]))  # mostly ahead, sometimes turning
+            obs2, r, terminated, truncated, info = env.step(a)
+            if t >= 1:  # at t = 0 the observed velocities are still zero while the pedestrians already walk
+                assert prop.reward[0, a] == pytest.approx(r, abs=1e-6)
+                assert bool(prop.terminal[0, a]) == terminated
+                checked += 1
+                nonzero += r != 0
+                terminal += terminated
+            if terminated or truncated:
+                break
+            obs = obs2
+    assert checked > 50 and nonzero > 0, "the scenes never exercised a non-zero reward"
+
+
+def test_lookahead_terminal_successor_has_no_future_value():
+    env = gym.make("CrowdNav-v0", num_humans=0)
+    model = APGValue("ApgPolicy", env, imitation_episodes=0, seed=0)
+    obs, _ = env.reset(seed=0)
+    obs["robot"][Robot.POS] = obs["robot"][Robot.GOAL] - np.array([0.0, 0.5], dtype=np.float32)  # 0.5 m below the goal
+    q, prop = model.policy.lookahead(_batched(obs))
+    straight_full_speed = 4 * 16  # speed index 4 (v_pref), direction index 0 (keep heading +y)
+    assert prop.terminal[0, straight_full_speed]
+    assert q[0, straight_full_speed] == pytest.approx(1.0)
+    # every successful action scores exactly the success reward; the others R + γ V, with V untrained
+    np.testing.assert_allclose(q[0, prop.terminal[0]], 1.0)
+    assert prop.terminal[0, 3 * 16] and not prop.terminal[0, 16]  # 0.2 m short of the goal is a success, 0.4 m not
+    assert prop.terminal[0, np.argmax(q[0])]
+    assert (~prop.terminal[0]).sum() > 0
+
+
+def test_action_values_shape_and_predict_batch():
+    vec = make_vec_env("CrowdNav-v0", n_envs=3, seed=1)
+    model = APGValue("ApgPolicy", vec, imitation_episodes=0, seed=0)
+    obs = vec.reset()
+    q = model.policy.action_values(obs)
+    assert q.shape == (3, N_ACTIONS) and np.isfinite(q).all()
+    actions, _ = model.predict(obs, deterministic=True)
+    assert actions.shape == (3,) and ((actions >= 0) & (actions < N_ACTIONS)).all()
+    np.testing.assert_array_equal(actions, q.argmax(axis=1))
+    single, _ = model.predict({k: v[0] for k, v in obs.items()}, deterministic=True)
+    assert np.ndim(single) == 0 and single == actions[0]
+
+
+@pytest.mark.parametrize("alias", ["ApgPolicy", "CadrlPolicy", "SfPolicy", "LmPolicy", "LstmRlPolicy", "SarlPolicy"])
+def test_learn_every_alias(alias):
+    model = APGValue(alias, "CrowdNav-v0", seed=0, **TINY)
+    model.learn(60)
+    assert model.imitation_done and model.num_timesteps == 60
+    assert isinstance(model.policy, ValueLookaheadPolicy)
+
+
+def test_learn_two_envs_and_save_load(tmp_path):
+    vec = make_vec_env("CrowdNav-v0", n_envs=2, seed=3)
+    model = APGValue("ApgPolicy", vec, seed=0, **TINY).learn(80)
+    assert model.num_timesteps == 80
+    obs = vec.reset()
+    before, _ = model.predict(obs, deterministic=True)
+    q_before = model.policy.action_values(obs)
+    model.save(tmp_path / "apg")
+    loaded = APGValue.load(tmp_path / "apg", env=vec)
+    after, _ = loaded.predict(obs, deterministic=True)
+    np.testing.assert_array_equal(before, after)
+    np.testing.assert_allclose(q_before, loaded.policy.action_values(obs), rtol=0, atol=1e-7)
+    assert loaded.imitation_done and loaded.policy.gamma == model.policy.gamma
+    assert loaded.policy.reward_config == model.policy.reward_config
+    # a loaded model keeps learning without repeating imitation
+    loaded.learn(20, reset_num_timesteps=False)
+    assert loaded.num_timesteps == 100
+
+
+def test_same_seed_same_training_run():
+    def run():
+        model = APGValue("ApgPolicy", "CrowdNav-v0", seed=11, **TINY).learn(120)
+        return th.cat([p.detach().flatten() for p in model.policy.value_net.parameters()])
+
+    a, b = run(), run()
+    assert th.equal(a, b)
+
+
+def test_epsilon_decays_by_episodes():
+    env = gym.make("CrowdNav-v0", time_limit=1.0)  # 4-step episodes
+    model = APGValue("ApgPolicy", env, seed=0, exploration_episodes=10, exploration_initial_eps=0.5,
+                     exploration_final_eps=0.1, **TINY)
+    model.learn(20)  # at most 20 RL steps = at least 5 episodes
+    episodes = model._episode_num
+    assert 5 <= episodes <= 20
+    model.predict({k: v[0] for k, v in model.env.reset().items()}, deterministic=False)
+    assert model.exploration_rate == pytest.approx(0.5 - 0.4 * min(1.0, episodes / 10))
+
+
+def test_td_target_zero_future_on_terminal():
+    model = APGValue("ApgPolicy", "CrowdNav-v0", imitation_episodes=0, seed=0)
+    obs = model.env.reset()
+    tens = {k: th.as_tensor(v) for k, v in obs.items()}
+    rewards = th.tensor([0.3])
+    with th.no_grad():
+        v_next = model.policy.values(tens, target=True)
+    np.testing.assert_allclose(model._td_target(rewards, tens, tens, th.tensor([1.0])).numpy(), [0.3])
+    expected = 0.3 + 0.9**0.25 * v_next
+    np.testing.assert_allclose(model._td_target(rewards, tens, tens, th.tensor([0.0])).numpy(), expected.numpy(),
+                               rtol=1e-6)
+
+
+def test_refusals():
+    with pytest.raises(ValueError, match="VecNormalize"):
+        APGValue("ApgPolicy", VecNormalize(make_vec_env("CrowdNav-v0", n_envs=1)), imitation_episodes=0)
+    with pytest.raises(ValueError, match="VecFrameStack"):
+        APGValue("ApgPolicy", VecFrameStack(make_vec_env("CrowdNav-v0", n_envs=1), 2), imitation_episodes=0)
+    with pytest.raises(ValueError, match="HerReplayBuffer"):
+        APGValue("ApgPolicy", "CrowdNav-v0", replay_buffer_class=HerReplayBuffer)
+    with pytest.raises(ValueError, match="Dict observation"):
+        APGValue("ApgPolicy", DummyVecEnv([lambda: FlattenObservation(gym.make("CrowdNav-v0"))]), imitation_episodes=0)
+    with pytest.raises(ValueError, match="does not match the env"):
+        APGValue("ApgPolicy", "CrowdNav-v0", imitation_episodes=0, policy_kwargs=dict(time_step=0.1))
+    for bad in (dict(exploration_initial_eps=1.5), dict(imitation_episodes=-1), dict(exploration_episodes=0),
+                dict(imitation_learning_rate=0.0), dict(gamma=0.0)):
+        name = next(iter(bad))
+        with pytest.raises(ValueError, match=name):
+            APGValue("ApgPolicy", "CrowdNav-v0", **{"imitation_episodes": 0, **bad})
