@@ -27,8 +27,39 @@ def _register() -> None:
             gym.register(id=env_id, entry_point="sb3_crowdnav.envs.crowd_nav:CrowdNavEnv", kwargs=kwargs)
 
 
+def _register_policy_aliases() -> None:
+    """Let SB3's PPO/A2C and DQN accept ``"ApgPolicy"`` (the APG extractor by default).
+
+    With the alias, an rl-zoo3 file can say ``policy: 'ApgPolicy'`` and tuning, which replaces
+    ``policy_kwargs`` wholesale, cannot silently drop the extractor.
+    """
+    from stable_baselines3 import A2C, DQN, PPO
+
+    from sb3_crowdnav.nn.policies import ApgActorCriticPolicy, ApgDQNPolicy
+
+    for algo, policy in ((PPO, ApgActorCriticPolicy), (A2C, ApgActorCriticPolicy), (DQN, ApgDQNPolicy)):
+        if "ApgPolicy" not in algo.policy_aliases:
+            algo.policy_aliases = {**algo.policy_aliases, "ApgPolicy": policy}
+
+
 _register()
+_register_policy_aliases()
 
+from sb3_crowdnav.apg_value import APGValue, ValueLookaheadPolicy  # noqa: E402
 from sb3_crowdnav.envs.crowd_nav import CrowdNavEnv  # noqa: E402
+from sb3_crowdnav.nn import EXTRACTORS, ApgActorCriticPolicy, ApgDQNPolicy, ApgExtractor  # noqa: E402
 
-__all__ = ["ENV_IDS", "CrowdNavEnv", "OrcaPolicy", "RewardConfig", "SceneConfig", "__version__"]
+__all__ = [
+    "ENV_IDS",
+    "EXTRACTORS",
+    "APGValue",
+    "ApgActorCriticPolicy",
+    "ApgDQNPolicy",
+    "ApgExtractor",
+    "CrowdNavEnv",
+    "OrcaPolicy",
+    "RewardConfig",
+    "SceneConfig",
+    "ValueLookaheadPolicy",
+    "__version__",
+]

@@ -3,19 +3,21 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from sb3_crowdnav.sim.actions import N_ACTIONS, wrap_angle
+from sb3_crowdnav.sim.actions import N_ACTIONS, _wrap_scalar
 from sb3_crowdnav.sim.config import REWARDS, RewardConfig, SceneConfig
 from sb3_crowdnav.sim.layout import HUMAN_DIM, Human, Robot
 from sb3_crowdnav.sim.simulator import CrowdSimulator
 
 SCENE_KEYS = {f.name for f in dataclasses.fields(SceneConfig)}
 REWARD_KEYS = {f.name for f in dataclasses.fields(RewardConfig)} - {"name"}
+_INT_TYPES = (int, np.int64, np.int32)  # checked without building a Discrete.contains() call on the hot path
 
 
 def split_env_kwargs(kwargs: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
@@ -52,8 +54,10 @@ class CrowdNavEnv(gym.Env):
     | key | shape | content |
     |-----|-------|---------|
     | ``robot`` | (9,) | px, py, vx, vy, radius, gx, gy, v_pref, heading |
-    | ``humans`` | (T * max_humans * 5,) | px, py, vx, vy, radius of every slot for the last T = 5 steps, oldest first, flat; view as (T, max_humans, 5). At reset the first state is repeated. |
+    | ``humans`` | (T * max_humans * 5,) | px, py, vx, vy, radius of every slot for the last T = 5 steps (1) |
     | ``humans_mask`` | (max_humans,) | 1 for a present pedestrian, 0 for a padded slot (whose values are 0) |
+
+    (1) oldest first, flat; view it as (T, max_humans, 5). At reset the first state is repeated.
 
     Positions are bounded by ``±(scene half-size + v_pref * time_limit + 1)`` m.
 
@@ -79,7 +83,7 @@ class CrowdNavEnv(gym.Env):
     ``gym.make("CrowdNav-v0", reward="comfort", num_humans=6, robot_visible=False, ...)``; every
     field of :class:`~sb3_crowdnav.sim.config.SceneConfig` and of
     :class:`~sb3_crowdnav.sim.config.RewardConfig` is a keyword argument. ``gamma`` (0.9) is the
-    discount of the ``discounted_return`` episode statistic, Σ γ^(t·Δt·v_pref) r_t.
+    discount of the ``discounted_return`` episode statistic, Σ gamma^(t·Δt·v_pref) r_t.
     ``render_mode`` is ``"rgb_array"`` or ``"human"``.
 
     ## Version History
@@ -144,10 +148,13 @@ class CrowdNavEnv(gym.Env):
         robot = sim.robot.astype(np.float32)
         humans = sim.history.astype(np.float32).ravel()
         b = np.float32(self._pos_bound)
-        # a robot wandering off past the bounds stays inside the Box (its episode ends by timeout anyway)
-        robot[Robot.POS] = np.clip(robot[Robot.POS], -b, b)
-        flat = humans.reshape(-1, HUMAN_DIM)
-        flat[:, Human.POS] = np.clip(flat[:, Human.POS], -b, b)
+        # Agents cannot leave the bounds within the time limit (|start| + v_pref * time_limit < bound), so
+        # the clips below are a guard that costs two reductions rather than two clips on every step.
+        if not (-b <= robot.min() and robot.max() <= b):
+            robot[Robot.POS] = np.clip(robot[Robot.POS], -b, b)
+        if not (-b <= humans.min() and humans.max() <= b):
+            flat = humans.reshape(-1, HUMAN_DIM)
+            flat[:, Human.POS] = np.clip(flat[:, Human.POS], -b, b)
         return {"robot": robot, "humans": humans, "humans_mask": sim.mask.astype(np.float32)}
 
     def _record(self) -> None:
@@ -165,12 +172,12 @@ class CrowdNavEnv(gym.Env):
         return self._get_obs(), {"num_humans": self.sim.num_humans}
 
     def step(self, action):
-        if not self.action_space.contains(action):
+        if not (type(action) in _INT_TYPES and 0 <= action < N_ACTIONS) and not self.action_space.contains(action):
             raise ValueError(f"action must be an int in [0, {N_ACTIONS}), got {action!r}")
         sim = self.sim
-        prev_pos = sim.robot[Robot.POS].copy()
-        prev_heading = float(sim.robot[Robot.HEADING])
+        prev = sim.robot.tolist()
         terms = sim.step(int(action))
+        robot = sim.robot.tolist()
         reward = float(terms.reward)
         success, collision = bool(terms.success), bool(terms.collision)
         terminated = success or collision
@@ -178,11 +185,12 @@ class CrowdNavEnv(gym.Env):
         outcome = "success" if success else "collision" if collision else "timeout" if truncated else "running"
 
         min_dist = float(terms.min_distance)
-        self._path_length += float(np.linalg.norm(sim.robot[Robot.POS] - prev_pos))
+        (x0, y0), (x1, y1) = prev[Robot.POS], robot[Robot.POS]
+        self._path_length += math.hypot(x1 - x0, y1 - y0)
         self._min_sep = min(self._min_sep, min_dist)
         self._discomfort_steps += int(min_dist < self.reward_config.discomfort_dist)
         self._comfort_steps += int(terms.in_comfort_zone)
-        self._heading_change += float(abs(wrap_angle(sim.robot[Robot.HEADING] - prev_heading)))
+        self._heading_change += abs(_wrap_scalar(robot[Robot.HEADING] - prev[Robot.HEADING]))
         self._discounted_return += self.gamma ** ((sim.steps - 1) * self.scene.time_step * self.scene.robot_v_pref) * reward
         self._record()
 
@@ -222,7 +230,8 @@ class CrowdNavEnv(gym.Env):
 
         if self._renderer is None:
             self._renderer = CrowdRenderer(self.scene, human=self.render_mode == "human")
-        return self._renderer.draw(self.trajectory, self.sim.human_goals, self.sim.robot[Robot.GOAL], self.sim.time)
+        frame = self._renderer.draw(self.trajectory, self.sim.human_goals, self.sim.robot[Robot.GOAL], self.sim.time)
+        return None if self.render_mode == "human" else frame  # Gymnasium: "human" draws on screen, returns None
 
     def close(self) -> None:
         if self._renderer is not None:

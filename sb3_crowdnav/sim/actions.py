@@ -23,12 +23,33 @@ import numpy as np
 N_SPEEDS = 5
 N_DIRECTIONS = 16
 N_ACTIONS = N_SPEEDS * N_DIRECTIONS
+_TWO_PI = 2 * math.pi
 
 
 def wrap_angle(angle: np.ndarray | float) -> np.ndarray:
     """Wrap angles to (-π, π]."""
     a = np.mod(np.asarray(angle, dtype=np.float64) + np.pi, 2 * np.pi) - np.pi
     return np.where(a <= -np.pi, a + 2 * np.pi, a)
+
+
+def _wrap_scalar(angle: float) -> float:
+    """:func:`wrap_angle` of one Python float (same arithmetic: Python's ``%`` is NumPy's floor ``mod``)."""
+    a = (angle + math.pi) % _TWO_PI - math.pi
+    return a + _TWO_PI if a <= -math.pi else a
+
+
+def _apply_action_scalar(px: float, py: float, heading: float, gx: float, gy: float, speed: float,
+                         direction: float, kinematics: str, time_step: float
+                         ) -> tuple[float, float, float, float, float]:
+    """:func:`apply_action` for one robot, in Python floats: ``(x, y, heading, vx, vy)`` (the env's hot path)."""
+    if kinematics == "unicycle":
+        new_heading = _wrap_scalar(heading + direction)
+    elif kinematics == "holonomic":
+        new_heading = _wrap_scalar(math.atan2(gy - py, gx - px) + direction)
+    else:
+        raise ValueError(f"kinematics must be 'unicycle' or 'holonomic', got {kinematics!r}")
+    vx, vy = speed * math.cos(new_heading), speed * math.sin(new_heading)
+    return px + vx * time_step, py + vy * time_step, new_heading, vx, vy
 
 
 def action_table(v_pref: float = 1.0, rotation_range: float = 2 * math.pi) -> tuple[np.ndarray, np.ndarray]:
@@ -63,6 +84,11 @@ def apply_action(
     :param direction: (...) [rad]
     :return: ``(new_position (..., 2), new_heading (...), velocity (..., 2))``
     """
+    if np.ndim(heading) == 0 and np.ndim(speed) == 0 and np.ndim(direction) == 0 and np.shape(position) == (2,) \
+            and np.shape(goal) == (2,):  # one robot: scalar math is ~10x faster than NumPy on 2-vectors
+        x, y, h, vx, vy = _apply_action_scalar(float(position[0]), float(position[1]), float(heading), float(goal[0]),
+                                               float(goal[1]), float(speed), float(direction), kinematics, time_step)
+        return np.array([x, y]), np.float64(h), np.array([vx, vy])
     if kinematics == "unicycle":
         new_heading = wrap_angle(heading + direction)
     elif kinematics == "holonomic":
@@ -89,8 +115,8 @@ def nearest_action(
     """
     base = heading if kinematics == "unicycle" else goal_direction
     angles = base + directions
-    cand = np.stack([speeds * np.cos(angles), speeds * np.sin(angles)], axis=-1)
-    dist = np.sum((cand - np.asarray(velocity)[None, :]) ** 2, axis=-1)
+    vx, vy = np.asarray(velocity, dtype=np.float64).tolist()
+    dist = (speeds * np.cos(angles) - vx) ** 2 + (speeds * np.sin(angles) - vy) ** 2  # (80,)
     if allowed is not None and allowed.any():
         dist = np.where(allowed, dist, np.inf)
     return int(np.argmin(dist))

@@ -136,7 +136,7 @@ class SceneConfig:
     @property
     def max_steps(self) -> int:
         """Number of steps before truncation (25 s / 0.25 s = 100)."""
-        return int(round(self.time_limit / self.time_step))
+        return round(self.time_limit / self.time_step)
 
 
 @dataclass(frozen=True)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pyrvo
 
@@ -37,7 +39,7 @@ class OrcaCrowd:
                  robot: tuple[np.ndarray, np.ndarray, float] | None) -> None:
         self.sim = make_simulator(cfg, float(np.max(v_prefs, initial=cfg.human_v_pref)))
         self.n = len(positions)
-        for p, r, v in zip(positions, radii, v_prefs):
+        for p, r, v in zip(positions, radii, v_prefs, strict=True):
             self.sim.add_agent(
                 (float(p[0]), float(p[1])), cfg.orca_neighbor_dist, cfg.orca_max_neighbors,
                 cfg.orca_time_horizon, cfg.orca_time_horizon_obst, float(r), float(v), (0.0, 0.0),
@@ -51,29 +53,27 @@ class OrcaCrowd:
                 (float(vel[0]), float(vel[1])),
             )
 
-    def step(self, pref_velocities: np.ndarray, robot_state: tuple[np.ndarray, np.ndarray] | None = None
-             ) -> tuple[np.ndarray, np.ndarray]:
+    def step(self, pref_velocities, robot_state=None) -> tuple[np.ndarray, np.ndarray]:
         """Advance one step; return the pedestrians' new positions and velocities, each (N, 2).
 
-        ``robot_state`` = (position, velocity) of the robot at the start of the step, when visible.
+        :param pref_velocities: (N, 2) array or sequence of (vx, vy) pairs
+        :param robot_state: ``(position, velocity)`` pairs of the robot at the start of the step, when visible
         """
         sim = self.sim
-        for i in range(self.n):
-            sim.set_agent_pref_velocity(i, (float(pref_velocities[i, 0]), float(pref_velocities[i, 1])))
+        if isinstance(pref_velocities, np.ndarray):
+            pref_velocities = pref_velocities.tolist()
+        for i, (vx, vy) in enumerate(pref_velocities):
+            sim.set_agent_pref_velocity(i, (vx, vy))
         if self.robot_id is not None and robot_state is not None:
-            pos, vel = robot_state
-            sim.set_agent_position(self.robot_id, (float(pos[0]), float(pos[1])))
-            sim.set_agent_velocity(self.robot_id, (float(vel[0]), float(vel[1])))
-            sim.set_agent_pref_velocity(self.robot_id, (float(vel[0]), float(vel[1])))
+            (px, py), (vx, vy) = robot_state
+            pos, vel = (float(px), float(py)), (float(vx), float(vy))
+            sim.set_agent_position(self.robot_id, pos)
+            sim.set_agent_velocity(self.robot_id, vel)
+            sim.set_agent_pref_velocity(self.robot_id, vel)
         sim.do_step()
-        pos = np.empty((self.n, 2))
-        vel = np.empty((self.n, 2))
-        for i in range(self.n):
-            p = sim.get_agent_position(i)
-            v = sim.get_agent_velocity(i)
-            pos[i] = p.x, p.y
-            vel[i] = v.x, v.y
-        return pos, vel
+        get_pos, get_vel = sim.get_agent_position, sim.get_agent_velocity
+        state = np.array([get_pos(i).to_tuple() + get_vel(i).to_tuple() for i in range(self.n)]).reshape(self.n, 4)
+        return state[:, :2], state[:, 2:]
 
 
 class OrcaPolicy:
@@ -109,31 +109,29 @@ class OrcaPolicy:
 
     def _act(self, robot: np.ndarray, humans: np.ndarray, mask: np.ndarray) -> int:
         cfg = self.scene
-        t_len = cfg.history_length
-        latest = humans.reshape(t_len, -1, HUMAN_DIM)[-1]
+        latest = humans.reshape(cfg.history_length, -1, HUMAN_DIM)[-1]
         present = latest[mask.astype(bool)]
-        pos, goal = robot[Robot.POS], robot[Robot.GOAL]
-        heading, v_pref, vel = float(robot[Robot.HEADING]), float(robot[Robot.V_PREF]), robot[Robot.VEL]
+        r = robot.tolist()
+        (px, py), (gx, gy), (vx, vy) = r[Robot.POS], r[Robot.GOAL], r[Robot.VEL]
+        heading, v_pref = r[Robot.HEADING], r[Robot.V_PREF]
         sim = make_simulator(cfg, v_pref)
-        for h in present:
-            hp, hv = h[Human.POS], h[Human.VEL]
-            sim.add_agent(
-                (float(hp[0]), float(hp[1])), cfg.orca_neighbor_dist, cfg.orca_max_neighbors, cfg.orca_time_horizon,
-                cfg.orca_time_horizon_obst, float(h[Human.RADIUS]) + 0.01, float(np.hypot(hv[0], hv[1])) + 1e-3,
-                (float(hv[0]), float(hv[1])),
-            )
-            sim.set_agent_pref_velocity(sim.get_num_agents() - 1, (float(hv[0]), float(hv[1])))
-        rid = sim.add_agent(
-            (float(pos[0]), float(pos[1])), cfg.orca_neighbor_dist, cfg.orca_max_neighbors, cfg.orca_time_horizon,
-            cfg.orca_time_horizon_obst, float(robot[Robot.RADIUS]) + 0.01 + self.safety_space, v_pref,
-            (float(vel[0]), float(vel[1])),
-        )
-        pv = preferred_velocity(pos, goal, v_pref)
-        sim.set_agent_pref_velocity(rid, (float(pv[0]), float(pv[1])))
+        args = (cfg.orca_neighbor_dist, cfg.orca_max_neighbors, cfg.orca_time_horizon, cfg.orca_time_horizon_obst)
+        for (hx, hy), (hvx, hvy), radius in zip(
+            present[:, Human.POS].tolist(), present[:, Human.VEL].tolist(), present[:, Human.RADIUS].tolist(),
+            strict=True,
+        ):
+            i = sim.add_agent((hx, hy), *args, radius + 0.01, math.hypot(hvx, hvy) + 1e-3, (hvx, hvy))
+            sim.set_agent_pref_velocity(i, (hvx, hvy))
+        rid = sim.add_agent((px, py), *args, r[Robot.RADIUS] + 0.01 + self.safety_space, v_pref, (vx, vy))
+        # preferred_velocity() of one agent, in floats
+        dx, dy = gx - px, gy - py
+        norm = math.sqrt(dx * dx + dy * dy)
+        if norm > v_pref:
+            dx, dy = dx / max(norm, 1e-12) * v_pref, dy / max(norm, 1e-12) * v_pref
+        sim.set_agent_pref_velocity(rid, (dx, dy))
         sim.do_step()
         v = sim.get_agent_velocity(rid)
-        to_goal = goal - pos
-        return nearest_action(np.array([v.x, v.y]), heading, float(np.arctan2(to_goal[1], to_goal[0])),
+        return nearest_action(np.array([v.x, v.y]), heading, math.atan2(gy - py, gx - px),
                               self.speeds, self.directions, cfg.kinematics)
 
     def predict(self, observation: dict[str, np.ndarray], state=None, episode_start=None, deterministic: bool = True):

@@ -23,11 +23,12 @@ Conventions (decisions on the paper's ambiguities, also in the README):
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numpy as np
 
-from sb3_crowdnav.sim.actions import wrap_angle
+from sb3_crowdnav.sim.actions import _wrap_scalar, wrap_angle
 from sb3_crowdnav.sim.config import RewardConfig
 
 STILL_SPEED = 1e-3  # [m/s] below this a pedestrian counts as standing still
@@ -133,8 +134,13 @@ def compute_reward(
     """Reward of the transitions robot_pos0 → robot_pos1 while pedestrians move human_pos0 → human_pos1.
 
     Shapes: robot positions and goal (..., 2); headings and robot radius (...);
-    pedestrian positions and walking directions (..., N, 2); radius and mask (..., N).
+    pedestrian positions and unit walking directions (..., N, 2); radius and mask (..., N).
+    A single transition (no leading dimensions, the env's case) takes a scalar fast path with
+    the same arithmetic; a test checks that both paths agree on random transitions.
     """
+    if np.ndim(robot_pos1) == 1 and np.ndim(human_pos1) == 2 and np.ndim(heading1) == 0:
+        return _compute_reward_single(cfg, time_step, robot_pos0, robot_pos1, heading0, heading1, goal, robot_radius,
+                                      human_pos0, human_pos1, human_dir, human_radius, mask)
     mask = mask.astype(bool)
     radius_sum = human_radius + robot_radius[..., None]
     centre = closest_approach(robot_pos0[..., None, :], robot_pos1[..., None, :], human_pos0, human_pos1)
@@ -172,4 +178,85 @@ def compute_reward(
         angular_term=angular_term,
         min_distance=min_distance,
         in_comfort_zone=inside,
+    )
+
+
+def _compute_reward_single(cfg, time_step, robot_pos0, robot_pos1, heading0, heading1, goal, robot_radius,
+                           human_pos0, human_pos1, human_dir, human_radius, mask) -> RewardTerms:
+    """:func:`compute_reward` of one transition in Python floats (NumPy's per-call overhead dominates at N <= 10).
+
+    Line by line the same formulas as :func:`closest_approach`, :func:`social_penalty` and the
+    batched body; results agree to rounding (NumPy sums 8+ terms pairwise).
+    """
+    ax0, ay0 = float(robot_pos0[0]), float(robot_pos0[1])
+    ax1, ay1 = float(robot_pos1[0]), float(robot_pos1[1])
+    rr = float(robot_radius)
+    k2 = (cfg.comfort_side / cfg.comfort_person) ** 2
+    side = cfg.comfort_side
+    # inside an ellipse needs w <= d_side, and w >= min(1, d_side/d_person) * |offset| for a unit direction
+    reach = max(cfg.comfort_person, cfg.comfort_side) * (1 + 1e-9)
+    min_distance = math.inf
+    social = 0.0
+    inside_any = False
+    for (bx0, by0), (bx1, by1), (dx, dy), hr, present in zip(
+        human_pos0.tolist(), human_pos1.tolist(), human_dir.tolist(), human_radius.tolist(), mask.tolist(),
+        strict=True,
+    ):
+        if not present:
+            continue
+        rs = hr + rr
+        # closest approach of the two straight-line motions (closest_approach)
+        d0x, d0y = ax0 - bx0, ay0 - by0
+        dvx, dvy = (ax1 - ax0) - (bx1 - bx0), (ay1 - ay0) - (by1 - by0)
+        dv2 = dvx * dvx + dvy * dvy
+        t = 0.0
+        if dv2 > 1e-12:
+            t = -(d0x * dvx + d0y * dvy) / dv2
+            t = 0.0 if t < 0.0 else 1.0 if t > 1.0 else t
+        cx, cy = d0x + t * dvx, d0y + t * dvy
+        surface = math.sqrt(cx * cx + cy * cy) - rs
+        if surface < min_distance:
+            min_distance = surface
+        # comfort ellipse at the end of the step (social_penalty)
+        rx, ry = ax1 - bx1, ay1 - by1
+        dist = math.sqrt(rx * rx + ry * ry)
+        gap = dist - rs
+        if gap > reach:
+            continue
+        scale = (gap if gap > 0.0 else 0.0) / (dist if dist > 1e-9 else 1e-9)
+        sx, sy = rx * scale, ry * scale
+        x0 = sx * dx + sy * dy
+        y0 = sy * dx - sx * dy
+        w = math.sqrt(x0**2 * k2 + y0**2)
+        if w <= side and x0 >= 0:
+            inside_any = True
+            social += -cfg.social_penalty * (math.exp(-(w - side)) - 1.0)
+    collision = min_distance < 0
+    gx, gy = ax1 - float(goal[0]), ay1 - float(goal[1])
+    success = not collision and math.sqrt(gx * gx + gy * gy) < rr
+    terminal = collision or success
+    success_term = cfg.success_reward if success else 0.0
+    collision_term = cfg.collision_penalty if collision else 0.0
+    discomfort = 0.0
+    if cfg.uses_discomfort and not terminal and min_distance < cfg.discomfort_dist:
+        discomfort = (min_distance - cfg.discomfort_dist) * cfg.discomfort_factor * time_step
+    social_term = social if cfg.uses_social and not terminal else 0.0
+    angular_term = 0.0
+    if cfg.uses_angular and not terminal:
+        turn = abs(_wrap_scalar(float(heading1) - float(heading0)))
+        if turn >= cfg.angular_penalty_threshold - 1e-9:
+            angular_term = -cfg.angular_penalty
+    reward = success_term + collision_term + discomfort + social_term + angular_term
+    f64, b_ = np.float64, np.bool_
+    return RewardTerms(
+        reward=f64(reward),
+        success=b_(success),
+        collision=b_(collision),
+        success_term=f64(success_term),
+        collision_term=f64(collision_term),
+        discomfort_term=f64(discomfort),
+        social_term=f64(social_term),
+        angular_term=f64(angular_term),
+        min_distance=f64(min_distance),
+        in_comfort_zone=b_(inside_any),
     )

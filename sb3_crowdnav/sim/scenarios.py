@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numpy as np
@@ -24,7 +25,9 @@ class Scenario(NamedTuple):
 
 def _draw_circle(cfg: SceneConfig, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     angle = rng.uniform(0.0, 2 * np.pi)
-    start = cfg.circle_radius * np.array([np.cos(angle), np.sin(angle)]) + rng.uniform(-1, 1, 2) * cfg.start_noise
+    (nx, ny) = rng.uniform(-1, 1, 2).tolist()
+    r, noise = cfg.circle_radius, cfg.start_noise
+    start = np.array([r * math.cos(angle) + nx * noise, r * math.sin(angle) + ny * noise])
     return start, -start
 
 
@@ -46,14 +49,14 @@ def generate_scenario(cfg: SceneConfig, num_humans: int, rng: np.random.Generato
     draw = _draw_circle if cfg.scenario == "circle_crossing" else _draw_square
     starts = [robot_start]
     goals = [robot_goal]
-    radii = [cfg.robot_radius]
+    placed = [(0.0, -r, 0.0, r, cfg.robot_radius + cfg.human_radius + MIN_GAP)]  # start, goal, clearance in floats
     for _ in range(num_humans):
         for _ in range(MAX_TRIES):
             start, goal = draw(cfg, rng)
+            (sx, sy), (gx, gy) = start.tolist(), goal.tolist()
             ok = all(
-                np.linalg.norm(start - s) >= cfg.human_radius + rad + MIN_GAP
-                and np.linalg.norm(goal - g) >= cfg.human_radius + rad + MIN_GAP
-                for s, g, rad in zip(starts, goals, radii)
+                math.sqrt((sx - px) ** 2 + (sy - py) ** 2) >= gap and math.sqrt((gx - qx) ** 2 + (gy - qy) ** 2) >= gap
+                for px, py, qx, qy, gap in placed
             )
             if ok:
                 break
@@ -64,7 +67,7 @@ def generate_scenario(cfg: SceneConfig, num_humans: int, rng: np.random.Generato
             )
         starts.append(start)
         goals.append(goal)
-        radii.append(cfg.human_radius)
+        placed.append((sx, sy, gx, gy, 2 * cfg.human_radius + MIN_GAP))
     human_starts = np.array(starts[1:]).reshape(num_humans, 2)
     human_goals = np.array(goals[1:]).reshape(num_humans, 2)
     return Scenario(robot_start, robot_goal, np.pi / 2, human_starts, human_goals)

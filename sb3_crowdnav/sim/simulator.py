@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-from sb3_crowdnav.sim.actions import N_ACTIONS, action_table, apply_action, wrap_angle
+from sb3_crowdnav.sim.actions import N_ACTIONS, _apply_action_scalar, action_table, wrap_angle
 from sb3_crowdnav.sim.config import RewardConfig, SceneConfig
 from sb3_crowdnav.sim.layout import HUMAN_DIM, ROBOT_DIM, Human, Robot
 from sb3_crowdnav.sim.orca import OrcaCrowd, preferred_velocity
-from sb3_crowdnav.sim.rewards import RewardTerms, compute_reward, walking_direction
+from sb3_crowdnav.sim.rewards import STILL_SPEED, RewardTerms, compute_reward
 from sb3_crowdnav.sim.scenarios import generate_scenario
 
 
@@ -17,16 +19,29 @@ class CrowdSimulator:
 
     The state is kept in observation form: ``robot`` (9,) and the pedestrian history
     ``history`` (T, max_humans, 5), oldest first, padded slots all zero with ``mask`` 0.
+    Both arrays are updated in place by :meth:`step` (copy them to keep a snapshot), and the
+    walking directions of the comfort reward are tracked incrementally from the steps, so the
+    state is meant to be changed through :meth:`reset` and :meth:`step` only.
+
+    A single transition runs in Python floats (kinematics, preferred velocities, walking
+    directions, and :func:`compute_reward`'s single-transition path): on 2-vectors and N <= 10
+    pedestrians NumPy's per-call overhead costs more than the arithmetic. Tests check each of
+    these against the NumPy functions the lookahead uses.
     """
 
     def __init__(self, scene: SceneConfig, reward: RewardConfig) -> None:
         self.scene = scene
         self.reward_cfg = reward
         self.speeds, self.directions = action_table(scene.robot_v_pref, scene.rotation_range)
+        self._speed_list, self._direction_list = self.speeds.tolist(), self.directions.tolist()
         self.robot = np.zeros(ROBOT_DIM)
         self.history = np.zeros((scene.history_length, scene.max_humans, HUMAN_DIM))
         self.mask = np.zeros(scene.max_humans, dtype=bool)
         self.human_goals = np.zeros((0, 2))
+        self._goals_list: list[list[float]] = []
+        # walking direction of each pedestrian and the steps since it last walked (see _walking_directions)
+        self._walk_dir: list[tuple[float, float]] = []
+        self._walk_age: list[int] = []
         self.num_humans = 0
         self.steps = 0
         self._crowd: OrcaCrowd | None = None
@@ -52,6 +67,9 @@ class CrowdSimulator:
         self.mask = np.zeros(cfg.max_humans, dtype=bool)
         self.mask[:n] = True
         self.human_goals = sc.human_goals
+        self._goals_list = sc.human_goals.tolist()
+        self._walk_dir = [(1.0, 0.0)] * n
+        self._walk_age = [cfg.history_length] * n  # everyone still over the whole initial window
         self.steps = 0
         self._crowd = None
         if cfg.human_policy == "orca" and n > 0:
@@ -63,42 +81,80 @@ class CrowdSimulator:
 
     # ------------------------------------------------------------------ step
     def _move_humans(self) -> tuple[np.ndarray, np.ndarray]:
+        """New positions and velocities (n, 2) of the present pedestrians."""
         cfg, n = self.scene, self.num_humans
         pos = self.history[-1, :n, Human.POS]
-        pref = preferred_velocity(pos, self.human_goals, cfg.human_v_pref)
         if self._crowd is None:  # "linear": constant preferred velocity, exact integration
+            pref = preferred_velocity(pos, self.human_goals, cfg.human_v_pref)
             return pos + pref * cfg.time_step, pref
-        robot_state = (self.robot[Robot.POS].copy(), self.robot[Robot.VEL].copy()) if cfg.robot_visible else None
-        return self._crowd.step(pref, robot_state)
+        v_pref = cfg.human_v_pref
+        pref_list = []
+        # preferred_velocity() in Python floats: a NumPy call per 6 x 2 array costs more than the arithmetic
+        for (x, y), (gx, gy) in zip(pos.tolist(), self._goals_list, strict=True):
+            dx, dy = gx - x, gy - y
+            norm = math.sqrt(dx * dx + dy * dy)
+            if norm > v_pref:
+                dx, dy = dx / max(norm, 1e-12) * v_pref, dy / max(norm, 1e-12) * v_pref
+            pref_list.append((dx, dy))
+        robot_state = None
+        if cfg.robot_visible:
+            r = self.robot.tolist()
+            robot_state = (r[Robot.POS], r[Robot.VEL])
+        return self._crowd.step(pref_list, robot_state)
+
+    def _walking_directions(self, robot_x: float, robot_y: float) -> np.ndarray:
+        """:func:`walking_direction` of the present pedestrians (n, 2) from the newest history row.
+
+        Incremental form of the same rule: the last velocity faster than ``STILL_SPEED`` within the
+        window of T steps (kept with its age), else the direction towards the robot.
+        """
+        n, t_len = self.num_humans, self.scene.history_length
+        walk, age = self._walk_dir, self._walk_age
+        out = []
+        newest = self.history[-1, :n]
+        for i, ((x, y), (vx, vy)) in enumerate(zip(newest[:, Human.POS].tolist(), newest[:, Human.VEL].tolist(), strict=True)):
+            speed = math.sqrt(vx * vx + vy * vy)
+            if speed > STILL_SPEED:
+                walk[i] = (vx / speed, vy / speed)
+                age[i] = 0
+            else:
+                age[i] += 1
+            if age[i] < t_len:
+                out.append(walk[i])
+            else:
+                fx, fy = robot_x - x, robot_y - y
+                norm = math.sqrt(fx * fx + fy * fy)
+                out.append((fx / norm, fy / norm) if norm > 1e-9 else (1.0, 0.0))
+        return np.array(out).reshape(n, 2)
 
     def step(self, action: int) -> RewardTerms:
         """Apply ``action`` (0..79) and advance the pedestrians; return the reward terms of the transition."""
         cfg, n = self.scene, self.num_humans
         if not (0 <= action < N_ACTIONS):
             raise ValueError(f"action must be in [0, {N_ACTIONS}), got {action!r}")
-        pos0 = self.robot[Robot.POS].copy()
-        heading0 = float(self.robot[Robot.HEADING])
-        new_pos, new_heading, velocity = apply_action(
-            pos0, np.float64(heading0), self.robot[Robot.GOAL], self.speeds[action], self.directions[action],
-            cfg.kinematics, cfg.time_step,
+        robot, hist = self.robot, self.history
+        r = robot.tolist()
+        (px, py), (gx, gy), heading0 = r[Robot.POS], r[Robot.GOAL], r[Robot.HEADING]
+        x, y, heading, vx, vy = _apply_action_scalar(
+            px, py, heading0, gx, gy, self._speed_list[action], self._direction_list[action], cfg.kinematics,
+            cfg.time_step,
         )
-        human_pos0 = self.history[-1, :, Human.POS].copy()
-        new_hpos, new_hvel = self._move_humans() if n else (np.zeros((0, 2)), np.zeros((0, 2)))
-
-        latest = self.history[-1].copy()
-        latest[:n, Human.POS] = new_hpos
-        latest[:n, Human.VEL] = new_hvel
-        self.history = np.concatenate([self.history[1:], latest[None]], axis=0)
-        self.robot[Robot.POS] = new_pos
-        self.robot[Robot.VEL] = velocity
-        self.robot[Robot.HEADING] = float(new_heading)
+        human_pos0 = hist[-1, :n, Human.POS].copy()
+        if n:
+            new_hpos, new_hvel = self._move_humans()  # reads the robot's state at the start of the step
+        hist[:-1] = hist[1:]  # shift the window in place; the newest row keeps radii and padding
+        if n:
+            hist[-1, :n, Human.POS] = new_hpos
+            hist[-1, :n, Human.VEL] = new_hvel
+        robot[Robot.POS] = x, y
+        robot[Robot.VEL] = vx, vy
+        robot[Robot.HEADING] = heading
         self.steps += 1
 
-        directions = walking_direction(self.history[:, :, Human.VEL], latest[:, Human.POS], new_pos)
         return compute_reward(
-            self.reward_cfg, cfg.time_step, pos0, new_pos, np.float64(heading0), np.float64(new_heading),
-            self.robot[Robot.GOAL], np.float64(cfg.robot_radius), human_pos0, latest[:, Human.POS], directions,
-            latest[:, Human.RADIUS], self.mask,
+            self.reward_cfg, cfg.time_step, np.array([px, py]), robot[Robot.POS], np.float64(heading0),
+            np.float64(heading), robot[Robot.GOAL], np.float64(cfg.robot_radius), human_pos0,
+            hist[-1, :n, Human.POS], self._walking_directions(x, y), hist[-1, :n, Human.RADIUS], self.mask[:n],
         )
 
     @property

@@ -1,0 +1,110 @@
+"""Train one of the paper's variants with its schedule, with checkpoints and resume.
+
+    python examples/train_paper.py --variant apg_rl --out runs/apg_rl            # 3,000 IL + 10,000 RL episodes
+    python examples/train_paper.py --variant apg_rl --out runs/apg_rl            # run again: resumes from the last checkpoint
+    nohup python examples/train_paper.py --variant apg_crl --out runs/apg_crl > runs/apg_crl.log 2>&1 &
+
+Every ``--checkpoint-episodes`` RL episodes the model (and its replay buffer) is written to
+``OUT/checkpoint.zip`` / ``OUT/replay_buffer.pkl`` (written to a temporary name first, so an
+interrupted save never destroys the previous checkpoint); TensorBoard logs go to ``OUT/tb``.
+At the end the final model is ``OUT/final.zip``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+from pathlib import Path
+
+import torch as th
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.env_util import make_vec_env
+
+import sb3_crowdnav  # noqa: F401
+from sb3_crowdnav.apg_value import APGValue
+
+VARIANTS = {
+    # name: (policy alias, reward)
+    "apg_rl": ("ApgPolicy", "crowdnav"),
+    "apg_crl": ("ApgPolicy", "comfort"),
+    "apg_carl": ("ApgPolicy", "comfort_angular"),
+    "cadrl": ("CadrlPolicy", "crowdnav"),
+    "sf_rl": ("SfPolicy", "crowdnav"),
+    "lm_rl": ("LmPolicy", "crowdnav"),
+    "lstm_rl": ("LstmRlPolicy", "crowdnav"),
+    "sarl": ("SarlPolicy", "crowdnav"),
+}
+
+
+class EpisodeCheckpoint(BaseCallback):
+    """Stop after ``max_episodes`` RL episodes in total; checkpoint every ``every`` episodes."""
+
+    def __init__(self, out: Path, max_episodes: int, every: int) -> None:
+        super().__init__()
+        self.out, self.max_episodes, self.every = out, max_episodes, every
+        self._last = -1
+
+    def save(self) -> None:
+        model = self.model
+        tmp = self.out / "checkpoint.tmp.zip"
+        model.save(tmp)
+        model.save_replay_buffer(self.out / "replay_buffer.tmp.pkl")
+        os.replace(tmp, self.out / "checkpoint.zip")
+        os.replace(self.out / "replay_buffer.tmp.pkl", self.out / "replay_buffer.pkl")
+        (self.out / "progress.json").write_text(json.dumps(
+            {"episodes": model._episode_num, "timesteps": model.num_timesteps, "time": time.time()}))
+
+    def _on_step(self) -> bool:
+        episodes = self.model._episode_num
+        if episodes != self._last and episodes > 0 and episodes % self.every == 0:
+            self._last = episodes
+            self.save()
+        return episodes < self.max_episodes
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--variant", choices=sorted(VARIANTS), default="apg_rl")
+    p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--rl-episodes", type=int, default=10_000)
+    p.add_argument("--il-episodes", type=int, default=3_000)
+    p.add_argument("--il-epochs", type=int, default=50)
+    p.add_argument("--n-envs", type=int, default=1)
+    p.add_argument("--num-humans", type=int, default=6)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--checkpoint-episodes", type=int, default=500)
+    args = p.parse_args()
+    th.set_num_threads(1)
+    policy, reward = VARIANTS[args.variant]
+    args.out.mkdir(parents=True, exist_ok=True)
+    ckpt = args.out / "checkpoint.zip"
+    progress = args.out / "progress.json"
+    done_episodes = json.loads(progress.read_text())["episodes"] if ckpt.exists() and progress.exists() else 0
+    # a resumed run draws new training episodes instead of replaying the first ones
+    env = make_vec_env("CrowdNav-v0", n_envs=args.n_envs, seed=args.seed + 7919 * done_episodes,
+                       env_kwargs=dict(reward=reward, num_humans=args.num_humans))
+    if ckpt.exists():
+        model = APGValue.load(ckpt, env=env, tensorboard_log=str(args.out / "tb"))
+        if (args.out / "replay_buffer.pkl").exists():
+            model.load_replay_buffer(args.out / "replay_buffer.pkl")
+        print(f"resuming from {ckpt} at episode {model._episode_num}, {model.num_timesteps} steps", flush=True)
+        reset = False
+    else:
+        model = APGValue(policy, env, seed=args.seed, imitation_episodes=args.il_episodes,
+                         imitation_epochs=args.il_epochs, tensorboard_log=str(args.out / "tb"), verbose=1)
+        reset = True
+    callback = EpisodeCheckpoint(args.out, args.rl_episodes, args.checkpoint_episodes)
+    start = time.time()
+    # the episode budget stops training; the step budget is only an upper bound (100 steps per episode)
+    model.learn(total_timesteps=args.rl_episodes * 100 * 2, callback=callback, reset_num_timesteps=reset,
+                tb_log_name=args.variant, log_interval=50)
+    callback.save()
+    model.save(args.out / "final.zip")
+    print(f"done: {model._episode_num} RL episodes, {model.num_timesteps} steps, {time.time() - start:.0f} s this run",
+          flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,122 @@
+"""Aggregate episode records into the paper's metrics (SPEC §2.4, §5).
+
+Confidence intervals of the success / collision / timeout rates are **Wilson score intervals**
+at 95 % (z = 1.959964): for k successes in n episodes, p̂ = k / n,
+
+    centre = (p̂ + z²/(2n)) / (1 + z²/n)
+    half   = z / (1 + z²/n) · sqrt(p̂(1 − p̂)/n + z²/(4n²))
+
+Unlike the normal ("Wald") interval it stays inside [0, 1] and does not collapse to a point at
+p̂ = 0 or 1 (0.99 over 500 episodes → [0.977, 0.996]).
+
+Averages (see :class:`Summary`): the navigation time and path length over **successful**
+episodes (as the field reports them), the returns, heading change and comfort-zone time over
+**all** episodes, the minimum separation ("gap") over all episodes with at least one pedestrian
+(a collision contributes its value ≤ 0), and the discomfort frequency pooled over all steps
+(Σ discomfort steps / Σ steps).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+from statistics import NormalDist
+from typing import Any
+
+import numpy as np
+
+OUTCOMES = ("success", "collision", "timeout")
+
+
+def z_value(confidence: float = 0.95) -> float:
+    """Two-sided standard-normal quantile: 1.959964 for 95 %."""
+    if not 0 < confidence < 1:
+        raise ValueError(f"confidence must be in (0, 1), got {confidence!r}")
+    return NormalDist().inv_cdf(0.5 + confidence / 2)
+
+
+def wilson_interval(successes: int, n: int, confidence: float = 0.95) -> tuple[float, float]:
+    """Wilson score interval ``(low, high)`` of a binomial proportion ``successes / n``."""
+    if n <= 0:
+        return (math.nan, math.nan)
+    if not 0 <= successes <= n:
+        raise ValueError(f"need 0 <= successes <= n, got successes={successes}, n={n}")
+    z = z_value(confidence)
+    p = successes / n
+    denom = 1 + z * z / n
+    centre = (p + z * z / (2 * n)) / denom
+    half = z / denom * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n))
+    return (max(0.0, centre - half), min(1.0, centre + half))
+
+
+def discounted_return(rewards: Sequence[float], gamma: float = 0.9, time_step: float = 0.25,
+                      v_pref: float = 1.0) -> float:
+    """Σ_t γ^(t·Δt·v_pref)·r_t with t = 0, 1, ... (the "return" of Table 3; the env reports the same)."""
+    r = np.asarray(rewards, dtype=np.float64)
+    t = np.arange(len(r))
+    return float(np.sum(gamma ** (t * time_step * v_pref) * r))
+
+
+def _mean(values: Sequence[float]) -> float:
+    return float(np.mean(values)) if len(values) else math.nan
+
+
+@dataclass(frozen=True)
+class Summary:
+    """Metrics of a set of episodes; rates come with their Wilson 95 % interval ``(low, high)``."""
+
+    episodes: int
+    success_rate: float
+    success_ci: tuple[float, float]
+    collision_rate: float
+    collision_ci: tuple[float, float]
+    timeout_rate: float
+    timeout_ci: tuple[float, float]
+    navigation_time: float  # [s], successful episodes
+    discounted_return: float  # Σ γ^(t·Δt·v_pref) r_t, all episodes
+    episode_return: float  # undiscounted, all episodes
+    min_separation: float  # [m], "gap", episodes with pedestrians
+    discomfort_frequency: float  # share of all steps
+    comfort_zone_time: float  # [s] per episode
+    heading_change: float  # [rad] per episode
+    path_length: float  # [m], successful episodes
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def summarize(records: Sequence[Any], confidence: float = 0.95) -> Summary:
+    """Aggregate :class:`~sb3_crowdnav.evaluation.runner.EpisodeRecord` s into a :class:`Summary`."""
+    records = list(records)
+    n = len(records)
+    if n == 0:
+        raise ValueError("summarize needs at least one episode record")
+    unknown = {r.outcome for r in records} - set(OUTCOMES)
+    if unknown:
+        raise ValueError(f"unknown outcome(s) {sorted(unknown)}; expected {OUTCOMES}")
+    counts = {o: sum(r.outcome == o for r in records) for o in OUTCOMES}
+    success = [r for r in records if r.outcome == "success"]
+    seps = [r.min_separation for r in records if r.num_humans > 0 and math.isfinite(r.min_separation)]
+    total_steps = sum(r.steps for r in records)
+    discomfort_steps = sum(r.discomfort_frequency * r.steps for r in records)
+    return Summary(
+        episodes=n,
+        success_rate=counts["success"] / n,
+        success_ci=wilson_interval(counts["success"], n, confidence),
+        collision_rate=counts["collision"] / n,
+        collision_ci=wilson_interval(counts["collision"], n, confidence),
+        timeout_rate=counts["timeout"] / n,
+        timeout_ci=wilson_interval(counts["timeout"], n, confidence),
+        navigation_time=_mean([r.navigation_time for r in success]),
+        discounted_return=_mean([r.discounted_return for r in records]),
+        episode_return=_mean([r.episode_return for r in records]),
+        min_separation=_mean(seps),
+        discomfort_frequency=discomfort_steps / total_steps if total_steps else math.nan,
+        comfort_zone_time=_mean([r.comfort_zone_time for r in records]),
+        heading_change=_mean([r.heading_change for r in records]),
+        path_length=_mean([r.path_length for r in success]),
+    )
+
+
+__all__ = ["OUTCOMES", "Summary", "discounted_return", "summarize", "wilson_interval", "z_value"]

@@ -1,0 +1,97 @@
+"""Load a saved model without being told its algorithm.
+
+:func:`load_model` reads the ``data`` JSON inside the SB3 ``.zip`` and picks the algorithm from
+the module of the saved ``policy_class`` (``sb3_crowdnav.apg_value...`` → APGValue,
+``stable_baselines3.dqn...`` → DQN) or, for policies shared between algorithms (e.g.
+``MultiInputPolicy`` of PPO/A2C or our ``ApgDQNPolicy``/``ApgActorCriticPolicy`` in
+``sb3_crowdnav.nn``), from hyperparameters only one algorithm saves (``clip_range`` → PPO,
+``target_update_interval`` → DQN, ...). When that fails it tries APGValue, DQN, PPO and A2C in turn.
+"""
+
+from __future__ import annotations
+
+import json
+import zipfile
+from pathlib import Path
+from typing import Any
+
+
+def algorithms() -> dict[str, type]:
+    """Algorithm name → class: ``apg_value`` (when available), ``dqn``, ``ppo``, ``a2c``."""
+    from stable_baselines3 import A2C, DQN, PPO
+
+    algos: dict[str, type] = {}
+    try:
+        from sb3_crowdnav.apg_value import APGValue
+
+        algos["apg_value"] = APGValue
+    except ImportError:  # APGValue not built (yet)
+        pass
+    algos.update({"dqn": DQN, "ppo": PPO, "a2c": A2C})
+    return algos
+
+
+def resolve_model_path(path: str | Path) -> Path:
+    """``path`` or ``path + ".zip"``; ``FileNotFoundError`` when neither exists."""
+    p = Path(path)
+    if p.is_file():
+        return p
+    if p.suffix != ".zip" and p.with_name(p.name + ".zip").is_file():
+        return p.with_name(p.name + ".zip")
+    raise FileNotFoundError(f"no saved model at {str(path)!r}")
+
+
+def _read_data(path: Path) -> dict[str, Any]:
+    try:
+        with zipfile.ZipFile(path) as archive:
+            return json.loads(archive.read("data").decode("utf-8"))
+    except (zipfile.BadZipFile, KeyError, json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{str(path)!r} is not a Stable-Baselines3 model archive ({exc})") from exc
+
+
+def detect_algorithm(path: str | Path) -> str | None:
+    """The algorithm name (a key of :func:`algorithms`) of a saved model, or ``None`` if unsure."""
+    data = _read_data(resolve_model_path(path))
+    policy_class = data.get("policy_class")
+    module = policy_class.get("__module__", "") if isinstance(policy_class, dict) else ""
+    if "apg_value" in module or "imitation_episodes" in data:
+        return "apg_value"
+    if module.startswith("stable_baselines3.dqn"):
+        return "dqn"
+    if module.startswith("stable_baselines3.ppo") or "clip_range" in data:
+        return "ppo"
+    if "target_update_interval" in data and "exploration_fraction" in data:
+        return "dqn"
+    if "gae_lambda" in data and "n_steps" in data:
+        return "a2c"
+    return None
+
+
+def load_model(path: str | Path, env: Any = None, algo: str | None = None, device: str = "cpu", **kwargs: Any):
+    """Load a saved APGValue / DQN / PPO / A2C model, detecting the algorithm unless ``algo`` is given.
+
+    :param path: the ``.zip`` (the suffix may be omitted)
+    :param env: passed to ``Algorithm.load`` (``None`` is enough to ``predict``)
+    :param algo: ``"apg_value"``, ``"dqn"``, ``"ppo"`` or ``"a2c"`` to skip detection
+    """
+    p = resolve_model_path(path)
+    algos = algorithms()
+    if algo is not None:
+        if algo not in algos:
+            raise ValueError(f"algo must be one of {sorted(algos)}, got {algo!r}")
+        return algos[algo].load(p, env=env, device=device, **kwargs)
+    name = detect_algorithm(p)
+    if name == "apg_value" and name not in algos:
+        raise ImportError(f"{str(p)!r} was saved by APGValue, but sb3_crowdnav.apg_value cannot be imported")
+    if name is not None and name in algos:
+        return algos[name].load(p, env=env, device=device, **kwargs)
+    errors = []
+    for cls_name, cls in algos.items():
+        try:
+            return cls.load(p, env=env, device=device, **kwargs)
+        except Exception as exc:  # try the next algorithm; report all failures below
+            errors.append(f"{cls_name}: {type(exc).__name__}: {exc}")
+    raise ValueError(f"could not load {str(p)!r} with any of {sorted(algos)}: " + "; ".join(errors))
+
+
+__all__ = ["algorithms", "detect_algorithm", "load_model", "resolve_model_path"]

@@ -1,0 +1,365 @@
+"""One runner for every policy with SB3's ``predict(observation, state, episode_start, deterministic)``.
+
+Test seeds
+----------
+Episode ``i`` of an evaluation is ``env.reset(seed=TEST_SEED_OFFSET + i)`` with
+``TEST_SEED_OFFSET = 1_000_000``. Training (``make_vec_env(..., seed=s)``, ``sb3-crowdnav train
+--seed s``) uses small seeds ``s, s + 1, ...`` for its envs, so the test episodes are disjoint from
+the episodes a model was trained on. An episode depends only on its seed (the env is seeded
+through ``reset(seed=...)`` and a stochastic policy is re-seeded per episode through
+:meth:`RandomPolicy.seed_episode`), so records do not depend on the order of the episodes or on
+how they are split across worker processes.
+
+Policies are given either as an object with ``predict`` (one process) or as a picklable **spec**
+(any number of processes): ``"orca"``, ``"random"`` / ``"random:SEED"``, or the path of a saved
+model ``.zip`` (APGValue, DQN, PPO, ... detected by :func:`~sb3_crowdnav.evaluation.models.load_model`).
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import sys
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+import sb3_crowdnav  # noqa: F401  (registers the envs, also in spawned workers)
+from sb3_crowdnav.sim.config import SceneConfig
+
+TEST_SEED_OFFSET = 1_000_000
+"""Seed of the first test episode; episode ``i`` uses ``TEST_SEED_OFFSET + i``."""
+
+DEFAULT_ENV_ID = "CrowdNav-v0"
+PolicySpec = str
+
+
+@dataclass(frozen=True, eq=False)
+class Trajectory:
+    """The states of one episode (``env.unwrapped.trajectory`` as arrays).
+
+    :param robot: (steps + 1, 9) robot states [px, py, vx, vy, radius, gx, gy, v_pref, heading]
+    :param humans: (steps + 1, n_humans, 5) pedestrian states [px, py, vx, vy, radius]
+    :param human_goals: (n_humans, 2) [m]
+    :param scene: the env's scene configuration (time step, geometry)
+    """
+
+    robot: np.ndarray
+    humans: np.ndarray
+    human_goals: np.ndarray
+    scene: SceneConfig
+
+    @property
+    def times(self) -> np.ndarray:
+        """Time [s] of each state, (steps + 1,)."""
+        return np.arange(len(self.robot)) * self.scene.time_step
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Trajectory):
+            return NotImplemented
+        return (self.scene == other.scene and np.array_equal(self.robot, other.robot)
+                and np.array_equal(self.humans, other.humans) and np.array_equal(self.human_goals, other.human_goals))
+
+    __hash__ = None  # type: ignore[assignment]
+
+
+@dataclass(frozen=True)
+class EpisodeRecord:
+    """One evaluation episode (units: s, m, rad).
+
+    ``episode_return`` is the undiscounted sum of rewards; ``discounted_return`` is
+    Σ_t γ^(t·Δt·v_pref)·r_t as computed by the env (the "return" of the paper's Table 3).
+    ``min_separation`` is the smallest surface distance to any pedestrian (``inf`` without
+    pedestrians, ≤ 0 after a collision); ``discomfort_frequency`` the share of this episode's
+    steps with a pedestrian closer than the discomfort distance (0.2 m).
+    """
+
+    seed: int
+    outcome: str
+    steps: int
+    navigation_time: float
+    path_length: float
+    episode_return: float
+    discounted_return: float
+    min_separation: float
+    discomfort_frequency: float
+    comfort_zone_time: float
+    heading_change: float
+    num_humans: int
+    trajectory: Trajectory | None = field(default=None, repr=False)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The scalar fields (no trajectory), e.g. for a CSV row."""
+        return {f.name: getattr(self, f.name) for f in fields(self) if f.name != "trajectory"}
+
+
+RECORD_FIELDS = tuple(f.name for f in fields(EpisodeRecord) if f.name != "trajectory")
+
+
+class RandomPolicy:
+    """Uniformly random actions, reproducible per episode.
+
+    The runner calls :meth:`seed_episode` with the episode's seed at every reset, so the actions
+    of an episode depend only on ``(seed, episode seed)``, not on the order of the episodes.
+
+    :param action_space: a ``gymnasium.spaces.Discrete`` space or its number of actions
+    :param seed: base seed
+    """
+
+    def __init__(self, action_space: gym.spaces.Discrete | int = 80, seed: int = 0) -> None:
+        n = action_space if isinstance(action_space, int) else getattr(action_space, "n", None)
+        if n is None or isinstance(n, bool) or int(n) < 1:
+            raise TypeError(f"RandomPolicy needs a Discrete action space or a positive int, got {action_space!r}")
+        self.n = int(n)
+        self.seed = int(seed)
+        self.rng = np.random.default_rng(self.seed)
+
+    def seed_episode(self, episode_seed: int) -> None:
+        self.rng = np.random.default_rng([self.seed, int(episode_seed)])
+
+    def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
+        """``(actions, None)``; batched when ``observation["robot"]`` is 2-D (a VecEnv)."""
+        robot = np.asarray(observation["robot"])
+        if robot.ndim == 1:
+            return np.array(self.rng.integers(self.n)), None
+        return self.rng.integers(self.n, size=robot.shape[0]), None
+
+
+def policy_label(spec: Any) -> str:
+    """A short table label for a policy spec: ``ORCA``, ``Random``, or the model file's stem."""
+    if not isinstance(spec, (str, Path)):
+        return type(spec).__name__
+    s = str(spec)
+    if s.lower() == "orca":
+        return "ORCA"
+    if s.lower().split(":")[0] == "random":
+        return "Random"
+    return Path(s).stem
+
+
+def make_policy(spec: Any, env: gym.Env | None = None) -> Any:
+    """Turn a spec into an object with ``predict``; objects with ``predict`` pass through.
+
+    ``"orca"`` → :class:`~sb3_crowdnav.sim.orca.OrcaPolicy` built from ``env``;
+    ``"random"`` or ``"random:SEED"`` → :class:`RandomPolicy`; any other string → a saved model
+    loaded with :func:`~sb3_crowdnav.evaluation.models.load_model`.
+    """
+    if not isinstance(spec, (str, Path)):
+        if not hasattr(spec, "predict"):
+            raise TypeError(f"a policy must have predict(observation, deterministic=...), got {type(spec).__name__}")
+        return spec
+    s = str(spec)
+    if s.lower() == "orca":
+        from sb3_crowdnav.sim.orca import OrcaPolicy
+
+        return OrcaPolicy.from_env(env) if env is not None else OrcaPolicy()
+    head, _, tail = s.partition(":")
+    if head.lower() == "random":
+        try:
+            seed = int(tail) if tail else 0
+        except ValueError:
+            raise ValueError(f"a random policy spec is 'random' or 'random:SEED', got {s!r}") from None
+        return RandomPolicy(env.action_space if env is not None else 80, seed=seed)
+    from sb3_crowdnav.evaluation.models import load_model
+
+    return load_model(s)
+
+
+def make_env(env_id: str = DEFAULT_ENV_ID, env_kwargs: Mapping[str, Any] | None = None, **extra: Any) -> gym.Env:
+    """``gym.make(env_id, **env_kwargs, **extra)``."""
+    return gym.make(env_id, **dict(env_kwargs or {}), **extra)
+
+
+def _trajectory(env: gym.Env) -> Trajectory:
+    base = env.unwrapped
+    robot = np.stack([r for r, _ in base.trajectory])
+    humans = np.stack([h for _, h in base.trajectory])
+    return Trajectory(robot=robot, humans=humans, human_goals=np.array(base.sim.human_goals, dtype=float),
+                      scene=base.scene)
+
+
+def run_episode(env: gym.Env, policy: Any, seed: int, deterministic: bool = True,
+                keep_trajectory: bool = False) -> EpisodeRecord:
+    """Play one episode of ``env`` from ``reset(seed=seed)`` and return its record."""
+    obs, _ = env.reset(seed=int(seed))
+    if hasattr(policy, "seed_episode"):
+        policy.seed_episode(int(seed))
+    state, episode_start = None, np.ones((1,), dtype=bool)
+    total, steps = 0.0, 0
+    while True:
+        action, state = policy.predict(obs, state=state, episode_start=episode_start, deterministic=deterministic)
+        episode_start = np.zeros((1,), dtype=bool)
+        obs, reward, terminated, truncated, info = env.step(int(np.asarray(action).reshape(-1)[0]))
+        total += float(reward)
+        steps += 1
+        if terminated or truncated:
+            break
+    stats = info["episode_stats"]
+    return EpisodeRecord(
+        seed=int(seed),
+        outcome=str(stats["outcome"]),
+        steps=steps,
+        navigation_time=float(stats["navigation_time"]),
+        path_length=float(stats["path_length"]),
+        episode_return=total,
+        discounted_return=float(stats["discounted_return"]),
+        min_separation=float(stats["min_separation"]),
+        discomfort_frequency=float(stats["discomfort_frequency"]),
+        comfort_zone_time=float(stats["comfort_zone_time"]),
+        heading_change=float(stats["heading_change"]),
+        num_humans=int(stats["num_humans"]),
+        trajectory=_trajectory(env) if keep_trajectory else None,
+    )
+
+
+# ---------------------------------------------------------------- worker processes
+_WORKER: dict[str, Any] = {}
+
+
+def _set_torch_threads(n: int | None) -> None:
+    if n is not None and "torch" in sys.modules:  # never import torch just for this (ORCA/random need none)
+        sys.modules["torch"].set_num_threads(n)
+
+
+def _init_worker(spec: PolicySpec, env_id: str, env_kwargs: dict[str, Any], torch_threads: int | None) -> None:
+    _set_torch_threads(torch_threads)
+    env = make_env(env_id, env_kwargs)
+    _WORKER["env"] = env
+    _WORKER["policy"] = make_policy(spec, env)
+    _set_torch_threads(torch_threads)
+
+
+def _worker_episode(task: tuple[int, bool, bool]) -> EpisodeRecord:
+    seed, deterministic, keep = task
+    return run_episode(_WORKER["env"], _WORKER["policy"], seed, deterministic, keep)
+
+
+def eval_seeds(n_episodes: int, seed_offset: int = TEST_SEED_OFFSET) -> list[int]:
+    """The seeds of ``n_episodes`` test episodes: ``seed_offset, seed_offset + 1, ...``."""
+    return [seed_offset + i for i in range(n_episodes)]
+
+
+def run_episodes(
+    policy: Any,
+    n_episodes: int | None = None,
+    env_kwargs: Mapping[str, Any] | None = None,
+    *,
+    env_id: str = DEFAULT_ENV_ID,
+    seeds: Iterable[int] | None = None,
+    seed_offset: int = TEST_SEED_OFFSET,
+    workers: int = 1,
+    deterministic: bool = True,
+    keep_trajectories: bool = False,
+    progress: bool = False,
+    desc: str | None = None,
+    torch_threads: int | None = 1,
+) -> list[EpisodeRecord]:
+    """Evaluate ``policy`` on test episodes and return one :class:`EpisodeRecord` per episode, in seed order.
+
+    :param policy: an object with ``predict`` (only with ``workers=1``) or a spec (``"orca"``,
+        ``"random"``, ``"random:SEED"``, a model ``.zip`` path)
+    :param n_episodes: number of episodes, seeds ``seed_offset + i`` (see :data:`TEST_SEED_OFFSET`)
+    :param env_kwargs: keyword arguments of the env (``num_humans``, ``reward``, ``robot_visible``, ...)
+    :param seeds: explicit seeds instead of ``n_episodes``/``seed_offset``
+    :param workers: number of processes (``spawn``); records are the same for any number
+    :param keep_trajectories: attach the full :class:`Trajectory` to every record
+    :param progress: show a tqdm progress bar
+    :param torch_threads: torch threads in each worker (``None``: leave as is)
+    """
+    if seeds is None:
+        if n_episodes is None or isinstance(n_episodes, bool) or int(n_episodes) < 1:
+            raise ValueError(f"n_episodes must be a positive int, got {n_episodes!r}")
+        seeds = eval_seeds(int(n_episodes), seed_offset)
+    seeds = [int(s) for s in seeds]
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ValueError(f"workers must be a positive int, got {workers!r}")
+    env_kwargs = dict(env_kwargs or {})
+    workers = min(workers, len(seeds))
+    bar = _progress(len(seeds), progress, desc or policy_label(policy))
+    try:
+        if workers == 1:
+            env = make_env(env_id, env_kwargs)
+            try:
+                pol = make_policy(policy, env)
+                records = []
+                for s in seeds:
+                    records.append(run_episode(env, pol, s, deterministic, keep_trajectories))
+                    bar.update(1)
+                return records
+            finally:
+                env.close()
+        if not isinstance(policy, (str, Path)):
+            raise ValueError("workers > 1 needs a picklable policy spec ('orca', 'random', or a model .zip path), "
+                             f"not a {type(policy).__name__} object")
+        ctx = mp.get_context("spawn")
+        tasks = [(s, deterministic, keep_trajectories) for s in seeds]
+        chunk = max(1, min(16, len(seeds) // (workers * 8)))
+        with ctx.Pool(workers, initializer=_init_worker, initargs=(str(policy), env_id, env_kwargs, torch_threads)) as pool:
+            records = []
+            for rec in pool.imap(_worker_episode, tasks, chunksize=chunk):
+                records.append(rec)
+                bar.update(1)
+        return records
+    finally:
+        bar.close()
+
+
+def run_sweep(policy: Any, humans: Sequence[int], n_episodes: int, env_kwargs: Mapping[str, Any] | None = None,
+              **kwargs: Any) -> dict[int, list[EpisodeRecord]]:
+    """Evaluate one policy for each number of pedestrians in ``humans`` (the paper's Table 4).
+
+    ``max_humans`` is raised to the largest N when needed (a trained model must have been built
+    with at least that capacity: its observation space is fixed).
+    """
+    humans = [int(n) for n in humans]
+    if not humans or min(humans) < 0:
+        raise ValueError(f"humans must be a non-empty list of ints >= 0, got {humans!r}")
+    base = dict(env_kwargs or {})
+    base["max_humans"] = max(int(base.get("max_humans", SceneConfig.max_humans)), max(humans))
+    out = {}
+    for n in humans:
+        desc = f"{policy_label(policy)} N={n}"
+        out[n] = run_episodes(policy, n_episodes, {**base, "num_humans": n}, desc=desc, **kwargs)
+    return out
+
+
+def records_to_rows(records: Iterable[EpisodeRecord]) -> list[dict[str, Any]]:
+    """Scalar fields of each record (for CSV)."""
+    return [r.to_dict() for r in records]
+
+
+class _NoBar:
+    def update(self, n: int = 1) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
+def _progress(total: int, enabled: bool, desc: str):
+    if not enabled:
+        return _NoBar()
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, desc=desc, unit="ep", dynamic_ncols=True)
+
+
+__all__ = [
+    "DEFAULT_ENV_ID",
+    "RECORD_FIELDS",
+    "TEST_SEED_OFFSET",
+    "EpisodeRecord",
+    "RandomPolicy",
+    "Trajectory",
+    "make_env",
+    "make_policy",
+    "policy_label",
+    "records_to_rows",
+    "run_episode",
+    "run_episodes",
+    "run_sweep",
+    "eval_seeds",
+]

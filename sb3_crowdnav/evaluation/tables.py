@@ -1,0 +1,132 @@
+"""Results tables as Markdown and CSV.
+
+Table 3 layout (one row per policy): the paper's columns first — method, success, collision,
+time (s), return — then timeout, gap (m), discomfort, comfort-zone time (s), heading change
+(rad), path length (m) and the number of episodes. Table 4 layout (one row per number of
+pedestrians N) has ``humans`` in place of ``method``. In Markdown a rate is printed with its
+Wilson 95 % interval, ``0.990 [0.977, 0.996]``; the CSV has separate ``*_ci_low`` /
+``*_ci_high`` columns and full precision.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from sb3_crowdnav.evaluation.metrics import Summary
+
+CSV_COLUMNS = (
+    "success", "success_ci_low", "success_ci_high",
+    "collision", "collision_ci_low", "collision_ci_high",
+    "time", "return",
+    "timeout", "timeout_ci_low", "timeout_ci_high",
+    "gap", "discomfort", "comfort_time", "heading_change", "path_length", "reward_sum", "episodes",
+)
+MARKDOWN_HEADERS = ("success", "collision", "time (s)", "return", "timeout", "gap (m)", "discomfort",
+                    "comfort (s)", "heading (rad)", "path (m)", "episodes")
+
+
+def summary_row(summary: Summary) -> dict[str, Any]:
+    """The CSV columns of one summary (no label)."""
+    s = summary
+    return {
+        "success": s.success_rate, "success_ci_low": s.success_ci[0], "success_ci_high": s.success_ci[1],
+        "collision": s.collision_rate, "collision_ci_low": s.collision_ci[0], "collision_ci_high": s.collision_ci[1],
+        "time": s.navigation_time, "return": s.discounted_return,
+        "timeout": s.timeout_rate, "timeout_ci_low": s.timeout_ci[0], "timeout_ci_high": s.timeout_ci[1],
+        "gap": s.min_separation, "discomfort": s.discomfort_frequency, "comfort_time": s.comfort_zone_time,
+        "heading_change": s.heading_change, "path_length": s.path_length, "reward_sum": s.episode_return,
+        "episodes": s.episodes,
+    }
+
+
+def _num(x: float, digits: int) -> str:
+    return "–" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.{digits}f}"
+
+
+def _rate(rate: float, ci: tuple[float, float]) -> str:
+    return f"{rate:.3f} [{ci[0]:.3f}, {ci[1]:.3f}]"
+
+
+def _markdown_cells(s: Summary) -> list[str]:
+    return [
+        _rate(s.success_rate, s.success_ci), _rate(s.collision_rate, s.collision_ci),
+        _num(s.navigation_time, 2), _num(s.discounted_return, 4), _rate(s.timeout_rate, s.timeout_ci),
+        _num(s.min_separation, 3), _num(s.discomfort_frequency, 3), _num(s.comfort_zone_time, 2),
+        _num(s.heading_change, 2), _num(s.path_length, 2), str(s.episodes),
+    ]
+
+
+class ResultsTable:
+    """Rows of ``(key, Summary)``; ``key_name`` is ``"method"`` (Table 3) or ``"humans"`` (Table 4)."""
+
+    def __init__(self, summaries: Mapping[Any, Summary], key_name: str = "method") -> None:
+        if not summaries:
+            raise ValueError("a results table needs at least one summary")
+        self.summaries = dict(summaries)
+        self.key_name = key_name
+
+    @property
+    def rows(self) -> list[dict[str, Any]]:
+        """One dict per row, keyed by :data:`CSV_COLUMNS` after ``key_name``."""
+        return [{self.key_name: key, **summary_row(s)} for key, s in self.summaries.items()]
+
+    def to_markdown(self) -> str:
+        headers = (self.key_name, *MARKDOWN_HEADERS)
+        lines = ["| " + " | ".join(headers) + " |", "|" + "|".join("---" for _ in headers) + "|"]
+        for key, s in self.summaries.items():
+            lines.append("| " + " | ".join([str(key), *_markdown_cells(s)]) + " |")
+        return "\n".join(lines) + "\n"
+
+    def to_csv(self, path: str | Path | None = None) -> str:
+        """The CSV text; also written to ``path`` when given."""
+        buf = io.StringIO()
+        writer = csv.DictWriter(buf, fieldnames=[self.key_name, *CSV_COLUMNS], lineterminator="\n")
+        writer.writeheader()
+        writer.writerows(self.rows)
+        text = buf.getvalue()
+        if path is not None:
+            Path(path).write_text(text)
+        return text
+
+    def save(self, stem: str | Path) -> tuple[Path, Path]:
+        """Write ``stem.md`` and ``stem.csv``; return both paths."""
+        stem = Path(stem)
+        stem.parent.mkdir(parents=True, exist_ok=True)
+        md, csv_path = stem.with_suffix(".md"), stem.with_suffix(".csv")
+        md.write_text(self.to_markdown())
+        self.to_csv(csv_path)
+        return md, csv_path
+
+    def __str__(self) -> str:
+        return self.to_markdown()
+
+
+def results_table(summaries: Mapping[str, Summary]) -> ResultsTable:
+    """Table 3: one row per policy label."""
+    return ResultsTable(summaries, "method")
+
+
+def sweep_table(summaries: Mapping[int, Summary]) -> ResultsTable:
+    """Table 4: one row per number of pedestrians."""
+    return ResultsTable(dict(sorted(summaries.items())), "humans")
+
+
+def write_records_csv(records, path: str | Path) -> Path:
+    """One row per episode with the scalar fields of :class:`~sb3_crowdnav.evaluation.runner.EpisodeRecord`."""
+    from sb3_crowdnav.evaluation.runner import RECORD_FIELDS
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(RECORD_FIELDS), lineterminator="\n")
+        writer.writeheader()
+        writer.writerows(r.to_dict() for r in records)
+    return path
+
+
+__all__ = ["CSV_COLUMNS", "ResultsTable", "results_table", "summary_row", "sweep_table", "write_records_csv"]

@@ -1,0 +1,209 @@
+"""Training from an rl-zoo3-format hyperparameter file (``sb3-crowdnav train``).
+
+The YAML has one top-level key per env id, as rl-zoo3 writes it::
+
+    CrowdNav-v0:
+      n_timesteps: !!float 2e5
+      policy: MultiInputPolicy
+      policy_kwargs: "dict(features_extractor_class=apg, net_arch=[64])"
+      env_kwargs: {num_humans: 6}
+      n_envs: 1
+      learning_rate: lin_1e-3
+      batch_size: 100
+
+``n_timesteps``, ``policy``, ``policy_kwargs``, ``env_kwargs`` and ``n_envs`` are read here; every
+other key goes to the algorithm's constructor. ``policy_kwargs`` may be a dict or a Python-literal
+string; strings are evaluated by :func:`safe_eval`, which knows only ``dict``, literals, ``nn.<Module>``
+and the feature-extractor names of :data:`sb3_crowdnav.nn.EXTRACTORS` (``apg``, ``cadrl``, ... and
+their class names). ``lin_<x>`` for ``learning_rate``/``clip_range`` is rl-zoo3's linear schedule.
+"""
+
+from __future__ import annotations
+
+import ast
+import operator
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+DEFAULT_POLICIES = {"apg_value": "ApgPolicy", "dqn": "MultiInputPolicy", "ppo": "MultiInputPolicy",
+                    "a2c": "MultiInputPolicy"}
+ZOO_ONLY_KEYS = ("env_wrapper", "callback", "vec_env_wrapper", "frame_stack")
+SCHEDULE_KEYS = ("learning_rate", "clip_range", "clip_range_vf")
+_BINOPS = {ast.Add: operator.add, ast.Sub: operator.sub, ast.Mult: operator.mul, ast.Div: operator.truediv}
+
+
+def policy_kwargs_names() -> dict[str, Any]:
+    """Names :func:`safe_eval` accepts in ``policy_kwargs``: ``dict``, ``nn`` and the extractors."""
+    import torch.nn as nn
+
+    names: dict[str, Any] = {"dict": dict, "nn": nn}
+    try:
+        from sb3_crowdnav.nn import EXTRACTORS
+    except ImportError:  # the extractors are not built (yet)
+        EXTRACTORS = {}
+    for key, cls in EXTRACTORS.items():
+        names[key] = cls
+        names[cls.__name__] = cls
+    return names
+
+
+def safe_eval(text: str, names: Mapping[str, Any]) -> Any:
+    """Evaluate a Python literal with ``dict(...)`` calls, ``nn.<Module>`` and the given names only.
+
+    Raises ``ValueError`` naming the first construct that is not allowed.
+    """
+    try:
+        tree = ast.parse(text.strip(), mode="eval")
+    except SyntaxError as exc:
+        raise ValueError(f"cannot parse {text!r}: {exc.msg}") from None
+
+    def ev(node: ast.AST) -> Any:
+        if isinstance(node, ast.Constant):
+            return node.value
+        if isinstance(node, (ast.List, ast.Tuple)):
+            items = [ev(e) for e in node.elts]
+            return items if isinstance(node, ast.List) else tuple(items)
+        if isinstance(node, ast.Dict):
+            if any(k is None for k in node.keys):
+                raise ValueError("'**' unpacking is not allowed")
+            return {ev(k): ev(v) for k, v in zip(node.keys, node.values)}  # type: ignore[arg-type]
+        if isinstance(node, ast.UnaryOp) and isinstance(node.op, (ast.USub, ast.UAdd)):
+            value = ev(node.operand)
+            if not isinstance(value, (int, float)):
+                raise ValueError("unary +/- only applies to numbers")
+            return -value if isinstance(node.op, ast.USub) else value
+        if isinstance(node, ast.BinOp) and type(node.op) in _BINOPS:
+            left, right = ev(node.left), ev(node.right)
+            if not all(isinstance(v, (int, float)) for v in (left, right)):
+                raise ValueError("arithmetic only applies to numbers")
+            return _BINOPS[type(node.op)](left, right)
+        if isinstance(node, ast.Name):
+            if node.id not in names:
+                raise ValueError(f"name {node.id!r} is not allowed; allowed: {sorted(names)}")
+            return names[node.id]
+        if isinstance(node, ast.Attribute):
+            if isinstance(node.value, ast.Name) and node.value.id == "nn" and "nn" in names:
+                import torch.nn as nn
+
+                value = getattr(nn, node.attr, None)
+                if isinstance(value, type) and issubclass(value, nn.Module):
+                    return value
+            raise ValueError(f"attribute {ast.unparse(node)!r} is not allowed (only nn.<Module>)")
+        if isinstance(node, ast.Call):
+            if ev(node.func) is not dict or node.args or any(k.arg is None for k in node.keywords):
+                raise ValueError(f"only dict(key=value, ...) calls are allowed, got {ast.unparse(node)!r}")
+            return {k.arg: ev(k.value) for k in node.keywords}
+        raise ValueError(f"{type(node).__name__} is not allowed in {text!r}")
+
+    return ev(tree.body)
+
+
+def load_hyperparams(path: str | Path, env_id: str = "CrowdNav-v0") -> dict[str, Any]:
+    """The ``env_id`` entry of an rl-zoo3 YAML file (a copy)."""
+    import yaml
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no hyperparameter file {str(path)!r}")
+    with path.open() as f:
+        content = yaml.safe_load(f)
+    if not isinstance(content, dict) or env_id not in content:
+        keys = sorted(content) if isinstance(content, dict) else []
+        raise ValueError(f"{str(path)!r} has no top-level key {env_id!r} (keys: {keys})")
+    entry = content[env_id]
+    if entry is None:
+        return {}
+    if not isinstance(entry, dict):
+        raise ValueError(f"{str(path)!r}: {env_id} must be a mapping of hyperparameters")
+    return dict(entry)
+
+
+def _schedule(value: Any) -> Any:
+    if isinstance(value, str) and value.startswith("lin_"):
+        from stable_baselines3.common.utils import LinearSchedule
+
+        try:
+            start = float(value[4:])
+        except ValueError:
+            raise ValueError(f"a linear schedule is written lin_<number>, got {value!r}") from None
+        return LinearSchedule(start, 0.0, 1.0)
+    return value
+
+
+def prepare(algo: str, hyperparams: Mapping[str, Any]) -> dict[str, Any]:
+    """Split rl-zoo3 hyperparameters into ``policy``, ``policy_kwargs``, ``env_kwargs``, ``n_envs``,
+    ``n_timesteps`` and the algorithm's constructor ``kwargs``; ``ValueError`` on what is not supported."""
+    hp = dict(hyperparams)
+    bad = [k for k in ZOO_ONLY_KEYS if hp.get(k)]
+    if bad:
+        raise ValueError(f"{bad} are not supported by sb3-crowdnav train; use python -m rl_zoo3.train for them")
+    for k in ZOO_ONLY_KEYS:
+        hp.pop(k, None)
+    if hp.pop("normalize", False):
+        raise ValueError("normalize: VecNormalize would corrupt the physical states of the observation; remove it")
+    policy_kwargs = hp.pop("policy_kwargs", None) or {}
+    names = policy_kwargs_names()
+    if isinstance(policy_kwargs, str):
+        policy_kwargs = safe_eval(policy_kwargs, names)
+    if not isinstance(policy_kwargs, dict):
+        raise ValueError(f"policy_kwargs must be a dict, got {policy_kwargs!r}")
+    fe = policy_kwargs.get("features_extractor_class")
+    if isinstance(fe, str):  # a YAML mapping may name the extractor as a plain string
+        if fe not in names or fe in ("dict", "nn"):
+            raise ValueError(f"unknown features_extractor_class {fe!r}")
+        policy_kwargs["features_extractor_class"] = names[fe]
+    env_kwargs = hp.pop("env_kwargs", None) or {}
+    if isinstance(env_kwargs, str):
+        env_kwargs = safe_eval(env_kwargs, {"dict": dict})
+    if not isinstance(env_kwargs, dict):
+        raise ValueError(f"env_kwargs must be a dict, got {env_kwargs!r}")
+    n_envs = hp.pop("n_envs", 1)
+    if isinstance(n_envs, bool) or not isinstance(n_envs, int) or n_envs < 1:
+        raise ValueError(f"n_envs must be a positive int, got {n_envs!r}")
+    n_timesteps = hp.pop("n_timesteps", None)
+    policy = hp.pop("policy", DEFAULT_POLICIES.get(algo, "MultiInputPolicy"))
+    for key in SCHEDULE_KEYS:
+        if key in hp:
+            hp[key] = _schedule(hp[key])
+    if isinstance(hp.get("train_freq"), list):
+        hp["train_freq"] = tuple(hp["train_freq"])
+    return {"policy": policy, "policy_kwargs": policy_kwargs, "env_kwargs": env_kwargs, "n_envs": n_envs,
+            "n_timesteps": None if n_timesteps is None else int(float(n_timesteps)), "kwargs": hp}
+
+
+def train(algo: str, hyperparams: Mapping[str, Any], out_dir: str | Path, env_id: str = "CrowdNav-v0",
+          timesteps: int | None = None, seed: int = 0, progress_bar: bool = False, verbose: int = 0,
+          env_overrides: Mapping[str, Any] | None = None):
+    """Train ``algo`` with rl-zoo3 hyperparameters; save ``out_dir/<algo>.zip`` and TensorBoard logs in ``out_dir/tb``.
+
+    Training envs are seeded ``seed, seed + 1, ...`` (``make_vec_env``), far from the test seeds
+    (:data:`~sb3_crowdnav.evaluation.runner.TEST_SEED_OFFSET`). Returns ``(model, model_path)``.
+    """
+    from stable_baselines3.common.env_util import make_vec_env
+
+    from sb3_crowdnav.evaluation.models import algorithms
+
+    algos = algorithms()
+    if algo not in algos:
+        raise ValueError(f"algo must be one of {sorted(algos)}, got {algo!r}")
+    cfg = prepare(algo, hyperparams)
+    n_timesteps = timesteps if timesteps is not None else cfg["n_timesteps"]
+    if n_timesteps is None or n_timesteps < 1:
+        raise ValueError("the number of timesteps is missing: give --timesteps or n_timesteps in the YAML")
+    env_kwargs = {**cfg["env_kwargs"], **dict(env_overrides or {})}
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    env = make_vec_env(env_id, n_envs=cfg["n_envs"], seed=seed, env_kwargs=env_kwargs)
+    kwargs = dict(cfg["kwargs"])
+    if cfg["policy_kwargs"]:
+        kwargs["policy_kwargs"] = cfg["policy_kwargs"]
+    model = algos[algo](cfg["policy"], env, seed=seed, tensorboard_log=str(out / "tb"), verbose=verbose, **kwargs)
+    model.learn(total_timesteps=int(n_timesteps), progress_bar=progress_bar)
+    model_path = out / f"{algo}.zip"
+    model.save(model_path)
+    env.close()
+    return model, model_path
+
+
+__all__ = ["DEFAULT_POLICIES", "load_hyperparams", "policy_kwargs_names", "prepare", "safe_eval", "train"]

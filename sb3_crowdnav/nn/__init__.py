@@ -1,0 +1,56 @@
+"""Torch crowd encoders (SB3 features extractors) and policies using them (SPEC §3).
+
+``EXTRACTORS`` maps a short name to each extractor class: ``"apg"`` (the paper's APG +
+temporal attention + LSTM), and the baselines ``"cadrl"``, ``"sf"``, ``"lm"``, ``"lstm_rl"``
+and ``"sarl"``. Use one with SB3's stock algorithms::
+
+    DQN("MultiInputPolicy", env, policy_kwargs=dict(features_extractor_class=EXTRACTORS["sarl"]))
+    DQN(ApgDQNPolicy, env)  # APG by default
+"""
+
+from __future__ import annotations
+
+from sb3_crowdnav.nn.extractors import (
+    EXTRACTORS,
+    ApgExtractor,
+    CadrlExtractor,
+    CrowdFeaturesExtractor,
+    LmExtractor,
+    LstmRlExtractor,
+    SarlExtractor,
+    SfExtractor,
+)
+from sb3_crowdnav.nn.interactions import angular_pedestrian_grid, local_occupancy_map, social_forces
+from sb3_crowdnav.nn.policies import ApgActorCriticPolicy, ApgDQNPolicy
+from sb3_crowdnav.nn.transforms import (
+    HUMAN_FEATURES,
+    ROBOT_FEATURES,
+    HumanFeat,
+    RobotFeat,
+    parse_observation_space,
+    robot_centric,
+    split_observation,
+)
+
+__all__ = [
+    "EXTRACTORS",
+    "HUMAN_FEATURES",
+    "ROBOT_FEATURES",
+    "ApgActorCriticPolicy",
+    "ApgDQNPolicy",
+    "ApgExtractor",
+    "CadrlExtractor",
+    "CrowdFeaturesExtractor",
+    "HumanFeat",
+    "LmExtractor",
+    "LstmRlExtractor",
+    "RobotFeat",
+    "SarlExtractor",
+    "SfExtractor",
+    "angular_pedestrian_grid",
+    "local_occupancy_map",
+    "parse_observation_space",
+    "robot_centric",
+    "social_forces",
+    "split_observation",
+]

@@ -1,0 +1,142 @@
+"""Pairwise pedestrian-interaction encodings, batched and loop-free.
+
+All functions take positions already in the robot-centric frame (see
+:mod:`sb3_crowdnav.nn.transforms`) and a boolean ``present`` mask of the same leading shape;
+a pedestrian that is not present never contributes to anyone's encoding, and a pedestrian
+never contributes to its own. The encodings depend on the observation only (no parameters).
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch as th
+
+
+def _check_positions(positions: th.Tensor, present: th.Tensor) -> None:
+    if positions.dim() < 2 or positions.shape[-1] != 2 or tuple(present.shape) != tuple(positions.shape[:-1]):
+        raise ValueError(
+            f"expected positions (..., N, 2) and present (..., N) with the same leading shape; got positions "
+            f"{tuple(positions.shape)} and present {tuple(present.shape)}"
+        )
+
+
+def _pair_mask(present: th.Tensor) -> th.Tensor:
+    """(..., N, N) True where i and j are present and j != i (row i = the encoded pedestrian)."""
+    n = present.shape[-1]
+    not_self = ~th.eye(n, dtype=th.bool, device=present.device)
+    return present[..., :, None] & present[..., None, :] & not_self
+
+
+def _pairwise_offsets(positions: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+    """x and y of the vector from pedestrian i to pedestrian j, each (..., N_i, N_j), contiguous.
+
+    Separate contiguous components keep atan2 / hypot on their vectorised kernels (a strided
+    (..., 2) layout makes them several times slower).
+    """
+    x, y = positions[..., 0].contiguous(), positions[..., 1].contiguous()  # (..., N)
+    return x[..., None, :] - x[..., :, None], y[..., None, :] - y[..., :, None]
+
+
+def angular_pedestrian_grid(
+    positions: th.Tensor, present: th.Tensor, num_sectors: int = 12, r_max: float = 3.0
+) -> th.Tensor:
+    """Angular pedestrian grid of every pedestrian (paper Eq. 3).
+
+    ``grid[..., i, k] = min(r_max, min{ rho_ij : j present, j != i, phi_ij in sector k })`` and
+    ``r_max`` for an empty sector, where (rho_ij, phi_ij) are the polar coordinates of
+    pedestrian j around pedestrian i (centre distance [m]). Sector k covers
+    ``phi in [k * 2π/K, (k + 1) * 2π/K)``, with phi measured **counter-clockwise from the
+    x-axis of the frame of** ``positions`` (the robot-to-goal axis for robot-centric positions),
+    k = 0 … K-1. A coincident pedestrian (rho = 0) falls in sector 0. Rows of pedestrians that
+    are not present are all ``r_max``.
+
+    :param positions: (..., N, 2) pedestrian centres [m]
+    :param present: (..., N) bool
+    :param num_sectors: K
+    :param r_max: grid radius [m]
+    :return: (..., N, K)
+    """
+    _check_positions(positions, present)
+    dx, dy = _pairwise_offsets(positions)  # (..., N_i, N_j) from i to j
+    rho = th.hypot(dx, dy)
+    sector = th.floor(th.atan2(dy, dx) * (num_sectors / (2 * math.pi)))  # in [-K/2, K/2]
+    sector = th.remainder(sector, num_sectors).long().clamp_(0, num_sectors - 1)  # (..., N, N) in [0, K)
+    dist = th.where(_pair_mask(present), th.clamp(rho, max=r_max), th.full((), r_max, dtype=rho.dtype))
+    rows = positions.new_full((*positions.shape[:-1], num_sectors), r_max)  # (..., N, K)
+    # scatter each pair's distance into (row i, sector of j) and keep the minimum
+    return rows.scatter_reduce_(-1, sector, dist, reduce="amin", include_self=True)
+
+
+def local_occupancy_map(
+    positions: th.Tensor, velocities: th.Tensor, present: th.Tensor, cell_num: int = 4, cell_size: float = 1.0
+) -> th.Tensor:
+    """Local map around every pedestrian, as the field's OM-SARL (three channels per cell).
+
+    The map of pedestrian i is a ``cell_num x cell_num`` grid of ``cell_size`` cells centred
+    on i, its x-axis along i's velocity (the frame's x-axis when i stands still). For every
+    cell: the number of other present pedestrians whose centre lies in it, and their mean
+    velocity (vx, vy) in the same rotated axes (0 for an empty cell). Cell index
+    ``row * cell_num + col`` with ``col = floor(x / cell_size + cell_num / 2)`` (x forward) and
+    ``row`` the same for y.
+
+    :param positions: (..., N, 2) [m]
+    :param velocities: (..., N, 2) [m/s]
+    :param present: (..., N) bool
+    :return: (..., N, cell_num * cell_num * 3), per cell [count, mean vx, mean vy]
+    """
+    _check_positions(positions, present)
+    angle = th.atan2(velocities[..., 1], velocities[..., 0])  # (..., N)
+    cos, sin = th.cos(angle)[..., :, None], th.sin(angle)[..., :, None]  # (..., N_i, 1)
+
+    def in_frame_of_i(v: th.Tensor) -> th.Tensor:  # (..., N_i, N_j, 2) rotated by i's heading
+        return th.stack((cos * v[..., 0] + sin * v[..., 1], cos * v[..., 1] - sin * v[..., 0]), dim=-1)
+
+    rel = in_frame_of_i(positions[..., None, :, :] - positions[..., :, None, :])  # (..., N, N, 2)
+    vel = in_frame_of_i(velocities[..., None, :, :].expand_as(rel))  # (..., N, N, 2)
+    cell = th.floor(rel / cell_size + cell_num / 2)  # (..., N, N, 2)
+    inside = ((cell >= 0) & (cell < cell_num)).all(dim=-1) & _pair_mask(present)  # (..., N, N)
+    index = (cell[..., 1] * cell_num + cell[..., 0]).clamp(0, cell_num * cell_num - 1).long()
+    one_hot = th.nn.functional.one_hot(index, cell_num * cell_num).to(positions.dtype)
+    one_hot = one_hot * inside[..., None]  # (..., N_i, N_j, C)
+    ones = th.ones_like(vel[..., :1])
+    sums = th.einsum("...jc,...jf->...cf", one_hot, th.cat((ones, vel), dim=-1))  # (..., N, C, 3)
+    count = sums[..., :1]
+    mean_vel = sums[..., 1:] / count.clamp(min=1.0)
+    return th.cat((count, mean_vel), dim=-1).flatten(-2)
+
+
+def social_forces(
+    positions: th.Tensor,
+    radii: th.Tensor,
+    present: th.Tensor,
+    robot_radius: th.Tensor,
+    strength: float = 2.1,
+    range_: float = 0.3,
+) -> tuple[th.Tensor, th.Tensor]:
+    """Helbing-Molnár repulsive social forces (circular form) of the crowd.
+
+    ``f_ij = A * exp((r_i + r_j - d_ij) / B) * n_ij`` with n_ij the unit vector from j to i
+    (A = ``strength`` [m/s²], B = ``range_`` [m]). Returns, for every pedestrian i, the sum of
+    the forces from the other present pedestrians on i, and the force that i exerts on the
+    robot (which sits at the origin of the robot-centric frame). Coincident centres give a
+    zero direction, so the result stays finite.
+
+    :param positions: (..., N, 2) robot-centric [m]
+    :param radii: (..., N) [m]
+    :param present: (..., N) bool
+    :param robot_radius: (...) [m]
+    :return: force on each pedestrian from the others (..., N, 2) and force of each on the robot (..., N, 2)
+    """
+    _check_positions(positions, present)
+    diff = positions[..., :, None, :] - positions[..., None, :, :]  # (..., N_i, N_j, 2): from j to i
+    dist = th.linalg.vector_norm(diff, dim=-1, keepdim=True)  # (..., N, N, 1)
+    unit = diff / dist.clamp(min=1e-6)
+    radius_sum = (radii[..., :, None] + radii[..., None, :])[..., None]
+    magnitude = th.where(_pair_mask(present)[..., None], strength * th.exp((radius_sum - dist) / range_), 0.0)
+    on_human = (magnitude * unit).sum(dim=-2)  # (..., N, 2)
+    to_robot = -positions  # from pedestrian i to the robot at the origin
+    d_robot = th.linalg.vector_norm(to_robot, dim=-1, keepdim=True)  # (..., N, 1)
+    mag_robot = strength * th.exp((radii[..., None] + robot_radius[..., None, None] - d_robot) / range_)
+    on_robot = th.where(present[..., None], mag_robot * to_robot / d_robot.clamp(min=1e-6), 0.0)
+    return on_human, on_robot

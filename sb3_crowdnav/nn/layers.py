@@ -1,0 +1,142 @@
+"""Small building blocks shared by the extractors: MLPs, masked softmax, distance-sorted LSTM pooling."""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Sequence
+
+import torch as th
+from torch import nn
+
+
+def check_arch(name: str, arch: Sequence[int], *, allow_empty: bool = False, last: int | None = None) -> list[int]:
+    """Validate a list of layer sizes and return it as a list of ints."""
+    if isinstance(arch, (str, bytes)) or not isinstance(arch, Sequence):
+        raise TypeError(f"{name} must be a sequence of layer sizes, got {arch!r}")
+    sizes = list(arch)
+    if not all(isinstance(s, int) and not isinstance(s, bool) and s > 0 for s in sizes):
+        raise ValueError(f"{name} must contain positive ints, got {arch!r}")
+    if not sizes and not allow_empty:
+        raise ValueError(f"{name} must have at least one layer, got {arch!r}")
+    if last is not None and (not sizes or sizes[-1] != last):
+        raise ValueError(f"{name} must end with {last}, got {arch!r}")
+    return sizes
+
+
+def _probe_onednn() -> bool:
+    """True when oneDNN's fused linear (+ReLU) kernel runs here (it is a private torch op)."""
+    try:
+        op = th.ops.mkldnn._linear_pointwise
+        with th.no_grad():
+            x, w, b = th.ones(2, 3), th.ones(4, 3), th.zeros(4)
+            return bool(th.backends.mkldnn.is_available()) and th.equal(op(x, w, b, "relu", [], ""), x @ w.T)
+    except (AttributeError, RuntimeError):
+        return False
+
+
+_ONEDNN = {"available": _probe_onednn(), "enabled": True}
+
+
+def set_onednn_inference(enabled: bool) -> bool:
+    """Switch the oneDNN fast path of :func:`linear` (no-grad CPU float32 only); returns whether it is in use.
+
+    On AVX-512 AMD CPUs, MKL (behind ``nn.Linear``) runs its AVX2 kernels and oneDNN is about
+    twice as fast on these layer sizes; the results agree to float32 rounding.
+    """
+    _ONEDNN["enabled"] = bool(enabled)
+    return _ONEDNN["enabled"] and _ONEDNN["available"]
+
+
+def _use_onednn(x: th.Tensor) -> bool:
+    return (
+        _ONEDNN["enabled"]
+        and _ONEDNN["available"]
+        and not th.is_grad_enabled()
+        and x.dtype == th.float32
+        and x.device.type == "cpu"
+        and x.numel() > 0
+        and not th.is_autocast_enabled("cpu")
+    )
+
+
+def linear(x: th.Tensor, layer: nn.Linear, relu: bool = False) -> th.Tensor:
+    """``layer(x)`` followed by an optional ReLU, fused in one oneDNN kernel when no gradient is recorded."""
+    if _use_onednn(x):
+        return th.ops.mkldnn._linear_pointwise(x, layer.weight, layer.bias, "relu" if relu else "none", [], "")
+    out = layer(x)
+    return th.relu_(out) if relu else out  # in place is safe after a Linear
+
+
+class MLP(nn.Module):
+    """Linear layers of sizes ``arch`` with ReLU between them (and after the last one if ``last_activation``).
+
+    An empty ``arch`` is the identity. Inference (no gradient, CPU float32) takes the fused
+    oneDNN path of :func:`linear`; training runs plain ``nn.Linear`` with in-place ReLUs (on these
+    sizes a fresh activation tensor costs as much as the ReLU itself).
+
+    :param input_dim: size of the input features
+    :param arch: sizes of the layers
+    :param last_activation: whether a ReLU follows the last layer
+    """
+
+    def __init__(self, input_dim: int, arch: Sequence[int], last_activation: bool = True) -> None:
+        super().__init__()
+        sizes = list(arch)
+        dims = [input_dim, *sizes]
+        self.layers = nn.ModuleList(nn.Linear(i, o) for i, o in itertools.pairwise(dims))
+        self.relu = [last_activation or i < len(sizes) - 1 for i in range(len(sizes))]
+        self.output_dim = sizes[-1] if sizes else input_dim
+
+    def forward(self, x: th.Tensor) -> th.Tensor:
+        for layer, relu in zip(self.layers, self.relu, strict=True):
+            x = linear(x, layer, relu)
+        return x
+
+
+def mlp(input_dim: int, arch: Sequence[int], last_activation: bool = True) -> MLP:
+    """Shorthand for :class:`MLP`."""
+    return MLP(input_dim, arch, last_activation)
+
+
+def masked_softmax(scores: th.Tensor, mask: th.Tensor, dim: int) -> th.Tensor:
+    """Max-shifted softmax over ``dim`` restricted to ``mask``; all-zero weights where nothing is masked in."""
+    scores = th.where(mask, scores, th.full((), -th.inf, dtype=scores.dtype))
+    shift = scores.amax(dim=dim, keepdim=True)
+    shift = th.where(th.isfinite(shift), shift, th.zeros((), dtype=scores.dtype))
+    weights = th.exp(scores - shift)  # exactly 0 where masked out
+    return weights / weights.sum(dim=dim, keepdim=True).clamp(min=th.finfo(scores.dtype).tiny)
+
+
+def sort_farthest_first(dist: th.Tensor, present: th.Tensor) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
+    """Order pedestrians for the LSTM: present ones farthest first (the nearest is seen last), padding after.
+
+    :param dist: (B, N) distance of every slot to the robot
+    :param present: (B, N) bool
+    :return: ``order`` (B, N) slot index at each sorted position, ``lengths`` (B,) number of present
+        pedestrians, ``valid`` (B, N) bool, True at sorted positions holding a present pedestrian
+    """
+    key = th.where(present, dist, th.full((), -th.inf, dtype=dist.dtype))
+    order = th.sort(key, dim=1, descending=True, stable=True).indices
+    lengths = present.sum(dim=1)
+    valid = th.arange(present.shape[1], device=present.device)[None, :] < lengths[:, None]
+    return order, lengths, valid
+
+
+def lstm_last_state(lstm: nn.LSTM, sequence: th.Tensor, lengths: th.Tensor) -> th.Tensor:
+    """Hidden state of a batch-first LSTM after the first ``lengths[b]`` items of each sequence.
+
+    Items past a sequence's length are computed but never read (outputs of a unidirectional
+    LSTM only depend on earlier items), which is faster here than packing or a masked
+    LSTMCell loop. A sequence of length 0 gives the zero initial state.
+
+    :param sequence: (B, N, F), valid items first
+    :param lengths: (B,) long
+    :return: (B, hidden_size)
+    """
+    batch = sequence.shape[0]
+    max_len = int(lengths.max()) if batch > 0 else 0
+    if max_len == 0:
+        return sequence.new_zeros(batch, lstm.hidden_size)
+    out, _ = lstm(sequence[:, :max_len])  # (B, max_len, H)
+    last = out[th.arange(batch, device=sequence.device), (lengths - 1).clamp(min=0)]  # (B, H)
+    return th.where((lengths > 0)[:, None], last, th.zeros((), dtype=last.dtype))

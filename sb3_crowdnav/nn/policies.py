@@ -1,0 +1,83 @@
+"""SB3 policy classes whose **default** features extractor is :class:`ApgExtractor`.
+
+rl-zoo3 (and any caller) may replace ``policy_kwargs`` wholesale; with these classes the APG
+encoder stays the default even then. The default head mirrors ψ_M's hidden layers (Table 2:
+[150, 100, 100]) instead of SB3's [64, 64]; ``net_arch`` still overrides it.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from gymnasium import spaces
+from stable_baselines3.common.policies import MultiInputActorCriticPolicy
+from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
+from stable_baselines3.common.type_aliases import Schedule
+from stable_baselines3.dqn.policies import MultiInputPolicy as DQNMultiInputPolicy
+from torch import nn
+
+from sb3_crowdnav.nn.extractors import ApgExtractor
+
+VALUE_HEAD_ARCH = [150, 100, 100]  # ψ_M of Table 2 without its scalar output
+
+
+class ApgDQNPolicy(DQNMultiInputPolicy):
+    """DQN ``MultiInputPolicy`` with the APG extractor and a [150, 100, 100] Q-head by default.
+
+    Same arguments as :class:`stable_baselines3.dqn.policies.MultiInputPolicy`.
+    """
+
+    def __init__(
+        self,
+        observation_space: spaces.Dict,
+        action_space: spaces.Discrete,
+        lr_schedule: Schedule,
+        net_arch: list[int] | None = None,
+        activation_fn: type[nn.Module] = nn.ReLU,
+        features_extractor_class: type[BaseFeaturesExtractor] = ApgExtractor,
+        features_extractor_kwargs: dict[str, Any] | None = None,
+        **kwargs: Any,
+    ) -> None:
+        super().__init__(
+            observation_space,
+            action_space,
+            lr_schedule,
+            net_arch=list(VALUE_HEAD_ARCH) if net_arch is None else net_arch,
+            activation_fn=activation_fn,
+            features_extractor_class=features_extractor_class,
+            features_extractor_kwargs=features_extractor_kwargs,
+            **kwargs,
+        )
+
+
+class ApgActorCriticPolicy(MultiInputActorCriticPolicy):
+    """``MultiInputActorCriticPolicy`` (PPO, A2C) with the APG extractor by default.
+
+    Defaults differing from SB3: ReLU activations (the paper's) and separate [150, 100, 100]
+    policy and value heads. Same arguments as
+    :class:`stable_baselines3.common.policies.MultiInputActorCriticPolicy`.
+    """
+
+    def __init__(
+        self,
+        observation_space: spaces.Dict,
+        action_space: spaces.Space,
+        lr_schedule: Schedule,
+        net_arch: list[int] | dict[str, list[int]] | None = None,
+        activation_fn: type[nn.Module] = nn.ReLU,
+        *args: Any,
+        features_extractor_class: type[BaseFeaturesExtractor] = ApgExtractor,
+        **kwargs: Any,
+    ) -> None:
+        if net_arch is None:
+            net_arch = {"pi": list(VALUE_HEAD_ARCH), "vf": list(VALUE_HEAD_ARCH)}
+        super().__init__(
+            observation_space,
+            action_space,
+            lr_schedule,
+            net_arch,
+            activation_fn,
+            *args,
+            features_extractor_class=features_extractor_class,
+            **kwargs,
+        )

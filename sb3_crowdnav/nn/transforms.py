@@ -1,0 +1,161 @@
+"""From the world-frame observation (SPEC §2.2) to robot-centric tensors.
+
+The robot-centric frame has its origin at the robot's **current** position and its x-axis
+pointing from the robot to its goal (y-axis counter-clockwise from it), as in the field's
+CrowdNav ``rotate()``. Every pedestrian history step is expressed in this same frame (the
+observation carries the robot's current pose only), so the frame is invariant to
+translations and rotations of the world.
+
+Robot features (``ROBOT_FEATURES``, 7 values):
+    dist_goal, v_pref, vx, vy (velocity in the frame), radius,
+    cos and sin of the heading relative to the goal axis (continuous, no wrap-around jump).
+Per (history step, pedestrian) features (``HUMAN_FEATURES``, 7 values):
+    px, py, vx, vy (in the frame), radius, dist (centre distance to the robot), radius_sum.
+
+Columns of the outputs are named by ``RobotFeat`` / ``HumanFeat``; columns of the inputs by
+:mod:`sb3_crowdnav.sim.layout`.
+"""
+
+from __future__ import annotations
+
+import torch as th
+from gymnasium import spaces
+
+from sb3_crowdnav.sim.layout import HUMAN_DIM, ROBOT_DIM, Human, Robot
+
+ROBOT_FEATURES = ("dist_goal", "v_pref", "vx", "vy", "radius", "cos_heading", "sin_heading")
+HUMAN_FEATURES = ("px", "py", "vx", "vy", "radius", "dist", "radius_sum")
+ROBOT_FEATURE_DIM = len(ROBOT_FEATURES)
+HUMAN_FEATURE_DIM = len(HUMAN_FEATURES)
+OBS_KEYS = ("robot", "humans", "humans_mask")
+
+
+class RobotFeat:
+    """Columns of the robot-centric robot features (batch, 7)."""
+
+    DIST_GOAL = 0
+    V_PREF = 1
+    VEL = slice(2, 4)
+    RADIUS = 4
+    HEADING = slice(5, 7)  # cos, sin
+
+
+class HumanFeat:
+    """Columns of the robot-centric pedestrian features (..., 7)."""
+
+    POS = slice(0, 2)
+    VEL = slice(2, 4)
+    RADIUS = 4
+    DIST = 5
+    RADIUS_SUM = 6
+
+
+_HOW_TO_FIX = (
+    "Use the observation space of a sb3_crowdnav env (e.g. gym.make('CrowdNav-v0')) without observation "
+    "wrappers that flatten, stack or normalise it (FlattenObservation, VecFrameStack, VecNormalize)."
+)
+
+
+def parse_observation_space(observation_space: spaces.Space) -> tuple[int, int]:
+    """Validate a crowd observation space and return ``(history_length, max_humans)``."""
+    if not isinstance(observation_space, spaces.Dict):
+        raise TypeError(
+            f"expected a gymnasium.spaces.Dict observation space with keys {OBS_KEYS}, got "
+            f"{type(observation_space).__name__}. {_HOW_TO_FIX}"
+        )
+    missing = [k for k in OBS_KEYS if k not in observation_space.spaces]
+    if missing:
+        raise ValueError(
+            f"observation space lacks key(s) {missing}; it has {sorted(observation_space.spaces)}. {_HOW_TO_FIX}"
+        )
+    for key in OBS_KEYS:
+        sub = observation_space.spaces[key]
+        if not isinstance(sub, spaces.Box) or len(sub.shape) != 1:
+            raise ValueError(f"observation_space[{key!r}] must be a 1-D Box, got {sub}. {_HOW_TO_FIX}")
+    if observation_space["robot"].shape != (ROBOT_DIM,):
+        raise ValueError(
+            f"observation_space['robot'] must have shape ({ROBOT_DIM},), got {observation_space['robot'].shape}. "
+            f"{_HOW_TO_FIX}"
+        )
+    max_humans = observation_space["humans_mask"].shape[0]
+    size = observation_space["humans"].shape[0]
+    if max_humans < 1 or size == 0 or size % (max_humans * HUMAN_DIM) != 0:
+        raise ValueError(
+            f"observation_space['humans'] must hold T * max_humans * {HUMAN_DIM} values with max_humans = "
+            f"humans_mask size = {max_humans}; got {size} values. {_HOW_TO_FIX}"
+        )
+    return size // (max_humans * HUMAN_DIM), max_humans
+
+
+def split_observation(
+    observations: dict[str, th.Tensor], history_length: int, max_humans: int, zero_padding: bool = True
+) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
+    """Check shapes and return robot (B, 9), humans (B, T, N, 5), present (B, N) bool.
+
+    With ``zero_padding`` the padded slots of ``humans`` are replaced by zeros (they may hold
+    anything, even NaN); without, the caller must never let them through.
+    """
+    robot, humans, mask = (observations[k] for k in OBS_KEYS)
+    batch = robot.shape[0] if robot.dim() == 2 else -1
+    if (
+        robot.dim() != 2
+        or robot.shape[1] != ROBOT_DIM
+        or tuple(humans.shape) != (batch, history_length * max_humans * HUMAN_DIM)
+        or tuple(mask.shape) != (batch, max_humans)
+    ):
+        raise ValueError(
+            f"expected observation tensors robot (B, {ROBOT_DIM}), humans (B, {history_length * max_humans * HUMAN_DIM}) "
+            f"and humans_mask (B, {max_humans}); got robot {tuple(robot.shape)}, humans {tuple(humans.shape)}, "
+            f"humans_mask {tuple(mask.shape)}"
+        )
+    present = mask > 0.5  # never detect padding by value: a present human may sit at (0, 0)
+    humans = humans.reshape(batch, history_length, max_humans, HUMAN_DIM)
+    if zero_padding:  # replace, do not multiply: NaN * 0 is NaN
+        humans = th.where(present[:, None, :, None], humans, th.zeros((), dtype=humans.dtype))
+    return robot, humans, present
+
+
+def goal_frame(robot: th.Tensor) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
+    """Distance to goal, cos and sin of the goal-axis angle, each (B,), from robot (B, 9)."""
+    to_goal = robot[:, Robot.GOAL] - robot[:, Robot.POS]  # (B, 2)
+    angle = th.atan2(to_goal[:, 1], to_goal[:, 0])  # atan2(0, 0) = 0: a robot on its goal keeps the world x-axis
+    return th.linalg.vector_norm(to_goal, dim=1), th.cos(angle), th.sin(angle)
+
+
+def rotate(xy: th.Tensor, cos: th.Tensor, sin: th.Tensor) -> th.Tensor:
+    """Express world vectors xy (B, ..., 2) in the frame rotated by the angle with cos, sin (B,)."""
+    shape = (-1,) + (1,) * (xy.dim() - 2)
+    c, s = cos.view(shape), sin.view(shape)
+    x, y = xy[..., 0], xy[..., 1]
+    return th.stack((c * x + s * y, c * y - s * x), dim=-1)
+
+
+def robot_centric(robot: th.Tensor, humans: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+    """Robot features (B, 7) and per (step, pedestrian) features (B, T, N, 7) in the robot-to-goal frame."""
+    dist_goal, cos, sin = goal_frame(robot)  # (B,) each
+    heading = robot[:, Robot.HEADING]
+    robot_feats = th.cat(
+        (
+            dist_goal[:, None],
+            robot[:, Robot.V_PREF : Robot.V_PREF + 1],
+            rotate(robot[:, Robot.VEL], cos, sin),
+            robot[:, Robot.RADIUS : Robot.RADIUS + 1],
+            # cos/sin of (heading - goal angle) by the angle-difference identities
+            (th.cos(heading) * cos + th.sin(heading) * sin)[:, None],
+            (th.sin(heading) * cos - th.cos(heading) * sin)[:, None],
+        ),
+        dim=1,
+    )
+    rel = humans[..., Human.POS] - robot[:, None, None, Robot.POS]  # (B, T, N, 2)
+    radius = humans[..., Human.RADIUS : Human.RADIUS + 1]  # (B, T, N, 1)
+    human_feats = th.cat(
+        (
+            rotate(rel, cos, sin),
+            rotate(humans[..., Human.VEL], cos, sin),
+            radius,
+            th.linalg.vector_norm(rel, dim=-1, keepdim=True),
+            radius + robot[:, None, None, Robot.RADIUS : Robot.RADIUS + 1],
+        ),
+        dim=-1,
+    )
+    return robot_feats, human_feats

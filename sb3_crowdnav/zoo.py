@@ -1,0 +1,72 @@
+"""rl-zoo3 integration: ``sb3-crowdnav-zoo train|enjoy ...`` = ``python -m rl_zoo3.train|enjoy ...`` with APGValue added.
+
+rl-zoo3's documented way of adding an algorithm is to add it to ``rl_zoo3.utils.ALGOS`` (and,
+for Optuna tuning, a sampler to ``rl_zoo3.hyperparams_opt.HYPERPARAMS_SAMPLER``); this module
+does exactly that and then hands the command line to rl-zoo3 unchanged, so every rl-zoo3 flag
+works (``--storage sqlite:///tune.db --study-name apg -optimize`` spreads tuning over machines
+through a shared database). ``--gym-packages sb3_crowdnav`` is added when missing.
+
+    sb3-crowdnav-zoo train --algo apg_value --env CrowdNav-v0 -conf zoo_hyperparams/apg_value.yml
+    sb3-crowdnav-zoo enjoy --algo apg_value --env CrowdNav-v0 -f logs/ --no-render
+    python -m rl_zoo3.train --algo ppo --env CrowdNav-v0 --gym-packages sb3_crowdnav -conf zoo_hyperparams/ppo.yml
+"""
+
+from __future__ import annotations
+
+import sys
+from typing import Any
+
+COMMANDS = ("train", "enjoy")
+
+
+def sample_apg_value_params(trial, n_actions: int, n_envs: int, additional_args: dict) -> dict[str, Any]:
+    """Optuna search space for APGValue (the paper's values are inside every range)."""
+    gamma = trial.suggest_categorical("gamma", [0.8, 0.85, 0.9, 0.95])
+    return {
+        "gamma": gamma,
+        "learning_rate": trial.suggest_float("learning_rate", 1e-4, 1e-2, log=True),
+        "batch_size": trial.suggest_categorical("batch_size", [32, 64, 100, 128, 256]),
+        "target_update_interval": trial.suggest_categorical("target_update_interval", [500, 1000, 2000, 5000]),
+        "exploration_final_eps": trial.suggest_float("exploration_final_eps", 0.0, 0.2),
+        "exploration_episodes": trial.suggest_categorical("exploration_episodes", [500, 1000, 2000, 5000]),
+        "imitation_episodes": trial.suggest_categorical("imitation_episodes", [0, 200, 1000]),
+        "imitation_epochs": trial.suggest_categorical("imitation_epochs", [5, 20]),
+        "gradient_steps": trial.suggest_categorical("gradient_steps", [1, 2]),
+    }
+
+
+def register() -> None:
+    """Add ``apg_value`` to rl-zoo3's algorithm table and tuning samplers (idempotent)."""
+    try:
+        from rl_zoo3 import hyperparams_opt, utils
+    except ImportError as exc:  # pragma: no cover - depends on the extra
+        raise ImportError("the rl-zoo3 integration needs the 'zoo' extra: pip install 'sb3_crowdnav[zoo]'") from exc
+    from sb3_crowdnav.apg_value import APGValue
+
+    utils.ALGOS["apg_value"] = APGValue
+    hyperparams_opt.HYPERPARAMS_SAMPLER["apg_value"] = sample_apg_value_params
+    hyperparams_opt.HYPERPARAMS_CONVERTER["apg_value"] = lambda params: params
+
+
+def main(argv: list[str] | None = None) -> None:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or argv[0] not in COMMANDS:
+        print(f"usage: sb3-crowdnav-zoo {{{','.join(COMMANDS)}}} [rl-zoo3 arguments]\n\n{__doc__}", file=sys.stderr)
+        raise SystemExit(2)
+    command, rest = argv[0], argv[1:]
+    if "--gym-packages" not in rest:
+        rest += ["--gym-packages", "sb3_crowdnav"]
+    register()
+    sys.argv = [f"rl_zoo3.{command}", *rest]
+    if command == "train":
+        from rl_zoo3.train import train
+
+        train()
+    else:
+        from rl_zoo3.enjoy import enjoy
+
+        enjoy()
+
+
+if __name__ == "__main__":
+    main()

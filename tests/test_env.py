@@ -1,0 +1,231 @@
+"""The ``CrowdNav-v0`` family: checkers, registration, determinism, info, episode end and rendering."""
+
+import importlib
+import math
+import subprocess
+import sys
+import warnings
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env as gym_check_env
+from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+import sb3_crowdnav
+from sb3_crowdnav import ENV_IDS, CrowdNavEnv
+from sb3_crowdnav.sim.layout import Human, Robot
+
+REWARD_KEYS = ("reward_success", "reward_collision", "reward_discomfort", "reward_social", "reward_angular")
+STATS_KEYS = ("outcome", "navigation_time", "path_length", "min_separation", "discomfort_frequency",
+              "comfort_zone_time", "heading_change", "discounted_return", "num_humans")
+
+
+@pytest.mark.parametrize("env_id", sorted(ENV_IDS))
+def test_checkers_pass_without_warnings(env_id):
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        env = gym.make(env_id)
+        gym_check_env(env.unwrapped)  # also builds every render mode from the spec
+        sb3_check_env(env.unwrapped, warn=True)
+        sb3_check_env(gym.make(env_id), warn=True)
+        env.close()
+    assert [str(w.message) for w in caught] == []
+
+
+def test_registered_ids_build_the_documented_variants():
+    assert gym.make("CrowdNav-v0").unwrapped.reward_config.name == "crowdnav"
+    assert gym.make("CrowdNavComfort-v0").unwrapped.reward_config.name == "comfort"
+    assert gym.make("CrowdNavComfortAngular-v0").unwrapped.reward_config.name == "comfort_angular"
+    assert gym.make("CrowdNavSquare-v0").unwrapped.scene.scenario == "square_crossing"
+    env = gym.make("CrowdNav-v0", num_humans=3, reward="comfort")
+    assert env.unwrapped.scene.num_humans == 3 and env.unwrapped.reward_config.name == "comfort"
+
+
+def test_make_with_module_prefix_in_a_fresh_interpreter():
+    code = (
+        "import gymnasium as gym\n"
+        "env = gym.make('sb3_crowdnav:CrowdNav-v0')\n"
+        "obs, _ = env.reset(seed=0)\n"
+        "print(type(env.unwrapped).__name__, sorted(obs))\n"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == "CrowdNavEnv ['humans', 'humans_mask', 'robot']"
+
+
+def test_importing_twice_is_harmless():
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        importlib.reload(sb3_crowdnav)
+        importlib.reload(sb3_crowdnav)
+    assert [str(w.message) for w in caught] == []
+    for env_id in ENV_IDS:
+        assert env_id in gym.registry
+
+
+# ---------------------------------------------------------------------- determinism
+def rollout(env, seed, n_steps=60):
+    rng = np.random.default_rng(seed)
+    obs, info = env.reset(seed=seed)
+    episode = [(obs, info)]
+    for _ in range(n_steps):
+        obs, reward, terminated, truncated, info = env.step(int(rng.integers(80)))
+        episode.append((obs, reward, terminated, truncated, info))
+        if terminated or truncated:
+            obs, info = env.reset()
+            episode.append((obs, info))
+    return episode
+
+
+def assert_same(a, b):
+    if isinstance(a, dict):
+        assert a.keys() == b.keys()
+        for k in a:
+            assert_same(a[k], b[k])
+    elif isinstance(a, (tuple, list)):
+        assert len(a) == len(b)
+        for x, y in zip(a, b, strict=True):
+            assert_same(x, y)
+    elif isinstance(a, np.ndarray):
+        np.testing.assert_array_equal(a, b)
+    else:
+        assert a == b
+
+
+@pytest.mark.parametrize("seed", [0, 1, 123])
+def test_same_seed_same_episode(seed):
+    kwargs = dict(reward="comfort_angular", robot_visible=True, num_humans=(2, 8))
+    assert_same(rollout(CrowdNavEnv(**kwargs), seed), rollout(CrowdNavEnv(**kwargs), seed))
+
+
+def test_different_seeds_differ():
+    env = CrowdNavEnv()
+    first = [env.reset(seed=s)[0]["humans"] for s in range(3)]
+    assert not np.array_equal(first[0], first[1]) and not np.array_equal(first[1], first[2])
+
+
+def test_reset_without_seed_continues_the_stream():
+    env = CrowdNavEnv()
+    env.reset(seed=5)
+    a = env.reset()[0]["humans"]
+    env.reset(seed=5)
+    assert np.array_equal(a, env.reset()[0]["humans"])
+
+
+# ---------------------------------------------------------------------- observation
+def test_observation_layout():
+    env = CrowdNavEnv(num_humans=4, max_humans=6)
+    obs, info = env.reset(seed=0)
+    assert info["num_humans"] == 4
+    assert obs["robot"].dtype == np.float32 and obs["robot"].shape == (9,)
+    np.testing.assert_allclose(obs["robot"][Robot.POS], [0.0, -4.0])
+    np.testing.assert_allclose(obs["robot"][Robot.GOAL], [0.0, 4.0])
+    assert obs["robot"][Robot.HEADING] == pytest.approx(math.pi / 2)
+    hist = obs["humans"].reshape(5, 6, 5)
+    assert np.array_equal(hist[0], hist[-1])  # the first state is repeated at reset
+    assert obs["humans_mask"].tolist() == [1, 1, 1, 1, 0, 0]
+    obs, *_ = env.step(64)
+    hist = obs["humans"].reshape(5, 6, 5)
+    assert np.all(hist[:, 4:] == 0.0)
+    np.testing.assert_allclose(obs["robot"][Robot.POS], [0.0, -3.75], atol=1e-6)
+    assert np.array_equal(hist[-2], env.reset(seed=0)[0]["humans"].reshape(5, 6, 5)[-1])  # shifted by one
+    assert np.all(np.abs(hist[-1, :4, Human.VEL]).sum(axis=-1) > 0)
+
+
+def test_observations_are_fresh_arrays():
+    env = CrowdNavEnv()
+    obs0, _ = env.reset(seed=0)
+    keep = {k: v.copy() for k, v in obs0.items()}
+    env.step(64)
+    env.step(64)
+    assert_same(obs0, keep)
+
+
+# ---------------------------------------------------------------------- info and episode end
+def test_info_has_every_term_and_stats_only_at_the_end():
+    env = CrowdNavEnv(reward="comfort_angular")
+    env.reset(seed=2)
+    done, total = False, 0.0
+    while not done:
+        _, reward, terminated, truncated, info = env.step(64)
+        done = terminated or truncated
+        total += reward
+        for key in ("is_success", "outcome", "min_distance", "in_comfort_zone", "time", *REWARD_KEYS):
+            assert key in info
+        assert reward == pytest.approx(sum(info[k] for k in REWARD_KEYS))
+        assert ("episode_stats" in info) == done
+    assert set(info["episode_stats"]) == set(STATS_KEYS)
+    assert info["outcome"] == info["episode_stats"]["outcome"] in ("success", "collision", "timeout")
+    assert info["is_success"] == (info["outcome"] == "success")
+
+
+def test_timeout_is_truncation():
+    env = CrowdNavEnv(num_humans=0, human_policy="linear")  # 100 steps of turning in circles
+    env.reset(seed=0)
+    circle = 0 * 16 + 4  # slowest speed, +π/2 each step
+    for step in range(1, 101):
+        _, _, terminated, truncated, info = env.step(circle)
+        assert not terminated
+        assert truncated == (step == 100)
+    assert info["outcome"] == "timeout" and not info["is_success"]
+    stats = info["episode_stats"]
+    assert stats["navigation_time"] == pytest.approx(25.0)
+    assert stats["path_length"] == pytest.approx(100 * 0.2 * 0.25)
+    assert stats["heading_change"] == pytest.approx(100 * math.pi / 2)
+
+    short = CrowdNavEnv(num_humans=0, time_limit=2.0)
+    short.reset(seed=0)
+    ends = [short.step(circle)[3] for _ in range(8)]
+    assert ends == [False] * 7 + [True]
+
+
+def test_success_episode_statistics():
+    env = CrowdNavEnv(num_humans=0, gamma=0.9)
+    env.reset(seed=0)
+    rewards = []
+    while True:
+        _, reward, terminated, truncated, info = env.step(64)  # straight to the goal 8 m ahead
+        rewards.append(reward)
+        if terminated or truncated:
+            break
+    assert terminated and info["is_success"] and info["outcome"] == "success"
+    stats = info["episode_stats"]
+    steps = len(rewards)
+    assert steps == 31  # within 0.3 m of the goal after 7.75 s
+    assert stats["navigation_time"] == pytest.approx(steps * 0.25)
+    assert stats["path_length"] == pytest.approx(steps * 0.25)
+    assert stats["discounted_return"] == pytest.approx(0.9 ** ((steps - 1) * 0.25))
+    assert stats["min_separation"] == math.inf and stats["discomfort_frequency"] == 0.0
+
+
+def test_collision_ends_the_episode():
+    env = CrowdNavEnv(num_humans=1, human_policy="linear")
+    env.reset(seed=0)
+    env.unwrapped.sim.history[:, 0, Human.POS] = [0.0, -3.5]  # a pedestrian right ahead of the robot
+    env.unwrapped.sim.human_goals[0] = [0.0, -3.5]
+    _, reward, terminated, truncated, info = env.step(64)
+    assert terminated and not truncated and info["outcome"] == "collision" and not info["is_success"]
+    assert reward == pytest.approx(-0.25) and info["min_distance"] < 0
+
+
+def test_step_rejects_invalid_actions():
+    env = CrowdNavEnv()
+    env.reset(seed=0)
+    for bad in (80, -1, 1.5, "a"):
+        with pytest.raises(ValueError, match="action"):
+            env.step(bad)
+    env.step(np.int64(3))
+    env.step(np.array(3))
+
+
+# ---------------------------------------------------------------------- rendering
+def test_rgb_array_rendering():
+    env = gym.make("CrowdNav-v0", render_mode="rgb_array")
+    env.reset(seed=0)
+    env.step(64)
+    frame = env.render()
+    env.close()
+    assert frame.ndim == 3 and frame.shape[2] == 3 and frame.dtype == np.uint8
+    assert frame.shape[0] > 100 and frame.shape[1] > 100
+    assert frame.std() > 0  # something was drawn
