@@ -74,6 +74,8 @@ class APGValue(OffPolicyAlgorithm):
     :param imitation_learning_rate: learning rate of the imitation regression (0.01)
     :param imitation_epochs: passes over the imitation data
     :param imitation_safety_space: extra radius the ORCA demonstrator keeps from pedestrians [m]
+    :param imitation_mapping: how the demonstrator maps ORCA's velocity to an action (see :class:`OrcaPolicy`);
+        ``"constrained"`` succeeds in ~0.95 of the episodes with an invisible robot, ``"nearest"`` in ~0.3
     :param max_grad_norm: gradient clipping
     :param torch_threads: ``torch.set_num_threads`` at construction (1 is fastest on small CPUs); None leaves it
     """
@@ -108,7 +110,8 @@ class APGValue(OffPolicyAlgorithm):
         imitation_episodes: int = 3_000,
         imitation_learning_rate: float = 0.01,
         imitation_epochs: int = 50,
-        imitation_safety_space: float = 0.15,
+        imitation_safety_space: float = 0.0,
+        imitation_mapping: str = "constrained",
         max_grad_norm: float = 10.0,
         replay_buffer_class: type[DictReplayBuffer] | None = None,
         replay_buffer_kwargs: dict[str, Any] | None = None,
@@ -146,6 +149,8 @@ class APGValue(OffPolicyAlgorithm):
             raise ValueError(f"imitation_learning_rate must be > 0, got {imitation_learning_rate!r}")
         if not imitation_safety_space >= 0:
             raise ValueError(f"imitation_safety_space must be >= 0, got {imitation_safety_space!r}")
+        if imitation_mapping not in OrcaPolicy.MAPPINGS:
+            raise ValueError(f"imitation_mapping must be one of {OrcaPolicy.MAPPINGS}, got {imitation_mapping!r}")
         super().__init__(
             policy,
             env,
@@ -180,6 +185,7 @@ class APGValue(OffPolicyAlgorithm):
         self.imitation_learning_rate = imitation_learning_rate
         self.imitation_epochs = imitation_epochs
         self.imitation_safety_space = imitation_safety_space
+        self.imitation_mapping = imitation_mapping
         self.max_grad_norm = max_grad_norm
         self.exploration_rate = exploration_initial_eps
         self.imitation_done = imitation_episodes == 0
@@ -284,7 +290,7 @@ class APGValue(OffPolicyAlgorithm):
         """Run the ORCA robot for ``imitation_episodes`` episodes; return observations and discounted returns."""
         env = self.env
         assert env is not None
-        demo = OrcaPolicy(env.get_attr("scene")[0], safety_space=self.imitation_safety_space)
+        demo = OrcaPolicy(env.get_attr("scene")[0], safety_space=self.imitation_safety_space, mapping=self.imitation_mapping)
         obs = env.reset()
         self._last_obs = obs
         n = env.num_envs
