@@ -21,6 +21,8 @@ from sb3_crowdnav.nn.extractors import (
     SfExtractor,
 )
 from sb3_crowdnav.nn.interactions import angular_pedestrian_grid, local_occupancy_map, social_forces
+from sb3_crowdnav.nn.layers import MLP, set_onednn_inference
+from sb3_crowdnav.nn.perf import configure_cpu, tune_malloc
 from sb3_crowdnav.nn.policies import ApgActorCriticPolicy, ApgDQNPolicy
 from sb3_crowdnav.nn.transforms import (
     HUMAN_FEATURES,
@@ -35,6 +37,7 @@ from sb3_crowdnav.nn.transforms import (
 __all__ = [
     "EXTRACTORS",
     "HUMAN_FEATURES",
+    "MLP",
     "ROBOT_FEATURES",
     "ApgActorCriticPolicy",
     "ApgDQNPolicy",
@@ -48,9 +51,12 @@ __all__ = [
     "SarlExtractor",
     "SfExtractor",
     "angular_pedestrian_grid",
+    "configure_cpu",
     "local_occupancy_map",
     "parse_observation_space",
     "robot_centric",
+    "set_onednn_inference",
     "social_forces",
     "split_observation",
+    "tune_malloc",
 ]

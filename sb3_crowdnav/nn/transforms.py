@@ -146,14 +146,18 @@ def robot_centric(robot: th.Tensor, humans: th.Tensor) -> tuple[th.Tensor, th.Te
         ),
         dim=1,
     )
+    batch, steps, n, _ = humans.shape
     rel = humans[..., Human.POS] - robot[:, None, None, Robot.POS]  # (B, T, N, 2)
+    # positions and velocities rotated together by one batched matmul with the rows of R(-angle)
+    rotation = th.stack((cos, sin, -sin, cos), dim=1).view(batch, 2, 2)  # (B, 2, 2)
+    vectors = th.cat((rel, humans[..., Human.VEL]), dim=-1).view(batch, steps * n * 2, 2)
+    rotated = th.bmm(vectors, rotation.transpose(1, 2)).view(batch, steps, n, 4)  # px, py, vx, vy
     radius = humans[..., Human.RADIUS : Human.RADIUS + 1]  # (B, T, N, 1)
     human_feats = th.cat(
         (
-            rotate(rel, cos, sin),
-            rotate(humans[..., Human.VEL], cos, sin),
+            rotated,
             radius,
-            th.linalg.vector_norm(rel, dim=-1, keepdim=True),
+            th.hypot(rel[..., :1], rel[..., 1:]),
             radius + robot[:, None, None, Robot.RADIUS : Robot.RADIUS + 1],
         ),
         dim=-1,
