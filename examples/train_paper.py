@@ -70,7 +70,7 @@ def main() -> None:
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--rl-episodes", type=int, default=10_000)
     p.add_argument("--il-episodes", type=int, default=3_000)
-    p.add_argument("--il-epochs", type=int, default=50)
+    p.add_argument("--il-epochs", type=int, default=10)
     p.add_argument("--n-envs", type=int, default=1)
     p.add_argument("--num-humans", type=int, default=6)
     p.add_argument("--seed", type=int, default=0)
