@@ -177,7 +177,6 @@ class APGValue(OffPolicyAlgorithm):
             support_multi_env=True,
         )
         check_env_compatible(self.env)
-        check_observation_space(self.observation_space)
         self.exploration_initial_eps = exploration_initial_eps
         self.exploration_final_eps = exploration_final_eps
         self.exploration_episodes = exploration_episodes
@@ -212,6 +211,7 @@ class APGValue(OffPolicyAlgorithm):
         }
 
     def _setup_model(self) -> None:
+        check_observation_space(self.observation_space)  # here, not in __init__: load() sets the spaces later
         settings = self._env_settings()
         for key, value in settings.items():
             given = self.policy_kwargs.get(key, value)

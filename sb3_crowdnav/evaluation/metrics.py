@@ -4,7 +4,7 @@ Confidence intervals of the success / collision / timeout rates are **Wilson sco
 at 95 % (z = 1.959964): for k successes in n episodes, p̂ = k / n,
 
     centre = (p̂ + z²/(2n)) / (1 + z²/n)
-    half   = z / (1 + z²/n) · sqrt(p̂(1 − p̂)/n + z²/(4n²))
+    half   = z / (1 + z²/n) · sqrt(p̂(1 - p̂)/n + z²/(4n²))
 
 Unlike the normal ("Wald") interval it stays inside [0, 1] and does not collapse to a point at
 p̂ = 0 or 1 (0.99 over 500 episodes → [0.977, 0.996]).
@@ -47,12 +47,14 @@ def wilson_interval(successes: int, n: int, confidence: float = 0.95) -> tuple[f
     denom = 1 + z * z / n
     centre = (p + z * z / (2 * n)) / denom
     half = z / denom * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n))
-    return (max(0.0, centre - half), min(1.0, centre + half))
+    low = 0.0 if successes == 0 else max(0.0, centre - half)  # exact bounds: no rounding residue at k = 0 or n
+    high = 1.0 if successes == n else min(1.0, centre + half)
+    return (low, high)
 
 
 def discounted_return(rewards: Sequence[float], gamma: float = 0.9, time_step: float = 0.25,
                       v_pref: float = 1.0) -> float:
-    """Σ_t γ^(t·Δt·v_pref)·r_t with t = 0, 1, ... (the "return" of Table 3; the env reports the same)."""
+    """Σ_t gamma^(t·Δt·v_pref)·r_t with t = 0, 1, ... (the "return" of Table 3; the env reports the same)."""
     r = np.asarray(rewards, dtype=np.float64)
     t = np.arange(len(r))
     return float(np.sum(gamma ** (t * time_step * v_pref) * r))
@@ -74,7 +76,7 @@ class Summary:
     timeout_rate: float
     timeout_ci: tuple[float, float]
     navigation_time: float  # [s], successful episodes
-    discounted_return: float  # Σ γ^(t·Δt·v_pref) r_t, all episodes
+    discounted_return: float  # Σ gamma^(t·Δt·v_pref) r_t, all episodes
     episode_return: float  # undiscounted, all episodes
     min_separation: float  # [m], "gap", episodes with pedestrians
     discomfort_frequency: float  # share of all steps

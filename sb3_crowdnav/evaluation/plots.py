@@ -93,7 +93,7 @@ def plot_trajectories(episodes: Mapping[str, EpisodeRecord | Trajectory], path: 
     rows = math.ceil(n / cols)
     fig, axes = plt.subplots(rows, cols, figsize=(panel_size * cols, panel_size * rows), squeeze=False)
     cmap = plt.get_cmap("tab10")
-    for ax, (label, traj, subtitle) in zip(axes.flat, items):
+    for ax, (label, traj, subtitle) in zip(axes.flat, items, strict=False):
         stamp_every = max(1, round(stamp_interval / traj.scene.time_step))
         _draw_trajectory(ax, traj, stamp_every, cmap)
         half = _extent(traj.scene)
@@ -182,7 +182,7 @@ def plot_value_map(model: Any, observation: Mapping[str, np.ndarray], path: str 
     r_edges = np.concatenate([[0.0], speeds])
     t_edges = _edges(angles, period=2 * np.pi)
     mesh = ax.pcolormesh(t_edges, r_edges, grid, cmap="viridis", shading="flat")
-    fig.colorbar(mesh, ax=ax, pad=0.1, label="R + γ^(Δt·v_pref)·V(s')")
+    fig.colorbar(mesh, ax=ax, pad=0.1, label="R + gamma^(Δt·v_pref)·V(s')")
     best = int(np.argmax(values))
     robot = np.asarray(observation["robot"], dtype=np.float64).reshape(-1)
     i_speed, i_dir = np.unravel_index(int(np.argmax(grid)), grid.shape)
@@ -243,7 +243,7 @@ def plot_learning_curves(runs: Mapping[str, str | Path] | str | Path, path: str 
         raise ValueError(f"none of the tags {list(tags)} is logged in {sorted(map(str, run_dirs.values()))}")
     plt = _pyplot()
     fig, axes = plt.subplots(1, len(present), figsize=(5 * len(present), 3.5), squeeze=False)
-    for ax, tag in zip(axes.flat, present):
+    for ax, tag in zip(axes.flat, present, strict=True):
         for label, scalars in data.items():
             if tag not in scalars:
                 continue
@@ -272,7 +272,7 @@ def render_frames(traj: Trajectory) -> list[np.ndarray]:
 
     renderer = CrowdRenderer(traj.scene)
     try:
-        pairs = list(zip(traj.robot, traj.humans))
+        pairs = list(zip(traj.robot, traj.humans, strict=True))
         goal = traj.robot[0, Robot.GOAL]
         return [renderer.draw(pairs[: k + 1], traj.human_goals, goal, float(t)) for k, t in enumerate(traj.times)]
     finally:

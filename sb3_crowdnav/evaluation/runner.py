@@ -71,7 +71,7 @@ class EpisodeRecord:
     """One evaluation episode (units: s, m, rad).
 
     ``episode_return`` is the undiscounted sum of rewards; ``discounted_return`` is
-    Σ_t γ^(t·Δt·v_pref)·r_t as computed by the env (the "return" of the paper's Table 3).
+    Σ_t gamma^(t·Δt·v_pref)·r_t as computed by the env (the "return" of the paper's Table 3).
     ``min_separation`` is the smallest surface distance to any pedestrian (``inf`` without
     pedestrians, ≤ 0 after a collision); ``discomfort_frequency`` the share of this episode's
     steps with a pedestrian closer than the discomfort distance (0.2 m).
@@ -165,7 +165,22 @@ def make_policy(spec: Any, env: gym.Env | None = None) -> Any:
         return RandomPolicy(env.action_space if env is not None else 80, seed=seed)
     from sb3_crowdnav.evaluation.models import load_model
 
-    return load_model(s)
+    model = load_model(s)
+    if env is not None:
+        check_spaces(model, env, s)
+    return model
+
+
+def check_spaces(model: Any, env: gym.Env, name: str = "the model") -> None:
+    """``ValueError`` when a model's observation shapes differ from the env's (e.g. another ``max_humans``)."""
+    model_space, env_space = getattr(model, "observation_space", None), env.observation_space
+    if not isinstance(model_space, gym.spaces.Dict) or not isinstance(env_space, gym.spaces.Dict):
+        return
+    got = {k: sp.shape for k, sp in env_space.spaces.items()}
+    want = {k: sp.shape for k, sp in model_space.spaces.items()}
+    if got != want:
+        raise ValueError(f"{name} was trained on observations {want} but the env gives {got}; "
+                         "use the same max_humans and history_length as in training")
 
 
 def make_env(env_id: str = DEFAULT_ENV_ID, env_kwargs: Mapping[str, Any] | None = None, **extra: Any) -> gym.Env:
@@ -294,6 +309,12 @@ def run_episodes(
         if not isinstance(policy, (str, Path)):
             raise ValueError("workers > 1 needs a picklable policy spec ('orca', 'random', or a model .zip path), "
                              f"not a {type(policy).__name__} object")
+        # fail here, not in the workers: a Pool restarts workers whose initializer raises, forever
+        env = make_env(env_id, env_kwargs)
+        try:
+            make_policy(str(policy), env)
+        finally:
+            env.close()
         ctx = mp.get_context("spawn")
         tasks = [(s, deterministic, keep_trajectories) for s in seeds]
         chunk = max(1, min(16, len(seeds) // (workers * 8)))
@@ -354,6 +375,7 @@ __all__ = [
     "EpisodeRecord",
     "RandomPolicy",
     "Trajectory",
+    "eval_seeds",
     "make_env",
     "make_policy",
     "policy_label",
@@ -361,5 +383,4 @@ __all__ = [
     "run_episode",
     "run_episodes",
     "run_sweep",
-    "eval_seeds",
 ]

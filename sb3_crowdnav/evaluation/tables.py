@@ -45,7 +45,7 @@ def summary_row(summary: Summary) -> dict[str, Any]:
 
 
 def _num(x: float, digits: int) -> str:
-    return "–" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.{digits}f}"
+    return "-" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.{digits}f}"
 
 
 def _rate(rate: float, ci: tuple[float, float]) -> str:

@@ -48,55 +48,79 @@ def policy_kwargs_names() -> dict[str, Any]:
     return names
 
 
+def _eval_name(node: ast.Name, names: Mapping[str, Any]) -> Any:
+    if node.id not in names:
+        raise ValueError(f"name {node.id!r} is not allowed; allowed: {sorted(names)}")
+    return names[node.id]
+
+
+def _eval_attribute(node: ast.Attribute, names: Mapping[str, Any]) -> Any:
+    if isinstance(node.value, ast.Name) and node.value.id == "nn" and "nn" in names:
+        import torch.nn as nn
+
+        value = getattr(nn, node.attr, None)
+        if isinstance(value, type) and issubclass(value, nn.Module):
+            return value
+    raise ValueError(f"attribute {ast.unparse(node)!r} is not allowed (only nn.<Module>)")
+
+
+def _eval_number_op(node: ast.UnaryOp | ast.BinOp, names: Mapping[str, Any]) -> Any:
+    if isinstance(node, ast.UnaryOp):
+        if not isinstance(node.op, (ast.USub, ast.UAdd)):
+            raise ValueError(f"operator in {ast.unparse(node)!r} is not allowed")
+        operands = [_eval_node(node.operand, names)]
+    else:
+        if type(node.op) not in _BINOPS:
+            raise ValueError(f"operator in {ast.unparse(node)!r} is not allowed (only + - * /)")
+        operands = [_eval_node(node.left, names), _eval_node(node.right, names)]
+    if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in operands):
+        raise ValueError(f"arithmetic only applies to numbers: {ast.unparse(node)!r}")
+    if isinstance(node, ast.UnaryOp):
+        return -operands[0] if isinstance(node.op, ast.USub) else operands[0]
+    return _BINOPS[type(node.op)](*operands)
+
+
+def _eval_call(node: ast.Call, names: Mapping[str, Any]) -> Any:
+    if _eval_node(node.func, names) is not dict or node.args or any(k.arg is None for k in node.keywords):
+        raise ValueError(f"only dict(key=value, ...) calls are allowed, got {ast.unparse(node)!r}")
+    return {k.arg: _eval_node(k.value, names) for k in node.keywords}
+
+
+def _eval_node(node: ast.AST, names: Mapping[str, Any]) -> Any:
+    if isinstance(node, ast.Constant):
+        return node.value
+    if isinstance(node, (ast.List, ast.Tuple)):
+        items = [_eval_node(e, names) for e in node.elts]
+        return items if isinstance(node, ast.List) else tuple(items)
+    if isinstance(node, ast.Dict):
+        if any(k is None for k in node.keys):
+            raise ValueError("'**' unpacking is not allowed")
+        return {_eval_node(k, names): _eval_node(v, names) for k, v in zip(node.keys, node.values, strict=True)}
+    if isinstance(node, (ast.UnaryOp, ast.BinOp)):
+        return _eval_number_op(node, names)
+    if isinstance(node, ast.Name):
+        return _eval_name(node, names)
+    if isinstance(node, ast.Attribute):
+        return _eval_attribute(node, names)
+    if isinstance(node, ast.Call):
+        return _eval_call(node, names)
+    raise ValueError(f"{type(node).__name__} is not allowed ({ast.unparse(node)!r})")
+
+
 def safe_eval(text: str, names: Mapping[str, Any]) -> Any:
     """Evaluate a Python literal with ``dict(...)`` calls, ``nn.<Module>`` and the given names only.
 
-    Raises ``ValueError`` naming the first construct that is not allowed.
+    No ``eval``: the expression is parsed with :mod:`ast` and only literals, lists, tuples, dicts,
+    ``dict(key=value)``, ``+ - * /`` on numbers, the given names and ``nn.<Module>`` are evaluated.
+    Anything else raises ``ValueError`` naming the construct.
     """
+    if not isinstance(text, str):
+        raise TypeError(f"safe_eval needs a string, got {type(text).__name__}")
     try:
         tree = ast.parse(text.strip(), mode="eval")
     except SyntaxError as exc:
         raise ValueError(f"cannot parse {text!r}: {exc.msg}") from None
-
-    def ev(node: ast.AST) -> Any:
-        if isinstance(node, ast.Constant):
-            return node.value
-        if isinstance(node, (ast.List, ast.Tuple)):
-            items = [ev(e) for e in node.elts]
-            return items if isinstance(node, ast.List) else tuple(items)
-        if isinstance(node, ast.Dict):
-            if any(k is None for k in node.keys):
-                raise ValueError("'**' unpacking is not allowed")
-            return {ev(k): ev(v) for k, v in zip(node.keys, node.values)}  # type: ignore[arg-type]
-        if isinstance(node, ast.UnaryOp) and isinstance(node.op, (ast.USub, ast.UAdd)):
-            value = ev(node.operand)
-            if not isinstance(value, (int, float)):
-                raise ValueError("unary +/- only applies to numbers")
-            return -value if isinstance(node.op, ast.USub) else value
-        if isinstance(node, ast.BinOp) and type(node.op) in _BINOPS:
-            left, right = ev(node.left), ev(node.right)
-            if not all(isinstance(v, (int, float)) for v in (left, right)):
-                raise ValueError("arithmetic only applies to numbers")
-            return _BINOPS[type(node.op)](left, right)
-        if isinstance(node, ast.Name):
-            if node.id not in names:
-                raise ValueError(f"name {node.id!r} is not allowed; allowed: {sorted(names)}")
-            return names[node.id]
-        if isinstance(node, ast.Attribute):
-            if isinstance(node.value, ast.Name) and node.value.id == "nn" and "nn" in names:
-                import torch.nn as nn
-
-                value = getattr(nn, node.attr, None)
-                if isinstance(value, type) and issubclass(value, nn.Module):
-                    return value
-            raise ValueError(f"attribute {ast.unparse(node)!r} is not allowed (only nn.<Module>)")
-        if isinstance(node, ast.Call):
-            if ev(node.func) is not dict or node.args or any(k.arg is None for k in node.keywords):
-                raise ValueError(f"only dict(key=value, ...) calls are allowed, got {ast.unparse(node)!r}")
-            return {k.arg: ev(k.value) for k in node.keywords}
-        raise ValueError(f"{type(node).__name__} is not allowed in {text!r}")
-
-    return ev(tree.body)
+    return _eval_node(tree.body, names)
 
 
 def load_hyperparams(path: str | Path, env_id: str = "CrowdNav-v0") -> dict[str, Any]:
