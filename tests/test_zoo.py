@@ -1,0 +1,86 @@
+"""rl-zoo3 integration: hyperparameter files, APGValue in rl-zoo3's tables, SB3 policy aliases."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import optuna
+import pytest
+import yaml
+from stable_baselines3 import DQN, PPO
+
+import sb3_crowdnav  # noqa: F401
+from sb3_crowdnav.apg_value import APGValue
+from sb3_crowdnav.nn import ApgExtractor, ApgActorCriticPolicy, ApgDQNPolicy
+from sb3_crowdnav.zoo import main as zoo_main, register, sample_apg_value_params
+
+ROOT = Path(__file__).resolve().parents[1]
+HYPER = ROOT / "zoo_hyperparams"
+
+
+def test_hyperparameter_files_carry_the_paper_settings():
+    apg = yaml.safe_load((HYPER / "apg_value.yml").read_text())["CrowdNav-v0"]
+    assert apg["policy"] == "ApgPolicy"
+    assert (apg["gamma"], apg["batch_size"], apg["learning_rate"]) == (0.9, 100, 1e-3)
+    assert (apg["imitation_episodes"], apg["imitation_learning_rate"]) == (3000, 0.01)
+    assert (apg["exploration_initial_eps"], apg["exploration_final_eps"], apg["exploration_episodes"]) == (0.5, 0.1, 5000)
+    for algo in ("ppo", "dqn"):
+        assert yaml.safe_load((HYPER / f"{algo}.yml").read_text())["CrowdNav-v0"]["policy"] == "ApgPolicy"
+    # every key of the APGValue file is a constructor argument (rl-zoo3 passes them through)
+    import inspect
+
+    allowed = set(inspect.signature(APGValue.__init__).parameters) | {"n_timesteps", "n_envs", "env_kwargs"}
+    for section in yaml.safe_load((HYPER / "apg_value.yml").read_text()).values():
+        assert set(section) <= allowed
+
+
+def test_register_adds_apg_value_to_rl_zoo3():
+    from rl_zoo3 import hyperparams_opt, utils
+
+    register()
+    assert utils.ALGOS["apg_value"] is APGValue
+    params = sample_apg_value_params(optuna.trial.FixedTrial({
+        "gamma": 0.9, "learning_rate": 1e-3, "batch_size": 100, "target_update_interval": 1000,
+        "exploration_final_eps": 0.1, "exploration_episodes": 1000, "imitation_episodes": 0, "imitation_epochs": 5,
+        "gradient_steps": 1,
+    }), 80, 1, {})
+    assert hyperparams_opt.HYPERPARAMS_CONVERTER["apg_value"](params) == params
+    model = APGValue("ApgPolicy", "CrowdNav-v0", **params)  # the sampled values are valid arguments
+    assert model.gamma == 0.9 and model.imitation_episodes == 0
+
+
+def test_sb3_aliases_keep_the_apg_extractor_when_policy_kwargs_are_replaced():
+    ppo = PPO("ApgPolicy", "CrowdNav-v0", n_steps=16, batch_size=16, policy_kwargs=dict(net_arch=[32]))
+    assert isinstance(ppo.policy, ApgActorCriticPolicy)
+    assert isinstance(ppo.policy.features_extractor, ApgExtractor)
+    dqn = DQN("ApgPolicy", "CrowdNav-v0", buffer_size=100, policy_kwargs=dict(net_arch=[32]))
+    assert isinstance(dqn.policy, ApgDQNPolicy)
+    assert isinstance(dqn.policy.q_net.features_extractor, ApgExtractor)
+
+
+def test_zoo_main_usage_error(capsys):
+    with pytest.raises(SystemExit) as exc:
+        zoo_main(["fly"])
+    assert exc.value.code == 2
+    assert "usage" in capsys.readouterr().err
+
+
+def test_rl_zoo3_trains_ppo_and_apg_value(tmp_path):
+    """The documented commands: stock rl-zoo3 for PPO, the thin wrapper for APGValue (then enjoy)."""
+    common = ["--env", "CrowdNav-v0", "-f", str(tmp_path), "--eval-freq", "-1", "--seed", "0"]
+    subprocess.run([sys.executable, "-m", "rl_zoo3.train", "--algo", "ppo", "--gym-packages", "sb3_crowdnav",
+                    "-conf", str(HYPER / "ppo.yml"), "-n", "128", *common,
+                    "-params", "n_envs:1", "n_steps:64", "batch_size:32", "n_epochs:1"],
+                   check=True, capture_output=True, timeout=300)
+    assert (tmp_path / "ppo" / "CrowdNav-v0_1" / "CrowdNav-v0.zip").exists()
+    zoo = [sys.executable, "-m", "sb3_crowdnav.zoo"]
+    subprocess.run([*zoo, "train", "--algo", "apg_value", "-conf", str(HYPER / "apg_value.yml"), "-n", "40", *common,
+                    "-params", "imitation_episodes:2", "imitation_epochs:1", "buffer_size:1000"],
+                   check=True, capture_output=True, timeout=300)
+    saved = tmp_path / "apg_value" / "CrowdNav-v0_1" / "CrowdNav-v0.zip"
+    assert saved.exists() and APGValue.load(saved).imitation_done
+    out = subprocess.run([*zoo, "enjoy", "--algo", "apg_value", "--env", "CrowdNav-v0", "-f", str(tmp_path),
+                          "--no-render", "-n", "120"], check=True, capture_output=True, text=True, timeout=300)
+    assert "Episodes" in out.stdout or "episode" in out.stdout.lower()
