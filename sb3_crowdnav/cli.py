@@ -1,7 +1,7 @@
 """The ``sb3-crowdnav`` command line: ``evaluate``, ``benchmark``, ``render`` and ``train``.
 
 Run ``sb3-crowdnav <command> --help`` for the options of each command. Policies are given as
-``orca``, ``random`` (or ``random:SEED``) or the path of a saved model ``.zip`` (APGValue, DQN,
+``orca`` (``orca-constrained``), ``random`` (or ``random:SEED``), ``pretrained:NAME`` or the path of a saved model ``.zip`` (APGValue, DQN,
 PPO; the algorithm is detected). Test episode ``i`` uses ``env.reset(seed=1_000_000 + i)``
 (``--seed-offset``), disjoint from training seeds. Bad arguments exit with status 2 and a
 one-line message.
@@ -98,7 +98,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("evaluate", parents=[common, env_opts], help="evaluate one policy and print its results table",
                        description="Evaluate one policy on test episodes and print the Table-3 row "
                                    "(rates with Wilson 95 % intervals).")
-    p.add_argument("--policy", required=True, help="orca, random[:SEED] or PATH.zip")
+    p.add_argument("--policy", required=True, help="orca, orca-constrained, random[:SEED], pretrained:NAME or PATH.zip")
     _run_options(p)
     p.add_argument("--out", type=Path, metavar="DIR", help="also write results.md, results.csv and episodes.csv here")
     p.set_defaults(func=_cmd_evaluate)
@@ -109,7 +109,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "one GIF per policy, a value map for value-based models, and with --sweep "
                                    "the Table-4 sweep over the number of pedestrians.")
     p.add_argument("--policy", action="append", required=True,
-                   help="orca, random[:SEED] or PATH.zip; repeat for several policies")
+                   help="orca, orca-constrained, random[:SEED], pretrained:NAME or PATH.zip; repeat for several policies")
     _run_options(p)
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")
     p.add_argument("--sweep", type=_nonneg_int, nargs="+", metavar="N",
@@ -121,7 +121,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("render", parents=[common, env_opts], help="draw one episode as GIF, MP4 or PNG",
                        description="Play one episode and write it as an animation (.gif, or .mp4 with "
                                    "imageio-ffmpeg) or as a trajectory figure (.png).")
-    p.add_argument("--policy", required=True, help="orca, random[:SEED] or PATH.zip")
+    p.add_argument("--policy", required=True, help="orca, orca-constrained, random[:SEED], pretrained:NAME or PATH.zip")
     p.add_argument("--seed", type=_nonneg_int, default=TEST_SEED_OFFSET, help="episode seed (default: %(default)s)")
     p.add_argument("--out", type=Path, required=True, metavar="FILE", help="episode.gif, episode.mp4 or episode.png")
     p.add_argument("--fps", type=float, help="frames per second of an animation (default: real time, 1/Δt)")
@@ -184,8 +184,16 @@ def _check_env(env_id: str, kwargs: dict[str, Any]) -> None:
 
 def _check_policy(spec: str) -> str:
     s = spec.strip()
-    if s.lower() == "orca":
-        return "orca"
+    if s.lower() in ("orca", "orca-constrained"):
+        return s.lower()
+    if s.lower().startswith("pretrained:"):
+        from sb3_crowdnav.pretrained_models import pretrained_path
+
+        try:
+            pretrained_path(s.partition(":")[2])
+        except ValueError as exc:
+            raise UsageError(f"--policy: {exc}") from None
+        return s
     head, _, tail = s.partition(":")
     if head.lower() == "random":
         if tail and not tail.lstrip("-").isdigit():
@@ -197,7 +205,7 @@ def _check_policy(spec: str) -> str:
         path = resolve_model_path(s)
         detect_algorithm(path)
     except (FileNotFoundError, ValueError) as exc:
-        raise UsageError(f"--policy {spec!r}: expected orca, random[:SEED] or a saved model .zip ({exc})") from None
+        raise UsageError(f"--policy {spec!r}: expected orca, orca-constrained, random[:SEED], pretrained:NAME or a saved model .zip ({exc})") from None
     return str(path)
 
 
@@ -218,7 +226,7 @@ def _progress(args: argparse.Namespace) -> bool:
 
 
 def _is_model(spec: str) -> bool:
-    return spec != "orca" and not spec.startswith("random")
+    return spec not in ("orca", "orca-constrained") and not spec.startswith("random")
 
 
 def _slug(label: str) -> str:

@@ -135,16 +135,22 @@ def policy_label(spec: Any) -> str:
     s = str(spec)
     if s.lower() == "orca":
         return "ORCA"
+    if s.lower() == "orca-constrained":
+        return "ORCA-constrained"
     if s.lower().split(":")[0] == "random":
         return "Random"
+    if s.lower().startswith("pretrained:"):
+        return s.partition(":")[2].upper()
     return Path(s).stem
 
 
 def make_policy(spec: Any, env: gym.Env | None = None) -> Any:
     """Turn a spec into an object with ``predict``; objects with ``predict`` pass through.
 
-    ``"orca"`` → :class:`~sb3_crowdnav.sim.orca.OrcaPolicy` built from ``env``;
-    ``"random"`` or ``"random:SEED"`` → :class:`RandomPolicy`; any other string → a saved model
+    ``"orca"`` → :class:`~sb3_crowdnav.sim.orca.OrcaPolicy` built from ``env`` (nearest-action
+    mapping, the paper's ORCA row); ``"orca-constrained"`` → the same with the constrained mapping;
+    ``"random"`` or ``"random:SEED"`` → :class:`RandomPolicy`; ``"pretrained:NAME"`` → a model
+    shipped with the package (:func:`sb3_crowdnav.pretrained`); any other string → a saved model
     loaded with :func:`~sb3_crowdnav.evaluation.models.load_model`.
     """
     if not isinstance(spec, (str, Path)):
@@ -152,10 +158,11 @@ def make_policy(spec: Any, env: gym.Env | None = None) -> Any:
             raise TypeError(f"a policy must have predict(observation, deterministic=...), got {type(spec).__name__}")
         return spec
     s = str(spec)
-    if s.lower() == "orca":
+    if s.lower() in ("orca", "orca-constrained"):
         from sb3_crowdnav.sim.orca import OrcaPolicy
 
-        return OrcaPolicy.from_env(env) if env is not None else OrcaPolicy()
+        mapping = "constrained" if s.lower() == "orca-constrained" else "nearest"
+        return OrcaPolicy.from_env(env, mapping=mapping) if env is not None else OrcaPolicy(mapping=mapping)
     head, _, tail = s.partition(":")
     if head.lower() == "random":
         try:
@@ -165,6 +172,10 @@ def make_policy(spec: Any, env: gym.Env | None = None) -> Any:
         return RandomPolicy(env.action_space if env is not None else 80, seed=seed)
     from sb3_crowdnav.evaluation.models import load_model
 
+    if s.lower().startswith("pretrained:"):
+        from sb3_crowdnav.pretrained_models import pretrained_path
+
+        s = str(pretrained_path(s.partition(":")[2]))
     model = load_model(s)
     if env is not None:
         check_spaces(model, env, s)

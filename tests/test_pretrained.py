@@ -1,0 +1,40 @@
+"""Shipped models and the policy specs of the evaluation harness."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import sb3_crowdnav
+from sb3_crowdnav.evaluation.runner import make_policy, policy_label
+from sb3_crowdnav.pretrained_models import PRETRAINED, pretrained_path
+
+
+def test_unknown_or_missing_pretrained_name_raises():
+    with pytest.raises(ValueError, match="known"):
+        sb3_crowdnav.pretrained("sarl_v9")
+    missing = [n for n in PRETRAINED if n not in sb3_crowdnav.available_pretrained()]
+    for name in missing:
+        with pytest.raises(ValueError, match="not shipped"):
+            pretrained_path(name)
+
+
+def test_every_shipped_model_loads_and_drives():
+    env = gym.make("CrowdNav-v0")
+    obs, _ = env.reset(seed=1_000_000)
+    for name in sb3_crowdnav.available_pretrained():
+        model = sb3_crowdnav.pretrained(name)
+        action, _ = model.predict(obs, deterministic=True)
+        assert 0 <= int(action) < 80
+        assert policy_label(f"pretrained:{name}") == name.upper()
+        assert make_policy(f"pretrained:{name}", env).predict(obs, deterministic=True)[0] == action
+
+
+def test_orca_specs_pick_the_mapping():
+    env = gym.make("CrowdNav-v0")
+    assert make_policy("orca", env).mapping == "nearest"
+    assert make_policy("orca-constrained", env).mapping == "constrained"
+    assert policy_label("orca-constrained") == "ORCA-constrained"
+    obs, _ = env.reset(seed=0)
+    assert np.ndim(make_policy("orca-constrained", env).predict(obs)[0]) == 0
