@@ -1,8 +1,8 @@
 """The ``sb3-crowdnav`` command line: ``evaluate``, ``benchmark``, ``render`` and ``train``.
 
 Run ``sb3-crowdnav <command> --help`` for the options of each command. Policies are given as
-``orca`` (``orca-constrained``), ``random`` (or ``random:SEED``), ``pretrained:NAME`` or the path of a saved model ``.zip`` (APGValue, DQN,
-PPO; the algorithm is detected). Test episode ``i`` uses ``env.reset(seed=1_000_000 + i)``
+``orca`` (``orca-constrained``), ``random`` (or ``random:SEED``), ``pretrained:NAME`` or the path
+of a saved model ``.zip`` (APGValue, DQN, PPO; the algorithm is detected). Test episode ``i`` uses ``env.reset(seed=1_000_000 + i)``
 (``--seed-offset``), disjoint from training seeds. Bad arguments exit with status 2 and a
 one-line message.
 """
@@ -205,7 +205,9 @@ def _check_policy(spec: str) -> str:
         path = resolve_model_path(s)
         detect_algorithm(path)
     except (FileNotFoundError, ValueError) as exc:
-        raise UsageError(f"--policy {spec!r}: expected orca, orca-constrained, random[:SEED], pretrained:NAME or a saved model .zip ({exc})") from None
+        raise UsageError(
+            f"--policy {spec!r}: expected orca, orca-constrained, random[:SEED], pretrained:NAME or a saved model .zip ({exc})"
+        ) from None
     return str(path)
 
 

@@ -58,9 +58,9 @@ def test_reward_model_equals_env_reward(reward, kinematics):
     for seed in range(12):
         obs, _ = env.reset(seed=seed)
         for t in range(13):  # linear pedestrians keep a constant velocity until ~1 m from their goals (t >= 14)
-            q, prop = model.policy.lookahead(_batched(obs))
+            _, prop = model.policy.lookahead(_batched(obs))
             a = int(rng.integers(5)) * 16 + int(rng.choice([0, 0, 1, 15, 8]))  # mostly ahead, sometimes turning
-            obs2, r, terminated, truncated, info = env.step(a)
+            obs2, r, terminated, truncated, _ = env.step(a)
             if t >= 1:  # at t = 0 the observed velocities are still zero while the pedestrians already walk
                 assert prop.reward[0, a] == pytest.approx(r, abs=1e-6)
                 assert bool(prop.terminal[0, a]) == terminated

@@ -234,7 +234,8 @@ class APGValue(OffPolicyAlgorithm):
     # ------------------------------------------------------------------ acting
     def _update_exploration(self) -> None:
         frac = min(1.0, self._episode_num / self.exploration_episodes)
-        self.exploration_rate = self.exploration_initial_eps + frac * (self.exploration_final_eps - self.exploration_initial_eps)
+        start, end = self.exploration_initial_eps, self.exploration_final_eps
+        self.exploration_rate = start + frac * (end - start)
 
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = False):
         """Greedy lookahead; with ``deterministic=False`` each env explores with probability ε (its own draw)."""
@@ -291,7 +292,8 @@ class APGValue(OffPolicyAlgorithm):
         """Run the ORCA robot for ``imitation_episodes`` episodes; return observations and discounted returns."""
         env = self.env
         assert env is not None
-        demo = OrcaPolicy(env.get_attr("scene")[0], safety_space=self.imitation_safety_space, mapping=self.imitation_mapping)
+        demo = OrcaPolicy(env.get_attr("scene")[0], safety_space=self.imitation_safety_space,
+                          mapping=self.imitation_mapping)
         obs = env.reset()
         self._last_obs = obs
         n = env.num_envs

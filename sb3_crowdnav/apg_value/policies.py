@@ -207,7 +207,7 @@ class ValueLookaheadPolicy(BasePolicy):
 
 
 def _alias(name: str, extractor: type[BaseFeaturesExtractor], doc: str) -> type[ValueLookaheadPolicy]:
-    def __init__(self, *args, features_extractor_class=extractor, **kwargs):  # noqa: N807
+    def __init__(self, *args, features_extractor_class=extractor, **kwargs):
         ValueLookaheadPolicy.__init__(self, *args, features_extractor_class=features_extractor_class, **kwargs)
 
     return type(name, (ValueLookaheadPolicy,), {"__init__": __init__, "__doc__": doc, "__module__": __name__})
