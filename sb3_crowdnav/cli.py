@@ -3,7 +3,8 @@
 Run ``sb3-crowdnav <command> --help`` for the options of each command. Policies are given as
 ``orca`` (``orca-constrained``), ``random`` (or ``random:SEED``), ``pretrained:NAME`` or the path
 of a saved model ``.zip`` (APGValue, DQN, PPO; the algorithm is detected). Test episode ``i``
-uses ``env.reset(seed=1_000_000 + i)`` (``--seed-offset``), disjoint from training seeds. Bad arguments exit with status 2 and a
+uses ``env.reset(seed=1_000_000 + i)`` (``--seed-offset``), disjoint from training seeds.
+Bad arguments exit with status 2 and a
 one-line message.
 """
 
