@@ -181,3 +181,20 @@ def test_refusals():
         name = next(iter(bad))
         with pytest.raises(ValueError, match=name):
             APGValue("ApgPolicy", "CrowdNav-v0", **{"imitation_episodes": 0, **bad})
+
+
+def test_tensorboard_scalars_and_progress_bar(tmp_path):
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    env = gym.make("CrowdNav-v0", time_limit=2.0)  # 8-step episodes: several rollouts get logged
+    model = APGValue("ApgPolicy", env, seed=0, tensorboard_log=str(tmp_path), **TINY)
+    model.learn(120, log_interval=2, progress_bar=True)
+    (run,) = list(tmp_path.iterdir())
+    acc = EventAccumulator(str(run))
+    acc.Reload()
+    tags = set(acc.Tags()["scalars"])
+    expected = {"train/imitation_loss", "train/loss", "train/learning_rate", "rollout/exploration_rate",
+                "rollout/success_rate", "rollout/collision_rate", "rollout/timeout_rate", "rollout/min_separation"}
+    assert expected <= tags, expected - tags
+    eps = [e.value for e in acc.Scalars("rollout/exploration_rate")]
+    assert eps[0] <= 0.5 and all(b <= a for a, b in zip(eps, eps[1:]))
