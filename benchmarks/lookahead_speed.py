@@ -15,6 +15,7 @@ import torch as th
 from stable_baselines3.common.env_util import make_vec_env
 
 import sb3_crowdnav  # noqa: F401
+from sb3_crowdnav.nn import configure_cpu
 from sb3_crowdnav.apg_value import APGValue
 from sb3_crowdnav.nn import EXTRACTORS
 
@@ -48,7 +49,7 @@ def main() -> None:
     parser.add_argument("--extractor", default="apg", choices=sorted(EXTRACTORS))
     parser.add_argument("--decisions", type=int, default=300)
     args = parser.parse_args()
-    th.set_num_threads(1)
+    configure_cpu(num_threads=1)  # one torch thread + keep freed tensor memory (sb3_crowdnav.nn.perf)
     model = APGValue("ApgPolicy", "CrowdNav-v0", imitation_episodes=0, seed=0,
                      policy_kwargs=dict(features_extractor_class=EXTRACTORS[args.extractor]))
     one = time_decisions(model, observations(1, args.decisions), single=True)

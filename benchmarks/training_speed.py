@@ -19,6 +19,7 @@ from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.logger import configure
 
 import sb3_crowdnav  # noqa: F401
+from sb3_crowdnav.nn import configure_cpu
 from sb3_crowdnav.apg_value import APGValue
 
 
@@ -31,7 +32,7 @@ def main() -> None:
     p.add_argument("--il-schedule", type=int, default=3000)
     p.add_argument("--rl-schedule", type=int, default=10000)
     args = p.parse_args()
-    th.set_num_threads(1)
+    configure_cpu(num_threads=1)  # one torch thread + keep freed tensor memory (sb3_crowdnav.nn.perf)
     env = make_vec_env("CrowdNav-v0", n_envs=args.n_envs, seed=0)
     model = APGValue("ApgPolicy", env, seed=0, imitation_episodes=args.il_episodes, imitation_epochs=2)
 

@@ -18,11 +18,11 @@ import os
 import time
 from pathlib import Path
 
-import torch as th
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.env_util import make_vec_env
 
 import sb3_crowdnav  # noqa: F401
+from sb3_crowdnav.nn import configure_cpu
 from sb3_crowdnav.apg_value import APGValue
 
 VARIANTS = {
@@ -76,7 +76,7 @@ def main() -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--checkpoint-episodes", type=int, default=500)
     args = p.parse_args()
-    th.set_num_threads(1)
+    configure_cpu(num_threads=1)  # one torch thread + keep freed tensor memory (sb3_crowdnav.nn.perf)
     policy, reward = VARIANTS[args.variant]
     args.out.mkdir(parents=True, exist_ok=True)
     ckpt = args.out / "checkpoint.zip"

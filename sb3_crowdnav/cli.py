@@ -419,9 +419,10 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``sb3-crowdnav`` console script."""
     parser = build_parser()
     args = parser.parse_args(argv)
-    import torch
 
-    torch.set_num_threads(args.threads)  # small networks: one thread is fastest on shared cores (SPEC §7)
+    from sb3_crowdnav.nn import configure_cpu
+
+    configure_cpu(args.threads)  # small networks: one thread is fastest on shared cores (SPEC §7); keep freed memory
     try:
         return args.func(args)
     except UsageError as exc:
