@@ -75,6 +75,8 @@ def main() -> None:
     p.add_argument("--num-humans", type=int, default=6)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--checkpoint-episodes", type=int, default=500)
+    p.add_argument("--bootstrap-timeouts", action="store_true", help="bootstrap through time-limit truncations")
+    p.add_argument("--from-imitation", type=Path, help="start from a saved post-imitation model (skips imitation)")
     args = p.parse_args()
     configure_cpu(num_threads=1)  # one torch thread + keep freed tensor memory (sb3_crowdnav.nn.perf)
     policy, reward = VARIANTS[args.variant]
@@ -91,10 +93,20 @@ def main() -> None:
             model.load_replay_buffer(args.out / "replay_buffer.pkl")
         print(f"resuming from {ckpt} at episode {model._episode_num}, {model.num_timesteps} steps", flush=True)
         reset = False
+    elif args.from_imitation is not None:
+        model = APGValue.load(args.from_imitation, env=env, tensorboard_log=str(args.out / "tb"), verbose=1,
+                              bootstrap_timeouts=args.bootstrap_timeouts)
+        if (args.from_imitation.parent / "imitation_replay_buffer.pkl").exists():
+            model.load_replay_buffer(args.from_imitation.parent / "imitation_replay_buffer.pkl")
+        reset = True
     else:
         model = APGValue(policy, env, seed=args.seed, imitation_episodes=args.il_episodes,
-                         imitation_epochs=args.il_epochs, tensorboard_log=str(args.out / "tb"), verbose=1)
-        reset = True
+                         imitation_epochs=args.il_epochs, tensorboard_log=str(args.out / "tb"), verbose=1,
+                         bootstrap_timeouts=args.bootstrap_timeouts)
+        model.learn(0, tb_log_name=args.variant)  # imitation pre-training only; kept so variants can restart from it
+        model.save(args.out / "imitation.zip")
+        model.save_replay_buffer(args.out / "imitation_replay_buffer.pkl")
+        reset = False
     callback = EpisodeCheckpoint(args.out, args.rl_episodes, args.checkpoint_episodes)
     start = time.time()
     # the episode budget stops training; the step budget is only an upper bound (100 steps per episode)

@@ -198,3 +198,28 @@ def test_tensorboard_scalars_and_progress_bar(tmp_path):
     assert expected <= tags, expected - tags
     eps = [e.value for e in acc.Scalars("rollout/exploration_rate")]
     assert eps[0] <= 0.5 and all(b <= a for a, b in zip(eps, eps[1:]))
+
+
+@pytest.mark.parametrize("bootstrap", [False, True])
+def test_timeouts_are_terminal_unless_bootstrapped(bootstrap):
+    env = gym.make("CrowdNav-v0", num_humans=0, time_limit=1.0)  # nobody around: every episode times out after 4 steps
+    model = APGValue("ApgPolicy", env, imitation_episodes=0, seed=0, bootstrap_timeouts=bootstrap, buffer_size=100,
+                     learning_starts=100)
+    model.learn(8)
+    samples = model.replay_buffer._get_samples(np.arange(8))
+    done = samples.dones.flatten().numpy()
+    expected_last = 0.0 if bootstrap else 1.0
+    np.testing.assert_array_equal(done, [0, 0, 0, expected_last] * 2)
+
+
+def test_loaded_buffer_follows_bootstrap_setting(tmp_path):
+    env = gym.make("CrowdNav-v0", num_humans=0, time_limit=1.0)
+    model = APGValue("ApgPolicy", env, imitation_episodes=0, seed=0, bootstrap_timeouts=True, learning_starts=100)
+    model.learn(8)
+    model.save(tmp_path / "m")
+    model.save_replay_buffer(tmp_path / "rb")
+    loaded = APGValue.load(tmp_path / "m", env=env, bootstrap_timeouts=False)
+    loaded.load_replay_buffer(tmp_path / "rb")
+    loaded.learn(4, reset_num_timesteps=False)
+    done = loaded.replay_buffer._get_samples(np.arange(12)).dones.flatten().numpy()
+    np.testing.assert_array_equal(done, [0, 0, 0, 1] * 3)
