@@ -75,7 +75,8 @@ def main() -> None:
     p.add_argument("--num-humans", type=int, default=6)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--checkpoint-episodes", type=int, default=500)
-    p.add_argument("--bootstrap-timeouts", action="store_true", help="bootstrap through time-limit truncations")
+    p.add_argument("--no-bootstrap-timeouts", dest="bootstrap_timeouts", action="store_false",
+                   help="end timed-out episodes with zero future value (the field's reference code) instead of bootstrapping")
     p.add_argument("--from-imitation", type=Path, help="start from a saved post-imitation model (skips imitation)")
     args = p.parse_args()
     configure_cpu(num_threads=1)  # one torch thread + keep freed tensor memory (sb3_crowdnav.nn.perf)

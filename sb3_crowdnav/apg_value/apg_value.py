@@ -80,10 +80,8 @@ class APGValue(OffPolicyAlgorithm):
         ``"constrained"`` succeeds in ~0.95 of the episodes with an invisible robot, ``"nearest"`` in ~0.3
     :param max_grad_norm: gradient clipping
     :param bootstrap_timeouts: bootstrap V_target(s') through time-limit truncations (SB3's
-        ``handle_timeout_termination``); False ends a timed-out episode with zero future value, as the
-        field's reference code does. The state carries no clock, and with bootstrapping the value of
-        loitering is anchored by nothing: measured, success collapsed to 0.01 (timeouts 0.85) within 300
-        RL episodes, see the README.
+        ``handle_timeout_termination``, the default); False ends a timed-out episode with zero future
+        value, as the field's reference code does (the state carries no clock).
     :param torch_threads: ``torch.set_num_threads`` at construction (1 is fastest on small CPUs); None leaves it
     """
 
@@ -120,7 +118,7 @@ class APGValue(OffPolicyAlgorithm):
         imitation_safety_space: float = 0.0,
         imitation_mapping: str = "constrained",
         max_grad_norm: float = 10.0,
-        bootstrap_timeouts: bool = False,
+        bootstrap_timeouts: bool = True,
         replay_buffer_class: type[DictReplayBuffer] | None = None,
         replay_buffer_kwargs: dict[str, Any] | None = None,
         stats_window_size: int = 100,
