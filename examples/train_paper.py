@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import time
 from pathlib import Path
 
@@ -38,13 +39,36 @@ VARIANTS = {
 }
 
 
-class EpisodeCheckpoint(BaseCallback):
-    """Stop after ``max_episodes`` RL episodes in total; checkpoint every ``every`` episodes."""
+VALIDATION_SEED_OFFSET = 2_000_000  # greedy validation episodes: disjoint from training and from the test seeds
 
-    def __init__(self, out: Path, max_episodes: int, every: int) -> None:
+
+class EpisodeCheckpoint(BaseCallback):
+    """Stop after ``max_episodes`` RL episodes in total; every ``every`` episodes checkpoint and validate.
+
+    Validation: ``eval_episodes`` greedy episodes on fixed seeds (the ε-greedy rollout rates of the
+    training log understate the greedy policy while ε is large), logged as ``eval/*`` and appended
+    to ``OUT/eval_curve.jsonl``; a copy of each checkpoint is kept as ``OUT/checkpoint_<episodes>.zip``.
+    """
+
+    def __init__(self, out: Path, max_episodes: int, every: int, eval_episodes: int = 100) -> None:
         super().__init__()
-        self.out, self.max_episodes, self.every = out, max_episodes, every
+        self.out, self.max_episodes, self.every, self.eval_episodes = out, max_episodes, every, eval_episodes
         self._last = -1
+
+    def validate(self) -> None:
+        from sb3_crowdnav.evaluation import run_episodes, summarize
+
+        model = self.model
+        s = summarize(run_episodes(model, self.eval_episodes, seed_offset=VALIDATION_SEED_OFFSET))
+        row = {"episodes": model._episode_num, "timesteps": model.num_timesteps, "wall": time.time(),
+               "success": s.success_rate, "collision": s.collision_rate, "timeout": s.timeout_rate,
+               "time": s.navigation_time, "gap": s.min_separation}
+        for key in ("success", "collision", "timeout", "time", "gap"):
+            model.logger.record(f"eval/{key}", row[key])
+        with open(self.out / "eval_curve.jsonl", "a") as f:
+            f.write(json.dumps(row) + "\n")
+        print(f"validation after {row['episodes']} RL episodes: success {s.success_rate:.2f}, "
+              f"collision {s.collision_rate:.2f}, time {s.navigation_time:.2f} s", flush=True)
 
     def save(self) -> None:
         model = self.model
@@ -61,6 +85,9 @@ class EpisodeCheckpoint(BaseCallback):
         if episodes != self._last and episodes > 0 and episodes % self.every == 0:
             self._last = episodes
             self.save()
+            shutil.copy(self.out / "checkpoint.zip", self.out / f"checkpoint_{episodes}.zip")
+            if self.eval_episodes:
+                self.validate()
         return episodes < self.max_episodes
 
 
@@ -75,6 +102,7 @@ def main() -> None:
     p.add_argument("--num-humans", type=int, default=6)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--checkpoint-episodes", type=int, default=500)
+    p.add_argument("--eval-episodes", type=int, default=100, help="greedy validation episodes at each checkpoint (0: none)")
     p.add_argument("--no-bootstrap-timeouts", dest="bootstrap_timeouts", action="store_false",
                    help="end timed-out episodes with zero future value (the field's reference code) instead of bootstrapping")
     p.add_argument("--from-imitation", type=Path, help="start from a saved post-imitation model (skips imitation)")
@@ -108,7 +136,7 @@ def main() -> None:
         model.save(args.out / "imitation.zip")
         model.save_replay_buffer(args.out / "imitation_replay_buffer.pkl")
         reset = False
-    callback = EpisodeCheckpoint(args.out, args.rl_episodes, args.checkpoint_episodes)
+    callback = EpisodeCheckpoint(args.out, args.rl_episodes, args.checkpoint_episodes, args.eval_episodes)
     start = time.time()
     # the episode budget stops training; the step budget is only an upper bound (100 steps per episode)
     model.learn(total_timesteps=args.rl_episodes * 100 * 2, callback=callback, reset_num_timesteps=reset,
