@@ -254,3 +254,27 @@ def test_walking_direction_batched():
     np.testing.assert_allclose(np.linalg.norm(dirs, axis=-1), 1.0)
     for b in range(7):
         np.testing.assert_allclose(walking_direction(vel[b], pos[b], robot[b]), dirs[b])
+
+
+def test_batched_reward_without_directions_skips_only_the_comfort_zone():
+    from sb3_crowdnav.sim.config import RewardConfig
+    from sb3_crowdnav.sim.rewards import compute_reward
+
+    rng = np.random.default_rng(5)
+    b, n = 64, 6
+    args = dict(
+        robot_pos0=rng.uniform(-1, 1, (b, 2)), robot_pos1=rng.uniform(-1, 1, (b, 2)), heading0=rng.uniform(-3, 3, b),
+        heading1=rng.uniform(-3, 3, b), goal=rng.uniform(-1, 1, (b, 2)), robot_radius=np.full(b, 0.3),
+        human_pos0=rng.uniform(-1.5, 1.5, (b, n, 2)), human_pos1=rng.uniform(-1.5, 1.5, (b, n, 2)),
+        human_radius=np.full((b, n), 0.3), mask=rng.random((b, n)) < 0.8,
+    )
+    dirs = rng.normal(size=(b, n, 2))
+    dirs /= np.linalg.norm(dirs, axis=-1, keepdims=True)
+    cfg = RewardConfig(name="crowdnav")
+    full = compute_reward(cfg, 0.25, human_dir=dirs, **args)
+    lean = compute_reward(cfg, 0.25, human_dir=None, **args)
+    np.testing.assert_array_equal(full.reward, lean.reward)
+    np.testing.assert_array_equal(full.min_distance, lean.min_distance)
+    assert full.in_comfort_zone.any() and not lean.in_comfort_zone.any()
+    with pytest.raises(ValueError, match="human_dir"):
+        compute_reward(RewardConfig(name="comfort"), 0.25, human_dir=None, **args)

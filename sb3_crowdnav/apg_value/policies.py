@@ -166,8 +166,8 @@ class ValueLookaheadPolicy(BasePolicy):
         """R + γ^(Δt·v_pref)·V(s') for every action of a batch of numpy observations: (B, 80)."""
         prop = self.propagation(observation["robot"], observation["humans"], observation["humans_mask"])
         b = prop.reward.shape[0]
-        robot = prop.robot.reshape(b * N_ACTIONS, -1)
-        humans = np.repeat(prop.humans, N_ACTIONS, axis=0)  # pedestrians are the same under every action
+        robot = prop.robot.reshape(b * N_ACTIONS, -1).astype(np.float32)
+        humans = np.repeat(prop.humans.astype(np.float32), N_ACTIONS, axis=0)  # the same under every action
         mask = np.repeat(prop.humans_mask, N_ACTIONS, axis=0)
         with th.no_grad():
             v = self.value_net(self._as_tensors(robot, humans, mask)).reshape(b, N_ACTIONS).cpu().numpy()

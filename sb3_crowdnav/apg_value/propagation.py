@@ -84,7 +84,9 @@ class PropagationModel:
         new_hist = np.concatenate([hist[:, 1:], latest[:, None]], axis=1)  # (B, T, M, 5)
 
         hpos1 = latest[:, :, Human.POS]
-        dirs = walking_direction(new_hist[:, None, :, :, Human.VEL], hpos1[:, None], new_pos)  # (B, 80, M, 2)
+        dirs = None  # walking directions only matter to the comfort ellipses of the social term
+        if self.reward.uses_social:
+            dirs = walking_direction(new_hist[:, None, :, :, Human.VEL], hpos1[:, None], new_pos)  # (B, 80, M, 2)
         full = (b, N_ACTIONS)
         terms = compute_reward(
             self.reward, self.time_step,

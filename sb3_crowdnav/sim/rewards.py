@@ -127,7 +127,7 @@ def compute_reward(
     robot_radius: np.ndarray,
     human_pos0: np.ndarray,
     human_pos1: np.ndarray,
-    human_dir: np.ndarray,
+    human_dir: np.ndarray | None,
     human_radius: np.ndarray,
     mask: np.ndarray,
 ) -> RewardTerms:
@@ -135,10 +135,14 @@ def compute_reward(
 
     Shapes: robot positions and goal (..., 2); headings and robot radius (...);
     pedestrian positions and unit walking directions (..., N, 2); radius and mask (..., N).
+    ``human_dir=None`` (batched path only) skips the comfort ellipses: allowed when the reward has
+    no social term, and then ``in_comfort_zone`` is all False (the lookahead's case).
     A single transition (no leading dimensions, the env's case) takes a scalar fast path with
     the same arithmetic; a test checks that both paths agree on random transitions.
     """
-    if np.ndim(robot_pos1) == 1 and np.ndim(human_pos1) == 2 and np.ndim(heading1) == 0:
+    if human_dir is None and cfg.uses_social:
+        raise ValueError(f"reward {cfg.name!r} has a social term: human_dir is required")
+    if np.ndim(robot_pos1) == 1 and np.ndim(human_pos1) == 2 and np.ndim(heading1) == 0 and human_dir is not None:
         return _compute_reward_single(cfg, time_step, robot_pos0, robot_pos1, heading0, heading1, goal, robot_radius,
                                       human_pos0, human_pos1, human_dir, human_radius, mask)
     mask = mask.astype(bool)
@@ -153,7 +157,10 @@ def compute_reward(
 
     success_term = np.where(success, cfg.success_reward, 0.0)
     collision_term = np.where(collision, cfg.collision_penalty, 0.0)
-    social, inside = social_penalty(robot_pos1[..., None, :] - human_pos1, human_dir, radius_sum, mask, cfg)
+    if human_dir is None:
+        social, inside = zero, np.zeros(collision.shape, dtype=bool)
+    else:
+        social, inside = social_penalty(robot_pos1[..., None, :] - human_pos1, human_dir, radius_sum, mask, cfg)
     discomfort = zero
     if cfg.uses_discomfort:
         discomfort = np.where(
