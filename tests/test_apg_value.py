@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -197,7 +199,7 @@ def test_tensorboard_scalars_and_progress_bar(tmp_path):
                 "rollout/success_rate", "rollout/collision_rate", "rollout/timeout_rate", "rollout/min_separation"}
     assert expected <= tags, expected - tags
     eps = [e.value for e in acc.Scalars("rollout/exploration_rate")]
-    assert eps[0] <= 0.5 and all(b <= a for a, b in zip(eps, eps[1:]))
+    assert eps[0] <= 0.5 and all(b <= a for a, b in itertools.pairwise(eps))
 
 
 @pytest.mark.parametrize("bootstrap", [False, True])
