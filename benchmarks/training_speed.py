@@ -28,7 +28,7 @@ def main() -> None:
     p.add_argument("--n-envs", type=int, default=1)
     p.add_argument("--rl-steps", type=int, default=3000)
     p.add_argument("--il-episodes", type=int, default=200)
-    p.add_argument("--imitation-epochs", type=int, default=50)
+    p.add_argument("--imitation-epochs", type=int, default=10)
     p.add_argument("--il-schedule", type=int, default=3000)
     p.add_argument("--rl-schedule", type=int, default=10000)
     args = p.parse_args()
