@@ -47,7 +47,8 @@ class EpisodeCheckpoint(BaseCallback):
 
     Validation: ``eval_episodes`` greedy episodes on fixed seeds (the ε-greedy rollout rates of the
     training log understate the greedy policy while ε is large), logged as ``eval/*`` and appended
-    to ``OUT/eval_curve.jsonl``; a copy of each checkpoint is kept as ``OUT/checkpoint_<episodes>.zip``.
+    to ``OUT/eval_curve.jsonl``; a copy of each checkpoint is kept as ``OUT/checkpoint_<episodes>.zip``
+    and the best one so far (highest success, then shortest navigation time) as ``OUT/best.zip``.
     """
 
     def __init__(self, out: Path, max_episodes: int, every: int, eval_episodes: int = 100) -> None:
@@ -67,6 +68,11 @@ class EpisodeCheckpoint(BaseCallback):
             model.logger.record(f"eval/{key}", row[key])
         with open(self.out / "eval_curve.jsonl", "a") as f:
             f.write(json.dumps(row) + "\n")
+        score = (s.success_rate, -s.navigation_time if s.navigation_time == s.navigation_time else 0.0)
+        best_file = self.out / "best.json"
+        if not best_file.exists() or score > tuple(json.loads(best_file.read_text())["score"]):
+            shutil.copy(self.out / "checkpoint.zip", self.out / "best.zip")
+            best_file.write_text(json.dumps({"score": score, **row}))
         print(f"validation after {row['episodes']} RL episodes: success {s.success_rate:.2f}, "
               f"collision {s.collision_rate:.2f}, time {s.navigation_time:.2f} s", flush=True)
 
