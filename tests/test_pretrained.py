@@ -38,3 +38,12 @@ def test_orca_specs_pick_the_mapping():
     assert policy_label("orca-constrained") == "ORCA-constrained"
     obs, _ = env.reset(seed=0)
     assert np.ndim(make_policy("orca-constrained", env).predict(obs)[0]) == 0
+
+
+def test_shipped_apg_rl_navigates():
+    """The shipped APG_RL model is a trained policy, not a placeholder: it crosses the crowd."""
+    from sb3_crowdnav.evaluation import run_episodes
+
+    assert "apg_rl" in sb3_crowdnav.available_pretrained()
+    records = run_episodes("pretrained:apg_rl", 10)
+    assert sum(r.outcome == "success" for r in records) >= 8
