@@ -169,7 +169,7 @@ class ValueLookaheadPolicy(BasePolicy):
         robot = prop.robot.reshape(b * N_ACTIONS, -1).astype(np.float32)
         humans = np.repeat(prop.humans.astype(np.float32), N_ACTIONS, axis=0)  # the same under every action
         mask = np.repeat(prop.humans_mask, N_ACTIONS, axis=0)
-        with th.no_grad():
+        with th.inference_mode():  # a little cheaper than no_grad; the values leave as numpy
             v = self.value_net(self._as_tensors(robot, humans, mask)).reshape(b, N_ACTIONS).cpu().numpy()
         q = prop.reward + prop.discount[:, None] * np.where(prop.terminal, 0.0, v)
         return q, prop
