@@ -109,6 +109,7 @@ def main() -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--learning-rate", type=float, default=1e-3, help="RL learning rate (Table 1: 0.001)")
     p.add_argument("--train-freq", type=int, default=4, help="one gradient step every this many env steps")
+    p.add_argument("--buffer-size", type=int, default=100_000, help="replay capacity [transitions]")
     p.add_argument("--checkpoint-episodes", type=int, default=500)
     p.add_argument("--eval-episodes", type=int, default=100, help="greedy validation episodes at each checkpoint (0: none)")
     p.add_argument("--no-bootstrap-timeouts", dest="bootstrap_timeouts", action="store_false",
@@ -141,7 +142,7 @@ def main() -> None:
         model = APGValue(policy, env, seed=args.seed, imitation_episodes=args.il_episodes,
                          imitation_epochs=args.il_epochs, tensorboard_log=str(args.out / "tb"), verbose=1,
                          bootstrap_timeouts=args.bootstrap_timeouts, learning_rate=args.learning_rate,
-                         train_freq=args.train_freq)
+                         train_freq=args.train_freq, buffer_size=args.buffer_size)
         model.learn(0, tb_log_name=args.variant)  # imitation pre-training only; kept so variants can restart from it
         model.save(args.out / "imitation.zip")
         model.save_replay_buffer(args.out / "imitation_replay_buffer.pkl")
