@@ -1,6 +1,6 @@
 """Plot greedy validation curves (``eval_curve.jsonl`` written by ``examples/train_paper.py``).
 
-    python examples/plot_curves.py paper_results/apg_rl_eval_curve.jsonl [more.jsonl ...] --out paper_results/learning_curve.png
+    python examples/plot_curves.py paper_results/*_eval_curve.jsonl --out paper_results/learning_curve.png
 
 Each file is one run (label = file stem); success rate and mean navigation time of successful
 episodes against RL episodes, 100 greedy validation episodes per point.
