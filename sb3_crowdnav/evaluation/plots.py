@@ -33,6 +33,15 @@ def _pyplot():
     return plt
 
 
+def _save(fig, path: str | Path, **kwargs) -> Path:
+    """Write ``fig`` as PNG (creating the folder) and close it."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120, **kwargs)
+    _pyplot().close(fig)
+    return path
+
+
 def _as_trajectory(item: EpisodeRecord | Trajectory) -> tuple[Trajectory, str]:
     if isinstance(item, Trajectory):
         return item, ""
@@ -108,11 +117,7 @@ def plot_trajectories(episodes: Mapping[str, EpisodeRecord | Trajectory], path: 
     if title:
         fig.suptitle(title)
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 # ------------------------------------------------------------------ Fig. 11: action values
@@ -194,10 +199,7 @@ def plot_value_map(model: Any, observation: Mapping[str, np.ndarray], path: str 
     ax.set_yticks(speeds)
     ax.set_yticklabels([f"{s:.1f}" for s in speeds], fontsize=7)
     ax.set_title(title or f"action values (best: action {best})", fontsize=10)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120, bbox_inches="tight")
-    plt.close(fig)
+    _save(fig, path, bbox_inches="tight")
     return values
 
 
@@ -258,11 +260,7 @@ def plot_learning_curves(runs: Mapping[str, str | Path] | str | Path, path: str 
     if len(data) > 1:
         axes.flat[0].legend(fontsize=8)
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 # ------------------------------------------------------------------ animations
