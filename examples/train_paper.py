@@ -25,6 +25,7 @@ from stable_baselines3.common.env_util import make_vec_env
 import sb3_crowdnav  # noqa: F401
 from sb3_crowdnav.nn import configure_cpu
 from sb3_crowdnav.apg_value import APGValue
+from sb3_crowdnav.apg_value.apg_value import VALUE_TARGETS
 
 VARIANTS = {
     # name: (policy alias, reward)
@@ -114,6 +115,8 @@ def main() -> None:
     p.add_argument("--eval-episodes", type=int, default=100, help="greedy validation episodes at each checkpoint (0: none)")
     p.add_argument("--no-bootstrap-timeouts", dest="bootstrap_timeouts", action="store_false",
                    help="end timed-out episodes with zero future value (the field's reference code) instead of bootstrapping")
+    p.add_argument("--value-target", choices=VALUE_TARGETS, default="td",
+                   help="what V is regressed on in RL (see APGValue's value_target)")
     p.add_argument("--from-imitation", type=Path, help="start from a saved post-imitation model (skips imitation)")
     args = p.parse_args()
     configure_cpu(num_threads=1)  # one torch thread + keep freed tensor memory (sb3_crowdnav.nn.perf)
@@ -134,7 +137,7 @@ def main() -> None:
     elif args.from_imitation is not None:
         model = APGValue.load(args.from_imitation, env=env, tensorboard_log=str(args.out / "tb"), verbose=1,
                               bootstrap_timeouts=args.bootstrap_timeouts, learning_rate=args.learning_rate,
-                              train_freq=args.train_freq)
+                              train_freq=args.train_freq, value_target=args.value_target)
         if (args.from_imitation.parent / "imitation_replay_buffer.pkl").exists():
             model.load_replay_buffer(args.from_imitation.parent / "imitation_replay_buffer.pkl")
         reset = True
@@ -142,7 +145,7 @@ def main() -> None:
         model = APGValue(policy, env, seed=args.seed, imitation_episodes=args.il_episodes,
                          imitation_epochs=args.il_epochs, tensorboard_log=str(args.out / "tb"), verbose=1,
                          bootstrap_timeouts=args.bootstrap_timeouts, learning_rate=args.learning_rate,
-                         train_freq=args.train_freq, buffer_size=args.buffer_size)
+                         train_freq=args.train_freq, buffer_size=args.buffer_size, value_target=args.value_target)
         model.learn(0, tb_log_name=args.variant)  # imitation pre-training only; kept so variants can restart from it
         model.save(args.out / "imitation.zip")
         model.save_replay_buffer(args.out / "imitation_replay_buffer.pkl")

@@ -225,3 +225,89 @@ def test_loaded_buffer_follows_bootstrap_setting(tmp_path):
     loaded.learn(4, reset_num_timesteps=False)
     done = loaded.replay_buffer._get_samples(np.arange(12)).dones.flatten().numpy()
     np.testing.assert_array_equal(done, [0, 0, 0, 1] * 3)
+
+
+# ---------------------------------------------------------------- value targets
+def _value_params(model):
+    return th.cat([p.detach().flatten() for p in model.policy.value_net.parameters()])
+
+
+def test_buffer_stores_staged_fields_and_defaults():
+    from sb3_crowdnav.apg_value.buffers import ValueReplayBuffer
+
+    env = make_vec_env("CrowdNav-v0", n_envs=2, seed=0)
+    buffer = ValueReplayBuffer(10, env.observation_space, env.action_space, n_envs=2)
+    obs = env.reset()
+    step = (obs, obs, np.zeros((2, 1)), np.zeros(2), np.zeros(2), [{}, {}])
+    buffer.stage([True, False], [0.5, np.nan])
+    buffer.add(*step)
+    buffer.add(*step)  # not staged: greedy, no target
+    np.testing.assert_array_equal(buffer.greedy[:2], [[True, False], [True, True]])
+    np.testing.assert_array_equal(buffer.lookahead_target[:2], [[0.5, np.nan], [np.nan, np.nan]])
+    samples = buffer._get_samples(np.array([0, 0, 0, 0, 0, 0, 0, 0]))
+    assert set(samples.greedy.flatten().tolist()) == {0.0, 1.0}  # both envs drawn among 8 samples (p = 1 - 2/256)
+    with pytest.raises(ValueError, match="one value per env"):
+        buffer.stage([True], [0.1])
+
+
+def test_value_target_refusals():
+    from stable_baselines3.common.buffers import DictReplayBuffer
+
+    with pytest.raises(ValueError, match="value_target"):
+        APGValue("ApgPolicy", "CrowdNav-v0", imitation_episodes=0, value_target="mc")
+    with pytest.raises(ValueError, match="ValueReplayBuffer"):
+        APGValue("ApgPolicy", "CrowdNav-v0", imitation_episodes=0, value_target="greedy_td",
+                 replay_buffer_class=DictReplayBuffer)
+    # the paper's TD target still works with SB3's own buffer
+    APGValue("ApgPolicy", "CrowdNav-v0", imitation_episodes=0, replay_buffer_class=DictReplayBuffer,
+             batch_size=8, seed=0).learn(16)
+
+
+def test_greedy_td_ignores_exploratory_transitions():
+    kwargs = dict(imitation_episodes=0, seed=0, batch_size=8, exploration_initial_eps=1.0, exploration_final_eps=1.0)
+    model = APGValue("ApgPolicy", "CrowdNav-v0", value_target="greedy_td", **kwargs)
+    before = _value_params(model)
+    model.learn(40)
+    assert model.replay_buffer.greedy[:40].sum() == 0  # every action was an ε draw ...
+    assert th.equal(_value_params(model), before)  # ... so V did not move
+    plain = APGValue("ApgPolicy", "CrowdNav-v0", value_target="td", **kwargs)
+    plain.learn(40)
+    assert not th.equal(_value_params(plain), before)  # the same data moves V under the paper's TD target
+
+
+def test_lookahead_target_is_the_best_action_value_at_insertion():
+    model = APGValue("ApgPolicy", "CrowdNav-v0", imitation_episodes=0, seed=0, value_target="lookahead",
+                     exploration_initial_eps=0.5, exploration_final_eps=0.5, gradient_steps=0)  # no training
+    model.learn(30)
+    buffer = model.replay_buffer
+    obs = {k: v[:30, 0] for k, v in buffer.observations.items()}
+    expected = model.policy.action_values(obs).max(axis=1)
+    np.testing.assert_allclose(buffer.lookahead_target[:30, 0], expected, rtol=1e-5, atol=1e-6)
+    greedy = model.policy.action_values(obs).argmax(axis=1) == buffer.actions[:30, 0, 0]
+    np.testing.assert_array_equal(buffer.greedy[:30, 0], greedy)
+    assert 0 < greedy.sum() < 30  # ε = 0.5 explores some steps, not all
+
+
+@pytest.mark.parametrize("value_target", ["greedy_td", "lookahead"])
+def test_value_targets_learn_and_train_on_stored_target(value_target):
+    model = APGValue("ApgPolicy", "CrowdNav-v0", value_target=value_target, seed=3, **TINY)
+    before = _value_params(model)
+    model.learn(60)
+    assert not th.equal(_value_params(model), before)
+    assert np.isfinite(model.logger.name_to_value.get("train/loss", 0.0))
+
+
+def test_old_dict_buffer_is_wrapped_on_load(tmp_path):
+    from stable_baselines3.common.buffers import DictReplayBuffer
+    from sb3_crowdnav.apg_value.buffers import ValueReplayBuffer
+
+    old = APGValue("ApgPolicy", "CrowdNav-v0", imitation_episodes=0, seed=0, replay_buffer_class=DictReplayBuffer,
+                   learning_starts=100)
+    old.learn(10)
+    old.save_replay_buffer(tmp_path / "rb")
+    model = APGValue("ApgPolicy", "CrowdNav-v0", imitation_episodes=0, seed=0, value_target="greedy_td", batch_size=8)
+    model.load_replay_buffer(tmp_path / "rb")
+    assert isinstance(model.replay_buffer, ValueReplayBuffer)
+    assert model.replay_buffer.greedy[:10].all() and np.isnan(model.replay_buffer.lookahead_target[:10]).all()
+    np.testing.assert_array_equal(model.replay_buffer.actions[:10], old.replay_buffer.actions[:10])
+    model.learn(10, reset_num_timesteps=False)

@@ -20,6 +20,7 @@ from stable_baselines3.common.utils import polyak_update, safe_mean
 from stable_baselines3.common.vec_env import VecEnv, VecFrameStack, VecNormalize, unwrap_vec_wrapper
 from torch.nn import functional as F
 
+from sb3_crowdnav.apg_value.buffers import ValueReplayBuffer
 from sb3_crowdnav.apg_value.policies import (
     OBS_KEYS,
     CadrlPolicy,
@@ -34,6 +35,8 @@ from sb3_crowdnav.sim.layout import Robot
 from sb3_crowdnav.sim.orca import OrcaPolicy
 
 SelfAPGValue = TypeVar("SelfAPGValue", bound="APGValue")
+
+VALUE_TARGETS = ("td", "greedy_td", "lookahead")
 
 
 def check_env_compatible(env: VecEnv | None) -> None:
@@ -82,6 +85,13 @@ class APGValue(OffPolicyAlgorithm):
     :param bootstrap_timeouts: bootstrap V_target(s') through time-limit truncations (SB3's
         ``handle_timeout_termination``, the default); False ends a timed-out episode with zero future
         value, as the field's reference code does (the state carries no clock).
+    :param value_target: what V is regressed on during RL.
+        ``"td"``: r + γ^(Δt·v_pref)·V_target(s')·(1 - terminated) on every stored transition (SPEC §4).
+        ``"greedy_td"``: the same target, but only transitions whose action was the greedy lookahead's (or the
+        demonstrator's) train V, so V estimates the greedy policy rather than the ε-greedy one.
+        ``"lookahead"``: max over the 80 actions of R(s, a) + γ^(Δt·v_pref)·V(s'_a), computed when the action was
+        chosen (a value-iteration backup through the propagation model, frozen in the buffer as the field's
+        reference code freezes its targets); transitions without one (the demonstrations) use the TD target.
     :param torch_threads: ``torch.set_num_threads`` at construction (1 is fastest on small CPUs); None leaves it
     """
 
@@ -119,6 +129,7 @@ class APGValue(OffPolicyAlgorithm):
         imitation_mapping: str = "constrained",
         max_grad_norm: float = 10.0,
         bootstrap_timeouts: bool = True,
+        value_target: str = "td",
         replay_buffer_class: type[DictReplayBuffer] | None = None,
         replay_buffer_kwargs: dict[str, Any] | None = None,
         stats_window_size: int = 100,
@@ -153,6 +164,15 @@ class APGValue(OffPolicyAlgorithm):
                 raise ValueError(f"{name} must be an int >= {minimum}, got {value!r}")
         if not isinstance(bootstrap_timeouts, bool):
             raise TypeError(f"bootstrap_timeouts must be a bool, got {bootstrap_timeouts!r}")
+        if value_target not in VALUE_TARGETS:
+            raise ValueError(f"value_target must be one of {VALUE_TARGETS}, got {value_target!r}")
+        if replay_buffer_class is None:
+            replay_buffer_class = ValueReplayBuffer
+        elif value_target != "td" and not issubclass(replay_buffer_class, ValueReplayBuffer):
+            raise ValueError(
+                f"value_target={value_target!r} needs a ValueReplayBuffer (it stores how each action was chosen); "
+                f"got replay_buffer_class={replay_buffer_class.__name__}"
+            )
         replay_buffer_kwargs = dict(replay_buffer_kwargs or {})
         replay_buffer_kwargs.setdefault("handle_timeout_termination", bootstrap_timeouts)
         if not imitation_learning_rate > 0:
@@ -197,6 +217,8 @@ class APGValue(OffPolicyAlgorithm):
         self.imitation_mapping = imitation_mapping
         self.max_grad_norm = max_grad_norm
         self.bootstrap_timeouts = bootstrap_timeouts
+        self.value_target = value_target
+        self._staged: tuple[np.ndarray, np.ndarray] | None = None
         self.exploration_rate = exploration_initial_eps
         self.imitation_done = imitation_episodes == 0
         self._n_calls = 0
@@ -252,18 +274,32 @@ class APGValue(OffPolicyAlgorithm):
         if deterministic:
             return self.policy.predict(observation, state, episode_start, deterministic=True)
         self._update_exploration()  # ε of the episodes finished so far, whatever the env count
-        if self.exploration_rate <= 0:
-            return self.policy.predict(observation, state, episode_start, deterministic=True)
         robot = np.asarray(observation["robot"])
         n = robot.shape[0] if robot.ndim == 2 else 1
         explore = self._explore_rng.random(n) < self.exploration_rate
         random_actions = self._explore_rng.integers(0, self.action_space.n, n)
-        if explore.all():
-            actions = random_actions
-        else:
-            actions, state = self.policy.predict(observation, state, episode_start, deterministic=True)
-            actions = np.where(explore, random_actions, np.atleast_1d(actions))
+        if self.value_target == "lookahead" or not explore.all():
+            self.policy.set_training_mode(False)
+            q = self.policy.action_values(observation)  # (n, 80)
+            greedy_actions, best = q.argmax(axis=1), q.max(axis=1)
+        else:  # every env explores: skip the lookahead
+            greedy_actions, best = np.full(n, -1), np.full(n, np.nan)
+        actions = np.where(explore, random_actions, greedy_actions)
+        self._staged = (actions == greedy_actions, best)  # read by _store_transition
         return (actions if robot.ndim == 2 else actions[0]), state
+
+    def _store_transition(self, replay_buffer, buffer_action, new_obs, reward, dones, infos) -> None:  # type: ignore[override]
+        if isinstance(replay_buffer, ValueReplayBuffer) and self._staged is not None:
+            replay_buffer.stage(*self._staged)
+        self._staged = None
+        super()._store_transition(replay_buffer, buffer_action, new_obs, reward, dones, infos)
+
+    def load_replay_buffer(self, path, truncate_last_traj: bool = True) -> None:
+        """SB3's ``load_replay_buffer``; a plain ``DictReplayBuffer`` (older saves) is wrapped as a ``ValueReplayBuffer``."""
+        super().load_replay_buffer(path, truncate_last_traj)
+        if not isinstance(self.replay_buffer, ValueReplayBuffer) and isinstance(self.replay_buffer, DictReplayBuffer):
+            self.replay_buffer = ValueReplayBuffer.from_dict_buffer(self.replay_buffer)
+        self._sync_timeout_handling()
 
     # ------------------------------------------------------------------ learning
     def _on_step(self) -> None:
@@ -286,8 +322,24 @@ class APGValue(OffPolicyAlgorithm):
         losses = []
         for _ in range(gradient_steps):
             data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
-            target = self._td_target(data.rewards.flatten(), data.next_observations, data.observations, data.dones.flatten())
-            loss = F.mse_loss(self.policy.values(data.observations), target)
+            weights = None
+            if self.value_target == "lookahead":
+                target = data.lookahead_targets.flatten()
+                known = th.isfinite(target)
+                if not known.all():
+                    td = self._td_target(data.rewards.flatten(), data.next_observations, data.observations,
+                                         data.dones.flatten())
+                    target = th.where(known, target, td)
+            else:
+                target = self._td_target(data.rewards.flatten(), data.next_observations, data.observations,
+                                         data.dones.flatten())
+                if self.value_target == "greedy_td":
+                    weights = data.greedy.flatten()
+            error = self.policy.values(data.observations) - target
+            if weights is None:
+                loss = error.square().mean()
+            else:  # ε-drawn transitions do not train V
+                loss = (weights * error.square()).sum() / weights.sum().clamp_min(1.0)
             self.policy.optimizer.zero_grad()
             loss.backward()
             th.nn.utils.clip_grad_norm_(self.policy.value_net.parameters(), self.max_grad_norm)
@@ -429,7 +481,7 @@ class APGValue(OffPolicyAlgorithm):
         super().dump_logs()
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "_explore_rng", "_outcomes", "_nav_times", "_min_seps"]
+        return [*super()._excluded_save_params(), "_explore_rng", "_outcomes", "_nav_times", "_min_seps", "_staged"]
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         return ["policy", "policy.optimizer"], []

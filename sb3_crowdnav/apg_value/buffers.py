@@ -1,0 +1,84 @@
+"""Replay buffer that also remembers how each transition's action was chosen.
+
+``APGValue`` can train V on different targets (its ``value_target`` parameter); two of them
+need one number per transition besides SB3's usual fields:
+
+- ``greedy``: the action was the lookahead's argmax (or the demonstrator's), not an ε draw;
+- ``lookahead_target``: max over the 80 actions of R(s, a) + γ^(Δt·v_pref)·V(s'_a), computed
+  with the online network when the action was chosen (NaN where it was not computed).
+
+The algorithm stages these with :meth:`ValueReplayBuffer.stage` right before SB3's
+``_store_transition`` calls :meth:`add`; a transition added without staging counts as greedy
+with no lookahead target.
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import numpy as np
+import torch as th
+from stable_baselines3.common.buffers import DictReplayBuffer
+from stable_baselines3.common.type_aliases import TensorDict
+from stable_baselines3.common.vec_env import VecNormalize
+
+
+class ValueReplayBufferSamples(NamedTuple):
+    observations: TensorDict
+    actions: th.Tensor
+    next_observations: TensorDict
+    dones: th.Tensor
+    rewards: th.Tensor
+    greedy: th.Tensor  # (batch, 1) float 0/1
+    lookahead_targets: th.Tensor  # (batch, 1), NaN where none was stored
+
+
+class ValueReplayBuffer(DictReplayBuffer):
+    """:class:`~stable_baselines3.common.buffers.DictReplayBuffer` plus ``greedy`` and ``lookahead_target``."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.greedy = np.ones((self.buffer_size, self.n_envs), dtype=bool)
+        self.lookahead_target = np.full((self.buffer_size, self.n_envs), np.nan, dtype=np.float32)
+        self._staged: tuple[np.ndarray, np.ndarray] | None = None
+
+    @classmethod
+    def from_dict_buffer(cls, buffer: DictReplayBuffer) -> ValueReplayBuffer:
+        """Wrap a plain ``DictReplayBuffer`` (e.g. one saved by an older version): every transition greedy, no targets."""
+        new = cls.__new__(cls)
+        new.__dict__.update(buffer.__dict__)
+        new.greedy = np.ones((new.buffer_size, new.n_envs), dtype=bool)
+        new.lookahead_target = np.full((new.buffer_size, new.n_envs), np.nan, dtype=np.float32)
+        new._staged = None
+        return new
+
+    def stage(self, greedy: np.ndarray, lookahead_target: np.ndarray) -> None:
+        """Set the extra fields of the next :meth:`add` (one value per env)."""
+        greedy = np.asarray(greedy, dtype=bool).reshape(-1)
+        target = np.asarray(lookahead_target, dtype=np.float32).reshape(-1)
+        if greedy.shape != (self.n_envs,) or target.shape != (self.n_envs,):
+            raise ValueError(f"stage() expects one value per env ({self.n_envs}), got {greedy.shape} and {target.shape}")
+        self._staged = (greedy, target)
+
+    def add(self, *args: Any, **kwargs: Any) -> None:
+        greedy, target = self._staged if self._staged is not None else (True, np.nan)
+        self._staged = None
+        self.greedy[self.pos] = greedy
+        self.lookahead_target[self.pos] = target
+        super().add(*args, **kwargs)
+
+    def _get_samples(self, batch_inds: np.ndarray, env: VecNormalize | None = None) -> ValueReplayBufferSamples:  # type: ignore[override]
+        if env is not None:
+            raise ValueError("ValueReplayBuffer does not support VecNormalize")
+        env_indices = np.random.randint(0, high=self.n_envs, size=(len(batch_inds),))
+        column = (batch_inds, env_indices)
+        dones = self.dones[column] * (1 - self.timeouts[column])
+        return ValueReplayBufferSamples(
+            observations={key: self.to_torch(obs[column]) for key, obs in self.observations.items()},
+            actions=self.to_torch(self.actions[column]),
+            next_observations={key: self.to_torch(obs[column]) for key, obs in self.next_observations.items()},
+            dones=self.to_torch(dones).reshape(-1, 1),
+            rewards=self.to_torch(self.rewards[column]).reshape(-1, 1),
+            greedy=self.to_torch(self.greedy[column].astype(np.float32)).reshape(-1, 1),
+            lookahead_targets=self.to_torch(self.lookahead_target[column]).reshape(-1, 1),
+        )
