@@ -1,6 +1,6 @@
 """Lookahead decision time of APGValue (SPEC §7): one env, and per env with 16 envs batched.
 
-Usage: python benchmarks/lookahead_speed.py [--extractor apg] [--decisions 300]
+Usage: python benchmarks/lookahead_speed.py [--extractor apg] [--decisions 300] [--dtype float32|bfloat16]
 Prints median milliseconds; one torch thread.
 """
 
@@ -48,10 +48,12 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--extractor", default="apg", choices=sorted(EXTRACTORS))
     parser.add_argument("--decisions", type=int, default=300)
+    parser.add_argument("--dtype", default="float32", choices=("float32", "bfloat16"),
+                        help="lookahead precision (ValueLookaheadPolicy's lookahead_dtype)")
     args = parser.parse_args()
     configure_cpu(num_threads=1)  # one torch thread + keep freed tensor memory (sb3_crowdnav.nn.perf)
     model = APGValue("ApgPolicy", "CrowdNav-v0", imitation_episodes=0, seed=0,
-                     policy_kwargs=dict(features_extractor_class=EXTRACTORS[args.extractor]))
+                     policy_kwargs=dict(features_extractor_class=EXTRACTORS[args.extractor], lookahead_dtype=args.dtype))
     one = time_decisions(model, observations(1, args.decisions), single=True)
     sixteen = time_decisions(model, observations(16, max(args.decisions // 4, 20)), single=False)
     prop = model.policy.propagation
@@ -61,7 +63,7 @@ def main() -> None:
         prop(o["robot"], o["humans"], o["humans_mask"])
         prop_times.append(time.perf_counter() - t)
     t_prop = statistics.median(prop_times) * 1e3
-    print(f"extractor={args.extractor} torch_threads={th.get_num_threads()} humans=6 T=5")
+    print(f"extractor={args.extractor} dtype={args.dtype} torch_threads={th.get_num_threads()} humans=6 T=5")
     print(f"single env decision: {one:.2f} ms (target < 3 ms; reference code ~92 ms)")
     print(f"16 envs batched: {sixteen:.2f} ms per call = {sixteen / 16:.3f} ms per env (target < 0.5 ms)")
     print(f"  of which propagation + reward model for 16 x 80 states: {t_prop:.2f} ms")

@@ -311,3 +311,40 @@ def test_old_dict_buffer_is_wrapped_on_load(tmp_path):
     assert model.replay_buffer.greedy[:10].all() and np.isnan(model.replay_buffer.lookahead_target[:10]).all()
     np.testing.assert_array_equal(model.replay_buffer.actions[:10], old.replay_buffer.actions[:10])
     model.learn(10, reset_num_timesteps=False)
+
+
+# ---------------------------------------------------------------- bfloat16 lookahead
+needs_bf16 = pytest.mark.skipif(not __import__("sb3_crowdnav.nn.layers", fromlist=["x"]).bfloat16_supported(),
+                                reason="no native bfloat16 kernels on this CPU")
+
+
+@needs_bf16
+def test_bfloat16_lookahead_agrees_with_float32(tmp_path):
+    env = make_vec_env("CrowdNav-v0", n_envs=4, seed=0)
+    model = APGValue("ApgPolicy", env, imitation_episodes=0, seed=0)
+    obs = env.reset()
+    batches = []
+    for _ in range(10):
+        batches.append(obs)
+        obs, *_ = env.step(np.random.default_rng(0).integers(0, N_ACTIONS, 4))
+    q32 = np.concatenate([model.policy.action_values(o) for o in batches])
+    model.policy.set_lookahead_dtype("bfloat16")
+    q16 = np.concatenate([model.policy.action_values(o) for o in batches])
+    assert not np.array_equal(q16, q32)  # the bfloat16 path did run
+    np.testing.assert_allclose(q16, q32, atol=2e-3)
+    assert (q16.argmax(1) == q32.argmax(1)).mean() >= 0.8
+    # gradient passes stay float32 and untouched by the setting
+    tens = {k: th.as_tensor(v) for k, v in batches[0].items()}
+    v16 = model.policy.values(tens)
+    model.policy.set_lookahead_dtype("float32")
+    assert v16.dtype == th.float32 and th.equal(v16, model.policy.values(tens))
+    model.policy.set_lookahead_dtype("bfloat16")
+    model.save(tmp_path / "m")
+    assert APGValue.load(tmp_path / "m").policy.lookahead_dtype == "bfloat16"
+
+
+def test_lookahead_dtype_refusals():
+    with pytest.raises(ValueError, match="lookahead_dtype"):
+        APGValue("ApgPolicy", "CrowdNav-v0", imitation_episodes=0, policy_kwargs=dict(lookahead_dtype="float16"))
+    with pytest.raises(ValueError, match="APG encoder only"):
+        APGValue("CadrlPolicy", "CrowdNav-v0", imitation_episodes=0, policy_kwargs=dict(lookahead_dtype="bfloat16"))

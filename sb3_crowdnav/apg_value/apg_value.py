@@ -480,6 +480,12 @@ class APGValue(OffPolicyAlgorithm):
                 self.logger.record("rollout/min_separation", safe_mean(finite))
         super().dump_logs()
 
+    def save(self, path, exclude=None, include=None) -> None:
+        """SB3's ``save``; the policy's current ``lookahead_dtype`` is saved with it."""
+        if self.policy is not None and self.policy_kwargs.get("lookahead_dtype", "float32") != self.policy.lookahead_dtype:
+            self.policy_kwargs["lookahead_dtype"] = self.policy.lookahead_dtype
+        super().save(path, exclude, include)
+
     def _excluded_save_params(self) -> list[str]:
         return [*super()._excluded_save_params(), "_explore_rng", "_outcomes", "_nav_times", "_min_seps", "_staged"]
 

@@ -151,6 +151,7 @@ class ApgExtractor(CrowdFeaturesExtractor):
         self.psi_alpha_mean = nn.Linear(e_dim, attention[0], bias=False)
         self.psi_alpha_rest = mlp(attention[0], attention[1:], last_activation=False)  # after a ReLU
         self.lstm = nn.LSTM(interaction[-1], lstm_hidden_size, batch_first=True)
+        self.bfloat16_inference = False
 
     def forward(self, observations: dict[str, th.Tensor]) -> th.Tensor:
         robot_feats, human_feats, valid, lengths = self._robot_centric(observations)  # (B, 7), (B, T, L, 7)
@@ -159,13 +160,24 @@ class ApgExtractor(CrowdFeaturesExtractor):
             human_feats[..., HumanFeat.POS], valid[:, None, :].expand(batch, steps, width), self.num_sectors, self.r_max
         )  # (B, T, L, K)  Eq. 3
         states = th.cat((human_feats, grid), dim=-1)  # (B, T, L, 7 + K), contiguous: Linear's fast path
+        if self.bfloat16_inference and not th.is_grad_enabled():
+            states = states.to(th.bfloat16)  # the per-(step, pedestrian) layers in bfloat16, the rest in float32
 
         e = self.psi_e(states)  # (B, T, L, E)  Eq. 4
         z = self.psi_h_hidden(e)  # (B, T, L, H') hidden layers of ψ_h, Eq. 5
-        e_a = e.mean(dim=1, keepdim=True)  # (B, 1, L, E)  Eq. 6
+        if e.dtype == th.float32:
+            e_a = e.mean(dim=1, keepdim=True)  # (B, 1, L, E)  Eq. 6
+        else:  # bfloat16 reductions go through a float32 copy of the whole tensor: add the T slices instead
+            e_a = (sum(e[:, m] for m in range(1, steps)) + e[:, 0])[:, None].mul_(1.0 / steps)
         pre = linear(e, self.psi_alpha_step).add_(linear(e_a, self.psi_alpha_mean))  # ψ_alpha's 1st layer on [e_m, e_a]
-        weights = th.softmax(self.psi_alpha_rest(th.relu_(pre)), dim=1)  # (B, T, L, 1)  Eq. 7; max-shifted inside
-        e_o = linear((weights * z).sum(dim=1), self.psi_h_out)  # (B, L, D) = Σ_m softmax(alpha)_m h_m, Eq. 8
+        weights = th.softmax(self.psi_alpha_rest(th.relu_(pre)).float(), dim=1)  # (B, T, L, 1)  Eq. 7; max-shifted
+        if z.dtype == th.float32:
+            pooled = (weights * z).sum(dim=1)  # (B, L, H') = Σ_m softmax(alpha)_m z_m
+        else:  # in float32, one step at a time (same reason as above)
+            pooled = weights[:, 0] * z[:, 0]
+            for m in range(1, steps):
+                pooled.addcmul_(weights[:, m], z[:, m])
+        e_o = linear(pooled, self.psi_h_out)  # (B, L, D) = Σ_m softmax(alpha)_m h_m, Eq. 8
 
         h_o = lstm_last_state(self.lstm, e_o, lengths)  # (B, hidden), rows past a length are never read
         return th.cat((robot_feats, h_o), dim=1)

@@ -52,17 +52,34 @@ def _use_onednn(x: th.Tensor) -> bool:
         _ONEDNN["enabled"]
         and _ONEDNN["available"]
         and not th.is_grad_enabled()
-        and x.dtype == th.float32
+        and x.dtype in (th.float32, th.bfloat16)
         and x.device.type == "cpu"
         and x.numel() > 0
         and not th.is_autocast_enabled("cpu")
     )
 
 
+def bfloat16_supported() -> bool:
+    """True when oneDNN has native bfloat16 matrix kernels on this CPU (AVX-512 BF16 or AMX)."""
+    try:
+        return bool(_ONEDNN["available"] and th.ops.mkldnn._is_mkldnn_bf16_supported())
+    except (AttributeError, RuntimeError):
+        return False
+
+
 def linear(x: th.Tensor, layer: nn.Linear, relu: bool = False) -> th.Tensor:
-    """``layer(x)`` followed by an optional ReLU, fused in one oneDNN kernel when no gradient is recorded."""
+    """``layer(x)`` followed by an optional ReLU, fused in one oneDNN kernel when no gradient is recorded.
+
+    A bfloat16 ``x`` (inference only) is multiplied by bfloat16 copies of the float32 weights
+    (oneDNN accumulates in float32 and rounds the output to bfloat16).
+    """
     if _use_onednn(x):
-        return th.ops.mkldnn._linear_pointwise(x, layer.weight, layer.bias, "relu" if relu else "none", [], "")
+        weight, bias = layer.weight, layer.bias
+        if x.dtype == th.bfloat16:
+            weight, bias = weight.to(th.bfloat16), None if bias is None else bias.to(th.bfloat16)
+        return th.ops.mkldnn._linear_pointwise(x, weight, bias, "relu" if relu else "none", [], "")
+    if x.dtype != layer.weight.dtype:
+        raise TypeError(f"linear() got a {x.dtype} input for {layer.weight.dtype} weights outside the inference path")
     out = layer(x)
     return th.relu_(out) if relu else out  # in place is safe after a Linear
 
