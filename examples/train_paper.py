@@ -115,6 +115,8 @@ def main() -> None:
     p.add_argument("--eval-episodes", type=int, default=100, help="greedy validation episodes at each checkpoint (0: none)")
     p.add_argument("--no-bootstrap-timeouts", dest="bootstrap_timeouts", action="store_false",
                    help="end timed-out episodes with zero future value (the field's reference code) instead of bootstrapping")
+    p.add_argument("--exploration-episodes", type=int, default=5_000,
+                   help="RL episodes over which ε decays from 0.5 to 0.1 (the paper: 5,000)")
     p.add_argument("--value-target", choices=VALUE_TARGETS, default="td",
                    help="what V is regressed on in RL (see APGValue's value_target)")
     p.add_argument("--from-imitation", type=Path, help="start from a saved post-imitation model (skips imitation)")
@@ -137,7 +139,8 @@ def main() -> None:
     elif args.from_imitation is not None:
         model = APGValue.load(args.from_imitation, env=env, tensorboard_log=str(args.out / "tb"), verbose=1,
                               bootstrap_timeouts=args.bootstrap_timeouts, learning_rate=args.learning_rate,
-                              train_freq=args.train_freq, value_target=args.value_target)
+                              train_freq=args.train_freq, value_target=args.value_target,
+                              exploration_episodes=args.exploration_episodes)
         if (args.from_imitation.parent / "imitation_replay_buffer.pkl").exists():
             model.load_replay_buffer(args.from_imitation.parent / "imitation_replay_buffer.pkl")
         reset = True
@@ -145,7 +148,8 @@ def main() -> None:
         model = APGValue(policy, env, seed=args.seed, imitation_episodes=args.il_episodes,
                          imitation_epochs=args.il_epochs, tensorboard_log=str(args.out / "tb"), verbose=1,
                          bootstrap_timeouts=args.bootstrap_timeouts, learning_rate=args.learning_rate,
-                         train_freq=args.train_freq, buffer_size=args.buffer_size, value_target=args.value_target)
+                         train_freq=args.train_freq, buffer_size=args.buffer_size, value_target=args.value_target,
+                         exploration_episodes=args.exploration_episodes)
         model.learn(0, tb_log_name=args.variant)  # imitation pre-training only; kept so variants can restart from it
         model.save(args.out / "imitation.zip")
         model.save_replay_buffer(args.out / "imitation_replay_buffer.pkl")

@@ -139,6 +139,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")
     p.add_argument("--seed", type=_nonneg_int, default=0, help="training seed; envs use seed, seed+1, ... (default: 0)")
     p.add_argument("--verbose", type=int, default=0, choices=(0, 1, 2), help="SB3 verbosity (default: 0)")
+    p.add_argument("--imitation-episodes", type=_nonneg_int, default=0,
+                   help="PPO/A2C/DQN: first imitate this many ORCA-robot episodes (default: 0, none)")
+    p.add_argument("--imitation-epochs", type=_positive_int, default=10, help="passes over the demonstrations (default: 10)")
+    p.add_argument("--checkpoint-freq", type=_nonneg_int, default=0,
+                   help="save DIR/checkpoints/ every this many env steps (default: 0, only the final model)")
     p.set_defaults(func=_cmd_train)
     return parser
 
@@ -403,11 +408,17 @@ def _cmd_train(args: argparse.Namespace) -> int:
     _check_env(args.env, env_kwargs)
     if args.timesteps is None and cfg["n_timesteps"] is None:
         raise UsageError("give --timesteps or n_timesteps in the hyperparameter file")
+    if args.imitation_episodes and args.algo not in ("ppo", "a2c", "dqn"):
+        raise UsageError(f"--imitation-episodes is for ppo, a2c and dqn; {args.algo} sets imitation_episodes in its "
+                         "hyperparameter file")
     start = time.perf_counter()
     _, path = train(args.algo, hp, args.out, env_id=args.env, timesteps=args.timesteps, seed=args.seed,
-                    progress_bar=_progress(args), verbose=args.verbose, env_overrides=_env_kwargs(args))
+                    progress_bar=_progress(args), verbose=args.verbose, env_overrides=_env_kwargs(args),
+                    imitation_episodes=args.imitation_episodes, imitation_epochs=args.imitation_epochs,
+                    checkpoint_freq=args.checkpoint_freq)
     config = {"algo": args.algo, "env": args.env, "hyperparams": hp, "env_kwargs": env_kwargs, "seed": args.seed,
-              "timesteps": args.timesteps or cfg["n_timesteps"], "wall_time_s": round(time.perf_counter() - start, 1)}
+              "timesteps": args.timesteps or cfg["n_timesteps"], "imitation_episodes": args.imitation_episodes,
+              "imitation_epochs": args.imitation_epochs, "wall_time_s": round(time.perf_counter() - start, 1)}
     (Path(args.out) / "config.json").write_text(json.dumps(config, indent=2, default=str) + "\n")
     print(f"trained {args.algo} for {config['timesteps']} steps in {config['wall_time_s']} s -> {path} "
           f"(TensorBoard logs: {Path(args.out) / 'tb'})")

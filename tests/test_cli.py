@@ -143,3 +143,26 @@ def test_train_rejects_bad_yaml(tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         main(["train", "--algo", "ppo", "--hyperparams", str(yml), "--timesteps", "10", "--out", str(tmp_path)])
     assert exc.value.code == 2 and "not allowed" in capsys.readouterr().err
+
+
+def test_train_with_imitation_and_checkpoints(tmp_path, capsys):
+    yml = tmp_path / "ppo.yml"
+    yml.write_text("CrowdNav-v0:\n  policy: ApgPolicy\n  policy_kwargs: 'dict(net_arch=[16])'\n  n_steps: 64\n"
+                   "  batch_size: 32\n  n_epochs: 1\n")
+    out = tmp_path / "run"
+    assert main(["train", "--algo", "ppo", "--hyperparams", str(yml), "--timesteps", "128", "--out", str(out),
+                 "--imitation-episodes", "2", "--imitation-epochs", "1", "--checkpoint-freq", "64", "--verbose", "1",
+                 *FAST]) == 0
+    assert "imitation:" in capsys.readouterr().out
+    assert sorted(p.name for p in (out / "checkpoints").iterdir()) == ["ppo_128_steps.zip", "ppo_64_steps.zip"]
+    assert json.loads((out / "config.json").read_text())["imitation_episodes"] == 2
+
+
+def test_imitation_flag_is_refused_for_apg_value(tmp_path, capsys):
+    yml = tmp_path / "apg.yml"
+    yml.write_text("CrowdNav-v0:\n  imitation_episodes: 0\n")
+    with pytest.raises(SystemExit) as exc:
+        main(["train", "--algo", "apg_value", "--hyperparams", str(yml), "--timesteps", "8", "--out", str(tmp_path),
+              "--imitation-episodes", "2"])
+    assert exc.value.code == 2
+    assert "--imitation-episodes" in capsys.readouterr().err

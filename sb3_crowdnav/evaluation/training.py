@@ -198,11 +198,17 @@ def prepare(algo: str, hyperparams: Mapping[str, Any]) -> dict[str, Any]:
 
 def train(algo: str, hyperparams: Mapping[str, Any], out_dir: str | Path, env_id: str = "CrowdNav-v0",
           timesteps: int | None = None, seed: int = 0, progress_bar: bool = False, verbose: int = 0,
-          env_overrides: Mapping[str, Any] | None = None):
+          env_overrides: Mapping[str, Any] | None = None, imitation_episodes: int = 0, imitation_epochs: int = 10,
+          imitation_learning_rate: float = 1e-3, checkpoint_freq: int = 0):
     """Train ``algo`` with rl-zoo3 hyperparameters; save ``out_dir/<algo>.zip`` and TensorBoard logs in ``out_dir/tb``.
 
     Training envs are seeded ``seed, seed + 1, ...`` (``make_vec_env``), far from the test seeds
     (:data:`~sb3_crowdnav.evaluation.runner.TEST_SEED_OFFSET`). Returns ``(model, model_path)``.
+
+    With ``imitation_episodes`` > 0 (PPO, A2C, DQN), the model first imitates that many episodes of
+    the ORCA robot (:mod:`sb3_crowdnav.imitation`); APGValue has its own ``imitation_episodes``
+    hyperparameter instead. ``checkpoint_freq`` > 0 saves ``out_dir/checkpoints/`` every that many
+    env steps (SB3's ``CheckpointCallback``; with the replay buffer for off-policy algorithms).
     """
     from stable_baselines3.common.env_util import make_vec_env
 
@@ -222,8 +228,30 @@ def train(algo: str, hyperparams: Mapping[str, Any], out_dir: str | Path, env_id
     kwargs = dict(cfg["kwargs"])
     if cfg["policy_kwargs"]:
         kwargs["policy_kwargs"] = cfg["policy_kwargs"]
+    for name, value, minimum in (("imitation_episodes", imitation_episodes, 0), ("imitation_epochs", imitation_epochs, 1),
+                                 ("checkpoint_freq", checkpoint_freq, 0)):
+        if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+            raise ValueError(f"{name} must be an int >= {minimum}, got {value!r}")
+    if imitation_episodes and algo not in ("ppo", "a2c", "dqn"):
+        raise ValueError(f"imitation_episodes is for ppo, a2c and dqn; {algo} sets imitation in its hyperparameters")
     model = algos[algo](cfg["policy"], env, seed=seed, tensorboard_log=str(out / "tb"), verbose=verbose, **kwargs)
-    model.learn(total_timesteps=int(n_timesteps), progress_bar=progress_bar)
+    if imitation_episodes:
+        from sb3_crowdnav import imitation
+
+        demos = imitation.collect_demonstrations(env, imitation_episodes)
+        pretrain = imitation.pretrain_dqn if algo == "dqn" else imitation.pretrain_actor_critic
+        losses = pretrain(model, demos, epochs=imitation_epochs, learning_rate=imitation_learning_rate)
+        if verbose:
+            print(f"imitation: {len(demos)} transitions of {imitation_episodes} ORCA episodes {demos.outcomes}; "
+                  f"loss per epoch {[round(x, 4) for x in losses]}")
+        env.reset()
+    callback = None
+    if checkpoint_freq:
+        from stable_baselines3.common.callbacks import CheckpointCallback
+
+        callback = CheckpointCallback(max(checkpoint_freq // cfg["n_envs"], 1), str(out / "checkpoints"), name_prefix=algo,
+                                      save_replay_buffer=hasattr(model, "replay_buffer"))
+    model.learn(total_timesteps=int(n_timesteps), progress_bar=progress_bar, callback=callback)
     model_path = out / f"{algo}.zip"
     model.save(model_path)
     env.close()

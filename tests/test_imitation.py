@@ -1,0 +1,91 @@
+"""Imitation of the ORCA robot for SB3's PPO/A2C/DQN (sb3_crowdnav.imitation)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch as th
+from stable_baselines3 import DQN, PPO
+from stable_baselines3.common.env_util import make_vec_env
+
+import sb3_crowdnav  # noqa: F401
+from sb3_crowdnav.imitation import Demonstrations, collect_demonstrations, pretrain_actor_critic, pretrain_dqn
+
+th.set_num_threads(1)
+ENV_KWARGS = dict(num_humans=3)
+SMALL = dict(net_arch=[32])
+
+
+@pytest.fixture(scope="module")
+def demos():
+    env = make_vec_env("CrowdNav-v0", n_envs=2, seed=0, env_kwargs=ENV_KWARGS)
+    return collect_demonstrations(env, 12)
+
+
+def test_demonstrations_are_whole_consistent_episodes(demos):
+    assert sum(demos.outcomes.values()) == 12 == demos.episode_end.sum()
+    assert demos.outcomes["success"] >= 8  # the constrained ORCA robot succeeds most of the time with 3 pedestrians
+    assert demos.episode_end[-1]
+    assert not demos.terminated[~demos.episode_end].any()  # only an episode's last step can terminate
+    inside = np.flatnonzero(~demos.episode_end)  # next observation = the following step's observation
+    for key in demos.observations:
+        np.testing.assert_array_equal(demos.next_observations[key][inside], demos.observations[key][inside + 1])
+    success_ends = demos.rewards[demos.episode_end & demos.terminated]
+    assert (success_ends != 0).all()
+
+
+def test_discounted_returns_restart_at_episode_ends():
+    demo = Demonstrations({}, {}, np.zeros(4, dtype=np.int64), np.array([0.0, 1.0, 0.0, 2.0], dtype=np.float32),
+                          np.array([0, 1, 0, 1], bool), np.array([0, 1, 0, 1], bool), {})
+    np.testing.assert_allclose(demo.discounted_returns(0.5), [0.5, 1.0, 1.0, 2.0])
+
+
+def test_collect_refuses_bad_episode_count():
+    env = make_vec_env("CrowdNav-v0", n_envs=1, env_kwargs=ENV_KWARGS)
+    with pytest.raises(ValueError, match="episodes"):
+        collect_demonstrations(env, 0)
+
+
+def _agreement(actions_fn, demos):
+    obs = {k: th.as_tensor(v, dtype=th.float32) for k, v in demos.observations.items()}
+    with th.no_grad():
+        return float((actions_fn(obs) == th.as_tensor(demos.actions)).float().mean())
+
+
+def test_behaviour_cloning_makes_ppo_imitate(demos):
+    model = PPO("ApgPolicy", make_vec_env("CrowdNav-v0", env_kwargs=ENV_KWARGS), seed=0, policy_kwargs=SMALL)
+
+    def greedy(obs):
+        return model.policy.get_distribution(obs).distribution.probs.argmax(dim=1)
+
+    before = _agreement(greedy, demos)
+    losses = pretrain_actor_critic(model, demos, epochs=15, learning_rate=3e-3, batch_size=64)
+    after = _agreement(greedy, demos)
+    assert losses[-1] < losses[0]
+    assert after > max(0.5, before + 0.3), (before, after)
+    with pytest.raises(TypeError, match="actor-critic"):
+        pretrain_actor_critic(DQN("ApgPolicy", make_vec_env("CrowdNav-v0", env_kwargs=ENV_KWARGS)), demos)
+    with pytest.raises(ValueError, match="epochs"):
+        pretrain_actor_critic(model, demos, epochs=0)
+
+
+def test_dqn_pretraining_fills_buffer_and_ranks_demonstrated_actions_first(demos):
+    model = DQN("ApgPolicy", make_vec_env("CrowdNav-v0", env_kwargs=ENV_KWARGS), seed=0, policy_kwargs=SMALL,
+                buffer_size=5_000)
+
+    def greedy(obs):
+        return model.q_net(obs).argmax(dim=1)
+
+    before = _agreement(greedy, demos)
+    losses = pretrain_dqn(model, demos, epochs=15, learning_rate=3e-3, batch_size=64)
+    after = _agreement(greedy, demos)
+    assert losses[-1] < losses[0]
+    assert after > before + 0.3, (before, after)
+    assert model.replay_buffer.size() == len(demos)
+    np.testing.assert_array_equal(model.replay_buffer.actions[: len(demos), 0, 0], demos.actions)
+    assert th.equal(next(model.q_net.parameters()), next(model.q_net_target.parameters()))
+    two = DQN("ApgPolicy", make_vec_env("CrowdNav-v0", n_envs=2, env_kwargs=ENV_KWARGS), policy_kwargs=SMALL)
+    with pytest.raises(ValueError, match="single-env"):
+        pretrain_dqn(two, demos)
+    with pytest.raises(TypeError, match="DQN"):
+        pretrain_dqn(PPO("ApgPolicy", make_vec_env("CrowdNav-v0", env_kwargs=ENV_KWARGS)), demos)
