@@ -19,6 +19,7 @@ import shutil
 import time
 from pathlib import Path
 
+import torch as th
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.env_util import make_vec_env
 
@@ -117,6 +118,9 @@ def main() -> None:
                    help="end timed-out episodes with zero future value (the field's reference code) instead of bootstrapping")
     p.add_argument("--exploration-episodes", type=int, default=5_000,
                    help="RL episodes over which ε decays from 0.5 to 0.1 (the paper: 5,000)")
+    p.add_argument("--optimizer", choices=("sgd", "adam"), default="sgd",
+                   help="sgd: SGD with momentum 0.9 (the field's code); adam: Adam (with --from-imitation: RL only)")
+    p.add_argument("--il-learning-rate", type=float, default=0.01, help="imitation learning rate (Table 1: 0.01)")
     p.add_argument("--value-target", choices=VALUE_TARGETS, default="td",
                    help="what V is regressed on in RL (see APGValue's value_target)")
     p.add_argument("--from-imitation", type=Path, help="start from a saved post-imitation model (skips imitation)")
@@ -141,6 +145,10 @@ def main() -> None:
                               bootstrap_timeouts=args.bootstrap_timeouts, learning_rate=args.learning_rate,
                               train_freq=args.train_freq, value_target=args.value_target,
                               exploration_episodes=args.exploration_episodes)
+        if args.optimizer == "adam":  # swap the RL optimiser; policy_kwargs follow so that save/load round-trips
+            model.policy_kwargs.update(optimizer_class=th.optim.Adam, optimizer_kwargs={})
+            model.policy.optimizer_class, model.policy.optimizer_kwargs = th.optim.Adam, {}
+            model.policy.optimizer = th.optim.Adam(model.policy.value_net.parameters(), lr=args.learning_rate)
         if (args.from_imitation.parent / "imitation_replay_buffer.pkl").exists():
             model.load_replay_buffer(args.from_imitation.parent / "imitation_replay_buffer.pkl")
         reset = True
@@ -149,7 +157,9 @@ def main() -> None:
                          imitation_epochs=args.il_epochs, tensorboard_log=str(args.out / "tb"), verbose=1,
                          bootstrap_timeouts=args.bootstrap_timeouts, learning_rate=args.learning_rate,
                          train_freq=args.train_freq, buffer_size=args.buffer_size, value_target=args.value_target,
-                         exploration_episodes=args.exploration_episodes)
+                         exploration_episodes=args.exploration_episodes, imitation_learning_rate=args.il_learning_rate,
+                         policy_kwargs=dict(optimizer_class=th.optim.Adam, optimizer_kwargs={})
+                         if args.optimizer == "adam" else None)
         model.learn(0, tb_log_name=args.variant)  # imitation pre-training only; kept so variants can restart from it
         model.save(args.out / "imitation.zip")
         model.save_replay_buffer(args.out / "imitation_replay_buffer.pkl")
