@@ -7,6 +7,7 @@ Measures (one torch thread, 6 pedestrians):
       45-step episodes (a trained policy reaches the goal in ~11 s = 44 steps).
 
 Usage: python benchmarks/training_speed.py [--n-envs 1] [--rl-steps 3000] [--il-episodes 200]
+                                          [--dtype float32|bfloat16] [--optimizer sgd|adam]
 """
 
 from __future__ import annotations
@@ -31,10 +32,16 @@ def main() -> None:
     p.add_argument("--imitation-epochs", type=int, default=10)
     p.add_argument("--il-schedule", type=int, default=3000)
     p.add_argument("--rl-schedule", type=int, default=10000)
+    p.add_argument("--dtype", default="float32", choices=("float32", "bfloat16"), help="lookahead precision when acting")
+    p.add_argument("--optimizer", default="sgd", choices=("sgd", "adam"))
     args = p.parse_args()
     configure_cpu(num_threads=1)  # one torch thread + keep freed tensor memory (sb3_crowdnav.nn.perf)
     env = make_vec_env("CrowdNav-v0", n_envs=args.n_envs, seed=0)
-    model = APGValue("ApgPolicy", env, seed=0, imitation_episodes=args.il_episodes, imitation_epochs=2)
+    policy_kwargs = dict(lookahead_dtype=args.dtype)
+    if args.optimizer == "adam":
+        policy_kwargs.update(optimizer_class=th.optim.Adam, optimizer_kwargs={})
+    model = APGValue("ApgPolicy", env, seed=0, imitation_episodes=args.il_episodes, imitation_epochs=2,
+                     policy_kwargs=policy_kwargs)
 
     model.set_logger(configure(None, [""]))
     t0 = time.perf_counter()
