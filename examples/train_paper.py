@@ -98,6 +98,8 @@ class EpisodeCheckpoint(BaseCallback):
                 self.validate()
         return episodes < self.max_episodes
 
+OPTIMIZERS = {"adam": (th.optim.Adam, {}), "sgd": (th.optim.SGD, {"momentum": 0.9})}
+
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -118,8 +120,9 @@ def main() -> None:
                    help="end timed-out episodes with zero future value (the field's reference code) instead of bootstrapping")
     p.add_argument("--exploration-episodes", type=int, default=5_000,
                    help="RL episodes over which ε decays from 0.5 to 0.1 (the paper: 5,000)")
-    p.add_argument("--optimizer", choices=("sgd", "adam"), default="sgd",
-                   help="sgd: SGD with momentum 0.9 (the field's code); adam: Adam (with --from-imitation: RL only)")
+    p.add_argument("--optimizer", choices=("sgd", "adam"), default="adam",
+                   help="RL optimiser: adam (APGValue's default) or sgd (SGD with momentum 0.9, the field's code); "
+                        "imitation always uses SGD with momentum 0.9")
     p.add_argument("--il-learning-rate", type=float, default=0.01, help="imitation learning rate (Table 1: 0.01)")
     p.add_argument("--value-target", choices=VALUE_TARGETS, default="td",
                    help="what V is regressed on in RL (see APGValue's value_target)")
@@ -145,10 +148,12 @@ def main() -> None:
                               bootstrap_timeouts=args.bootstrap_timeouts, learning_rate=args.learning_rate,
                               train_freq=args.train_freq, value_target=args.value_target,
                               exploration_episodes=args.exploration_episodes)
-        if args.optimizer == "adam":  # swap the RL optimiser; policy_kwargs follow so that save/load round-trips
-            model.policy_kwargs.update(optimizer_class=th.optim.Adam, optimizer_kwargs={})
-            model.policy.optimizer_class, model.policy.optimizer_kwargs = th.optim.Adam, {}
-            model.policy.optimizer = th.optim.Adam(model.policy.value_net.parameters(), lr=args.learning_rate)
+        optimizer_class, optimizer_kwargs = OPTIMIZERS[args.optimizer]
+        if model.policy.optimizer_class is not optimizer_class:  # swap the RL optimiser; policy_kwargs follow (save/load)
+            model.policy_kwargs.update(optimizer_class=optimizer_class, optimizer_kwargs=optimizer_kwargs)
+            model.policy.optimizer_class, model.policy.optimizer_kwargs = optimizer_class, optimizer_kwargs
+            model.policy.optimizer = optimizer_class(model.policy.value_net.parameters(), lr=args.learning_rate,
+                                                     **optimizer_kwargs)
         if (args.from_imitation.parent / "imitation_replay_buffer.pkl").exists():
             model.load_replay_buffer(args.from_imitation.parent / "imitation_replay_buffer.pkl")
         reset = True
@@ -158,8 +163,8 @@ def main() -> None:
                          bootstrap_timeouts=args.bootstrap_timeouts, learning_rate=args.learning_rate,
                          train_freq=args.train_freq, buffer_size=args.buffer_size, value_target=args.value_target,
                          exploration_episodes=args.exploration_episodes, imitation_learning_rate=args.il_learning_rate,
-                         policy_kwargs=dict(optimizer_class=th.optim.Adam, optimizer_kwargs={})
-                         if args.optimizer == "adam" else None)
+                         policy_kwargs=dict(zip(("optimizer_class", "optimizer_kwargs"), OPTIMIZERS[args.optimizer],
+                                                strict=True)))
         model.learn(0, tb_log_name=args.variant)  # imitation pre-training only; kept so variants can restart from it
         model.save(args.out / "imitation.zip")
         model.save_replay_buffer(args.out / "imitation_replay_buffer.pkl")

@@ -348,3 +348,26 @@ def test_lookahead_dtype_refusals():
         APGValue("ApgPolicy", "CrowdNav-v0", imitation_episodes=0, policy_kwargs=dict(lookahead_dtype="float16"))
     with pytest.raises(ValueError, match="APG encoder only"):
         APGValue("CadrlPolicy", "CrowdNav-v0", imitation_episodes=0, policy_kwargs=dict(lookahead_dtype="bfloat16"))
+
+
+def test_default_optimisers_adam_for_rl_sgd_for_imitation(tmp_path):
+    built = []
+
+    class RecordingSGD(th.optim.SGD):
+        def __init__(self, params, **kwargs):
+            built.append(kwargs)
+            super().__init__(params, **kwargs)
+
+    model = APGValue("ApgPolicy", "CrowdNav-v0", seed=0, imitation_optimizer_class=RecordingSGD, **TINY)
+    assert isinstance(model.policy.optimizer, th.optim.Adam)
+    model.learn(20)
+    assert built == [{"lr": 0.01, "momentum": 0.9}]  # the imitation regression ran on it, at Table 1's rate
+    assert isinstance(model.policy.optimizer, th.optim.Adam)
+    model.save(tmp_path / "m")
+    loaded = APGValue.load(tmp_path / "m", env=model.env)
+    assert isinstance(loaded.policy.optimizer, th.optim.Adam)
+    loaded.learn(10, reset_num_timesteps=False)  # the saved Adam state loads and steps
+    sgd = APGValue("ApgPolicy", "CrowdNav-v0", imitation_episodes=0, policy_kwargs=dict(optimizer_class=th.optim.SGD))
+    assert isinstance(sgd.policy.optimizer, th.optim.SGD) and sgd.policy.optimizer.defaults["momentum"] == 0.9
+    with pytest.raises(TypeError, match="imitation_optimizer_class"):
+        APGValue("ApgPolicy", "CrowdNav-v0", imitation_episodes=0, imitation_optimizer_class="sgd")

@@ -51,6 +51,22 @@ def check_env_compatible(env: VecEnv | None) -> None:
             )
 
 
+def _check_imitation_args(learning_rate: float, optimizer_class: Any, optimizer_kwargs: dict[str, Any] | None,
+                          safety_space: float, mapping: str) -> dict[str, Any]:
+    """Validate the imitation arguments; return the optimiser's keyword arguments (SGD: momentum 0.9)."""
+    if not (isinstance(optimizer_class, type) and issubclass(optimizer_class, th.optim.Optimizer)):
+        raise TypeError(f"imitation_optimizer_class must be a torch.optim.Optimizer subclass, got {optimizer_class!r}")
+    if not learning_rate > 0:
+        raise ValueError(f"imitation_learning_rate must be > 0, got {learning_rate!r}")
+    if not safety_space >= 0:
+        raise ValueError(f"imitation_safety_space must be >= 0, got {safety_space!r}")
+    if mapping not in OrcaPolicy.MAPPINGS:
+        raise ValueError(f"imitation_mapping must be one of {OrcaPolicy.MAPPINGS}, got {mapping!r}")
+    if optimizer_kwargs is None:
+        return {"momentum": 0.9} if issubclass(optimizer_class, th.optim.SGD) else {}
+    return dict(optimizer_kwargs)
+
+
 class APGValue(OffPolicyAlgorithm):
     """State-value learning with one-step lookahead over the 80 actions (paper §1, §2.3, §3).
 
@@ -77,6 +93,12 @@ class APGValue(OffPolicyAlgorithm):
     :param exploration_episodes: RL episodes over which ε decays linearly (5,000)
     :param imitation_episodes: ORCA-robot episodes collected before RL (3,000; 0 disables imitation)
     :param imitation_learning_rate: learning rate of the imitation regression (0.01)
+    :param imitation_optimizer_class: optimiser of the imitation regression (SGD, the field's code and Table 1's
+        learning rate); RL uses the policy's optimiser, ``policy_kwargs["optimizer_class"]``, which APGValue sets
+        to Adam unless given: with SGD (momentum 0.9, lr 0.001) V never fitted the TD targets of the states where
+        every action collides, and the greedy policy turned reckless after ~500 RL episodes (README, "Training
+        stability")
+    :param imitation_optimizer_kwargs: its keyword arguments (SGD: ``{"momentum": 0.9}``)
     :param imitation_epochs: passes over the imitation data (the loss plateaus after a few; the field's code uses 50)
     :param imitation_safety_space: extra radius the ORCA demonstrator keeps from pedestrians [m]
     :param imitation_mapping: how the demonstrator maps ORCA's velocity to an action (see :class:`OrcaPolicy`);
@@ -124,6 +146,8 @@ class APGValue(OffPolicyAlgorithm):
         exploration_episodes: int = 5_000,
         imitation_episodes: int = 3_000,
         imitation_learning_rate: float = 0.01,
+        imitation_optimizer_class: type[th.optim.Optimizer] = th.optim.SGD,
+        imitation_optimizer_kwargs: dict[str, Any] | None = None,
         imitation_epochs: int = 10,
         imitation_safety_space: float = 0.0,
         imitation_mapping: str = "constrained",
@@ -175,12 +199,12 @@ class APGValue(OffPolicyAlgorithm):
             )
         replay_buffer_kwargs = dict(replay_buffer_kwargs or {})
         replay_buffer_kwargs.setdefault("handle_timeout_termination", bootstrap_timeouts)
-        if not imitation_learning_rate > 0:
-            raise ValueError(f"imitation_learning_rate must be > 0, got {imitation_learning_rate!r}")
-        if not imitation_safety_space >= 0:
-            raise ValueError(f"imitation_safety_space must be >= 0, got {imitation_safety_space!r}")
-        if imitation_mapping not in OrcaPolicy.MAPPINGS:
-            raise ValueError(f"imitation_mapping must be one of {OrcaPolicy.MAPPINGS}, got {imitation_mapping!r}")
+        policy_kwargs = dict(policy_kwargs or {})
+        if "optimizer_class" not in policy_kwargs:  # RL with Adam (see imitation_optimizer_class)
+            policy_kwargs.update(optimizer_class=th.optim.Adam, optimizer_kwargs=policy_kwargs.get("optimizer_kwargs", {}))
+        imitation_optimizer_kwargs = _check_imitation_args(
+            imitation_learning_rate, imitation_optimizer_class, imitation_optimizer_kwargs, imitation_safety_space,
+            imitation_mapping)
         super().__init__(
             policy,
             env,
@@ -212,6 +236,8 @@ class APGValue(OffPolicyAlgorithm):
         self.target_update_interval = target_update_interval
         self.imitation_episodes = imitation_episodes
         self.imitation_learning_rate = imitation_learning_rate
+        self.imitation_optimizer_class = imitation_optimizer_class
+        self.imitation_optimizer_kwargs = dict(imitation_optimizer_kwargs)
         self.imitation_epochs = imitation_epochs
         self.imitation_safety_space = imitation_safety_space
         self.imitation_mapping = imitation_mapping
@@ -390,8 +416,8 @@ class APGValue(OffPolicyAlgorithm):
     def _fit_imitation(self, obs: dict[str, np.ndarray], returns: np.ndarray, epochs: int) -> list[float]:
         """Regress V on the demonstrations' discounted returns; return the loss of each epoch."""
         net = self.policy.value_net
-        optimizer = self.policy.optimizer_class(net.parameters(), lr=self.imitation_learning_rate,
-                                                **self.policy.optimizer_kwargs)
+        optimizer = self.imitation_optimizer_class(net.parameters(), lr=self.imitation_learning_rate,
+                                                   **self.imitation_optimizer_kwargs)
         tensors = {k: th.as_tensor(v, dtype=th.float32, device=self.device) for k, v in obs.items()}
         targets = th.as_tensor(returns, device=self.device)
         size = len(returns)
