@@ -73,7 +73,8 @@ class ValueLookaheadPolicy(BasePolicy):
     :param activation_fn: activation of the value head
     :param features_extractor_class: encoder of the joint state (default: APG + temporal attention + LSTM)
     :param features_extractor_kwargs: its keyword arguments
-    :param optimizer_class: optimiser (default SGD with momentum 0.9, as the field's reference code)
+    :param optimizer_class: RL optimiser (here SGD with momentum 0.9, as the field's reference code; ``APGValue``
+        passes Adam unless ``policy_kwargs`` name one)
     :param optimizer_kwargs: its keyword arguments
     :param lookahead_dtype: precision of the acting lookahead. ``"float32"`` (default) everywhere;
         ``"bfloat16"`` runs the APG encoder's per-(step, pedestrian) layers in bfloat16 when acting
