@@ -50,31 +50,41 @@ class EpisodeCheckpoint(BaseCallback):
     Validation: ``eval_episodes`` greedy episodes on fixed seeds (the ε-greedy rollout rates of the
     training log understate the greedy policy while ε is large), logged as ``eval/*`` and appended
     to ``OUT/eval_curve.jsonl``; a copy of each checkpoint is kept as ``OUT/checkpoint_<episodes>.zip``
-    and the best one so far (highest success, then shortest navigation time) as ``OUT/best.zip``.
+    and the best one so far as ``OUT/best.zip``: highest success, then shortest navigation time
+    (``select_by="success"``), or highest mean discounted return under the variant's own reward
+    (``select_by="return"``, which counts the comfort and angular penalties of APG_CRL/APG_CARL).
+    Validation episodes run with ``env_kwargs`` (the training reward and crowd).
     """
 
-    def __init__(self, out: Path, max_episodes: int, every: int, eval_episodes: int = 100) -> None:
+    def __init__(self, out: Path, max_episodes: int, every: int, eval_episodes: int = 100,
+                 select_by: str = "success", env_kwargs: dict | None = None) -> None:
         super().__init__()
         self.out, self.max_episodes, self.every, self.eval_episodes = out, max_episodes, every, eval_episodes
+        self.select_by, self.env_kwargs = select_by, dict(env_kwargs or {})
         self._last = -1
 
     def validate(self) -> None:
         from sb3_crowdnav.evaluation import run_episodes, summarize
 
         model = self.model
-        s = summarize(run_episodes(model, self.eval_episodes, seed_offset=VALIDATION_SEED_OFFSET))
+        s = summarize(run_episodes(model, self.eval_episodes, self.env_kwargs, seed_offset=VALIDATION_SEED_OFFSET))
         row = {"episodes": model._episode_num, "timesteps": model.num_timesteps, "wall": time.time(),
                "success": s.success_rate, "collision": s.collision_rate, "timeout": s.timeout_rate,
-               "time": s.navigation_time, "gap": s.min_separation}
-        for key in ("success", "collision", "timeout", "time", "gap"):
+               "time": s.navigation_time, "gap": s.min_separation, "return": s.discounted_return,
+               "comfort_time": s.comfort_zone_time, "heading": s.heading_change}
+        for key in ("success", "collision", "timeout", "time", "gap", "return"):
             model.logger.record(f"eval/{key}", row[key])
         with open(self.out / "eval_curve.jsonl", "a") as f:
             f.write(json.dumps(row) + "\n")
-        score = (s.success_rate, -s.navigation_time if s.navigation_time == s.navigation_time else 0.0)
+        if self.select_by == "return":
+            score = (s.discounted_return,)
+        else:
+            score = (s.success_rate, -s.navigation_time if s.navigation_time == s.navigation_time else 0.0)
         best_file = self.out / "best.json"
-        if not best_file.exists() or score > tuple(json.loads(best_file.read_text())["score"]):
+        best = json.loads(best_file.read_text()) if best_file.exists() else None
+        if best is None or best.get("select_by", "success") != self.select_by or score > tuple(best["score"]):
             shutil.copy(self.out / "checkpoint.zip", self.out / "best.zip")
-            best_file.write_text(json.dumps({"score": score, **row}))
+            best_file.write_text(json.dumps({"score": score, "select_by": self.select_by, **row}))
         print(f"validation after {row['episodes']} RL episodes: success {s.success_rate:.2f}, "
               f"collision {s.collision_rate:.2f}, time {s.navigation_time:.2f} s", flush=True)
 
@@ -87,6 +97,9 @@ class EpisodeCheckpoint(BaseCallback):
         os.replace(self.out / "replay_buffer.tmp.pkl", self.out / "replay_buffer.pkl")
         (self.out / "progress.json").write_text(json.dumps(
             {"episodes": model._episode_num, "timesteps": model.num_timesteps, "time": time.time()}))
+
+    def _on_training_start(self) -> None:
+        self._last = self.model._episode_num  # a resumed run does not checkpoint and validate its first episode count again
 
     def _on_step(self) -> bool:
         episodes = self.model._episode_num
@@ -120,6 +133,9 @@ def main() -> None:
                    help="end timed-out episodes with zero future value (the field's reference code) instead of bootstrapping")
     p.add_argument("--exploration-episodes", type=int, default=5_000,
                    help="RL episodes over which ε decays from 0.5 to 0.1 (the paper: 5,000)")
+    p.add_argument("--select-by", choices=("success", "return"), default="success",
+                   help="best.zip = highest validation success then shortest time, or highest return under the "
+                        "variant's own reward (use for apg_crl / apg_carl)")
     p.add_argument("--optimizer", choices=("sgd", "adam"), default="adam",
                    help="RL optimiser: adam (APGValue's default) or sgd (SGD with momentum 0.9, the field's code); "
                         "imitation always uses SGD with momentum 0.9")
@@ -169,7 +185,8 @@ def main() -> None:
         model.save(args.out / "imitation.zip")
         model.save_replay_buffer(args.out / "imitation_replay_buffer.pkl")
         reset = False
-    callback = EpisodeCheckpoint(args.out, args.rl_episodes, args.checkpoint_episodes, args.eval_episodes)
+    callback = EpisodeCheckpoint(args.out, args.rl_episodes, args.checkpoint_episodes, args.eval_episodes,
+                                 select_by=args.select_by, env_kwargs=dict(reward=reward, num_humans=args.num_humans))
     start = time.time()
     # the episode budget stops training; the step budget is only an upper bound (100 steps per episode)
     model.learn(total_timesteps=args.rl_episodes * 100 * 2, callback=callback, reset_num_timesteps=reset,

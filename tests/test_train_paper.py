@@ -1,0 +1,35 @@
+"""examples/train_paper.py: checkpoints, validation curve, best-model selection, resume."""
+
+from __future__ import annotations
+
+import json
+import runpy
+import sys
+from pathlib import Path
+
+SCRIPT = Path(__file__).resolve().parents[1] / "examples" / "train_paper.py"
+
+
+def _run(monkeypatch, *argv: str) -> None:
+    monkeypatch.setattr(sys, "argv", [str(SCRIPT), *argv])
+    runpy.run_path(str(SCRIPT), run_name="__main__")
+
+
+def test_checkpoints_validation_selection_and_resume(tmp_path, monkeypatch, capsys):
+    out = tmp_path / "run"
+    common = ["--variant", "apg_crl", "--out", str(out), "--il-episodes", "2", "--il-epochs", "1", "--num-humans", "2",
+              "--checkpoint-episodes", "2", "--eval-episodes", "2", "--select-by", "return"]
+    _run(monkeypatch, *common, "--rl-episodes", "4")
+    rows = [json.loads(line) for line in (out / "eval_curve.jsonl").read_text().splitlines()]
+    assert [r["episodes"] for r in rows] == [2, 4]
+    assert all({"success", "return", "comfort_time", "heading"} <= set(r) for r in rows)
+    best = json.loads((out / "best.json").read_text())
+    assert best["select_by"] == "return"
+    assert best["score"] == [max(r["return"] for r in rows)]
+    for name in ("imitation.zip", "checkpoint_2.zip", "checkpoint_4.zip", "best.zip", "final.zip", "replay_buffer.pkl"):
+        assert (out / name).is_file(), name
+    capsys.readouterr()
+    _run(monkeypatch, *common, "--rl-episodes", "6")  # resumes from checkpoint.zip
+    assert "resuming from" in capsys.readouterr().out
+    rows = [json.loads(line) for line in (out / "eval_curve.jsonl").read_text().splitlines()]
+    assert [r["episodes"] for r in rows] == [2, 4, 6]
