@@ -22,9 +22,8 @@ import numpy as np
 import torch as th
 from torch.nn import functional as F
 
+from sb3_crowdnav.nn.transforms import OBS_KEYS
 from sb3_crowdnav.sim.orca import OrcaPolicy
-
-OBS_KEYS = ("robot", "humans", "humans_mask")
 
 
 @dataclass
