@@ -16,6 +16,7 @@ from stable_baselines3.her.her_replay_buffer import HerReplayBuffer
 import sb3_crowdnav  # noqa: F401  (registers the envs)
 from sb3_crowdnav.apg_value import APGValue, ValueLookaheadPolicy
 from sb3_crowdnav.sim.actions import N_ACTIONS, wrap_angle
+from sb3_crowdnav.nn.layers import bfloat16_supported
 from sb3_crowdnav.sim.layout import Robot
 
 TINY = dict(imitation_episodes=2, imitation_epochs=1, batch_size=16, buffer_size=2_000)
@@ -371,3 +372,71 @@ def test_default_optimisers_adam_for_rl_sgd_for_imitation(tmp_path):
     assert isinstance(sgd.policy.optimizer, th.optim.SGD) and sgd.policy.optimizer.defaults["momentum"] == 0.9
     with pytest.raises(TypeError, match="imitation_optimizer_class"):
         APGValue("ApgPolicy", "CrowdNav-v0", imitation_episodes=0, imitation_optimizer_class="sgd")
+
+
+# ---------------------------------------------------------------- overlap_training
+def _params(model):
+    return th.cat([p.detach().flatten() for p in model.policy.value_net.parameters()])
+
+
+def test_overlap_training_is_deterministic_and_not_the_sequential_run():
+    def run(overlap):
+        return _params(APGValue("ApgPolicy", "CrowdNav-v0", seed=11, overlap_training=overlap, **TINY).learn(120))
+
+    a, b = run(True), run(True)
+    assert th.equal(a, b)  # same seed, same run, although the steps ran in a second thread
+    assert not th.equal(a, run(False))  # V is one training call stale when acting: a different run
+
+
+def test_overlap_training_acts_with_the_previous_weights(monkeypatch):
+    """Each training call hands the acting copy the weights of the completed previous call, not the ones in flight."""
+    model = APGValue("ApgPolicy", "CrowdNav-v0", seed=2, overlap_training=True, **TINY)
+    seen = []
+    original = APGValue._sync_acting_net
+
+    def sync(self):
+        original(self)
+        seen.append((_params(self).clone(), th.cat([p.detach().flatten() for p in self._acting_net.parameters()])))
+
+    monkeypatch.setattr(APGValue, "_sync_acting_net", sync)
+    model.learn(40)
+    assert len(seen) >= 5
+    for v, acting in seen:
+        assert th.equal(v, acting)
+    assert not th.equal(seen[1][0], seen[-1][0])  # V did change between hand-overs
+    # after learn(): no thread, no copy, predict reads V itself
+    assert model._acting_net is None and model._learner_job is None and model._learner is None
+
+
+def test_overlap_training_two_envs_checkpoint_and_bfloat16(tmp_path):
+    from stable_baselines3.common.callbacks import CheckpointCallback
+
+    vec = make_vec_env("CrowdNav-v0", n_envs=2, seed=3)
+    kwargs = dict(TINY, policy_kwargs={"lookahead_dtype": "bfloat16"}) if bfloat16_supported() else TINY
+    model = APGValue("ApgPolicy", vec, seed=0, overlap_training=True, **kwargs)
+    model.learn(80, callback=CheckpointCallback(save_freq=10, save_path=str(tmp_path), name_prefix="ck"))
+    assert model.num_timesteps == 80 and model._n_updates == 80 // (4 * 2)
+    saved = sorted(tmp_path.glob("ck_*.zip"))
+    assert saved
+    last = APGValue.load(saved[-1])
+    assert last.policy.lookahead_dtype == model.policy.lookahead_dtype
+    obs = vec.reset()
+    model.save(tmp_path / "final")
+    np.testing.assert_array_equal(APGValue.load(tmp_path / "final").predict(obs, deterministic=True)[0],
+                                  model.predict(obs, deterministic=True)[0])
+    if bfloat16_supported():  # V gets its acting precision back after learn()
+        assert model.policy.value_net.features_extractor.bfloat16_inference
+
+
+def test_overlap_training_errors_reach_the_caller(monkeypatch):
+    model = APGValue("ApgPolicy", "CrowdNav-v0", seed=0, overlap_training=True, **TINY)
+
+    def boom(self, batches):
+        raise FloatingPointError("nan loss")
+
+    monkeypatch.setattr(APGValue, "_gradient_steps", boom)
+    with pytest.raises(FloatingPointError, match="nan loss"):
+        model.learn(40)
+    assert model._learner is None and model._acting_net is None
+    with pytest.raises(TypeError, match="overlap_training must be a bool"):
+        APGValue("ApgPolicy", "CrowdNav-v0", overlap_training="yes")

@@ -29,7 +29,7 @@ def test_checkpoints_validation_selection_and_resume(tmp_path, monkeypatch, caps
     for name in ("imitation.zip", "checkpoint_2.zip", "checkpoint_4.zip", "best.zip", "final.zip", "replay_buffer.pkl"):
         assert (out / name).is_file(), name
     capsys.readouterr()
-    _run(monkeypatch, *common, "--rl-episodes", "6")  # resumes from checkpoint.zip
+    _run(monkeypatch, *common, "--rl-episodes", "6", "--overlap")  # resumes from checkpoint.zip, now overlapping
     assert "resuming from" in capsys.readouterr().out
     rows = [json.loads(line) for line in (out / "eval_curve.jsonl").read_text().splitlines()]
     assert [r["episodes"] for r in rows] == [2, 4, 6]

@@ -194,24 +194,28 @@ class ValueLookaheadPolicy(BasePolicy):
         net = self.value_net_target if target else self.value_net
         return net(observation)
 
-    def lookahead(self, observation: dict[str, np.ndarray]) -> tuple[np.ndarray, Propagated]:
-        """R + γ^(Δt·v_pref)·V(s') for every action of a batch of numpy observations: (B, 80)."""
+    def lookahead(self, observation: dict[str, np.ndarray], net: nn.Module | None = None) -> tuple[np.ndarray, Propagated]:
+        """R + γ^(Δt·v_pref)·V(s') for every action of a batch of numpy observations: (B, 80).
+
+        ``net`` replaces V (``self.value_net``) by another network of the same architecture (APGValue's acting copy).
+        """
+        net = self.value_net if net is None else net
         prop = self.propagation(observation["robot"], observation["humans"], observation["humans_mask"])
         b = prop.reward.shape[0]
         robot = prop.robot.reshape(b * N_ACTIONS, -1).astype(np.float32)
         humans = np.repeat(prop.humans.astype(np.float32), N_ACTIONS, axis=0)  # the same under every action
         mask = np.repeat(prop.humans_mask, N_ACTIONS, axis=0)
         with th.inference_mode():  # a little cheaper than no_grad; the values leave as numpy
-            v = self.value_net(self._as_tensors(robot, humans, mask)).reshape(b, N_ACTIONS).cpu().numpy()
+            v = net(self._as_tensors(robot, humans, mask)).reshape(b, N_ACTIONS).cpu().numpy()
         q = prop.reward + prop.discount[:, None] * np.where(prop.terminal, 0.0, v)
         return q, prop
 
-    def action_values(self, observation: dict[str, np.ndarray]) -> np.ndarray:
-        """Lookahead value of each of the 80 actions, (B, 80) (Fig. 11's action-value map)."""
+    def action_values(self, observation: dict[str, np.ndarray], net: nn.Module | None = None) -> np.ndarray:
+        """Lookahead value of each of the 80 actions, (B, 80) (Fig. 11's action-value map); ``net`` as in lookahead."""
         obs = {k: np.asarray(observation[k]) for k in OBS_KEYS}
         if obs["robot"].ndim == 1:
             obs = {k: v[None] for k, v in obs.items()}
-        return self.lookahead(obs)[0]
+        return self.lookahead(obs, net)[0]
 
     # ------------------------------------------------------------------ acting
     def forward(self, obs: PyTorchObs, deterministic: bool = True) -> th.Tensor:
