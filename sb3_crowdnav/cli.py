@@ -19,7 +19,7 @@ from typing import Any, NoReturn
 
 from sb3_crowdnav.evaluation.runner import DEFAULT_ENV_ID, TEST_SEED_OFFSET
 
-ALGOS = ("apg_value", "dqn", "ppo")
+ALGOS = ("apg_value", "dqn", "dqfd", "ppo")
 
 
 class _Parser(argparse.ArgumentParser):
@@ -408,9 +408,11 @@ def _cmd_train(args: argparse.Namespace) -> int:
     _check_env(args.env, env_kwargs)
     if args.timesteps is None and cfg["n_timesteps"] is None:
         raise UsageError("give --timesteps or n_timesteps in the hyperparameter file")
-    if args.imitation_episodes and args.algo not in ("ppo", "a2c", "dqn"):
-        raise UsageError(f"--imitation-episodes is for ppo, a2c and dqn; {args.algo} sets imitation_episodes in its "
-                         "hyperparameter file")
+    if args.imitation_episodes and args.algo not in ("ppo", "a2c", "dqn", "dqfd"):
+        raise UsageError(f"--imitation-episodes is for ppo, a2c, dqn and dqfd; {args.algo} sets imitation_episodes in "
+                         "its hyperparameter file")
+    if args.algo == "dqfd" and not args.imitation_episodes:
+        raise UsageError("--algo dqfd learns from demonstrations: give --imitation-episodes N")
     start = time.perf_counter()
     _, path = train(args.algo, hp, args.out, env_id=args.env, timesteps=args.timesteps, seed=args.seed,
                     progress_bar=_progress(args), verbose=args.verbose, env_overrides=_env_kwargs(args),

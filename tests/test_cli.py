@@ -166,3 +166,26 @@ def test_imitation_flag_is_refused_for_apg_value(tmp_path, capsys):
               "--imitation-episodes", "2"])
     assert exc.value.code == 2
     assert "--imitation-episodes" in capsys.readouterr().err
+
+
+def test_train_dqfd_keeps_demonstrations_and_saves_a_dqn(tmp_path, capsys):
+    from stable_baselines3 import DQN
+
+    yml = tmp_path / "dqfd.yml"
+    yml.write_text("CrowdNav-v0:\n  policy: ApgPolicy\n  policy_kwargs: 'dict(net_arch=[16])'\n  buffer_size: 500\n"
+                   "  learning_starts: 0\n  demo_batch_size: 8\n  margin: 0.2\n")
+    with pytest.raises(SystemExit) as exc:  # DQfD without demonstrations is refused
+        main(["train", "--algo", "dqfd", "--hyperparams", str(yml), "--timesteps", "8", "--out", str(tmp_path)])
+    assert exc.value.code == 2 and "--imitation-episodes" in capsys.readouterr().err
+    out = tmp_path / "run"
+    assert main(["train", "--algo", "dqfd", "--hyperparams", str(yml), "--timesteps", "32", "--out", str(out),
+                 "--imitation-episodes", "2", "--imitation-epochs", "1", *FAST]) == 0
+    model = DQN.load(out / "dqfd.zip")
+    assert model.num_timesteps == 32 and model.margin == 0.2
+    from sb3_crowdnav.evaluation.training import train
+
+    trained, _ = train("dqfd", {"policy": "ApgPolicy", "policy_kwargs": "dict(net_arch=[16])", "buffer_size": 500,
+                                "learning_starts": 0}, tmp_path / "api", timesteps=16, imitation_episodes=2,
+                       imitation_epochs=1, env_overrides={"num_humans": 3, "human_policy": "linear"})
+    assert trained.replay_buffer.size() == 16  # the demonstrations stay beside the buffer
+    assert len(trained.demonstrations) > 16

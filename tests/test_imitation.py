@@ -9,7 +9,7 @@ from stable_baselines3 import DQN, PPO
 from stable_baselines3.common.env_util import make_vec_env
 
 import sb3_crowdnav  # noqa: F401
-from sb3_crowdnav.imitation import Demonstrations, collect_demonstrations, pretrain_actor_critic, pretrain_dqn
+from sb3_crowdnav.imitation import DQfD, Demonstrations, collect_demonstrations, pretrain_actor_critic, pretrain_dqn
 
 th.set_num_threads(1)
 ENV_KWARGS = dict(num_humans=3)
@@ -89,3 +89,39 @@ def test_dqn_pretraining_fills_buffer_and_ranks_demonstrated_actions_first(demos
         pretrain_dqn(two, demos)
     with pytest.raises(TypeError, match="DQN"):
         pretrain_dqn(PPO("ApgPolicy", make_vec_env("CrowdNav-v0", env_kwargs=ENV_KWARGS)), demos)
+
+
+def test_dqfd_keeps_the_demonstrated_actions_on_top_while_learning(demos, tmp_path):
+    """With a learning rate large enough to wreck the ranking, DQfD's demonstration steps keep it; plain DQN loses it."""
+    def run(cls, keep):
+        env = make_vec_env("CrowdNav-v0", env_kwargs=ENV_KWARGS, seed=1)
+        model = cls("ApgPolicy", env, seed=0, policy_kwargs=SMALL, buffer_size=5_000, learning_starts=0,
+                    learning_rate=3e-3, exploration_initial_eps=1.0, exploration_final_eps=1.0, target_update_interval=50)
+        pretrain_dqn(model, demos, epochs=15, learning_rate=3e-3, batch_size=64, fill_buffer=False)
+        if keep:
+            model.set_demonstrations(demos)
+        model.learn(600)
+        return model, _agreement(lambda obs: model.q_net(obs).argmax(dim=1), demos)
+
+    kept, with_demos = run(DQfD, True)
+    _, without = run(DQN, False)
+    assert with_demos > without + 0.2, (with_demos, without)
+    assert with_demos > 0.6
+    # saved without the demonstrations, loadable by plain DQN with the same greedy actions
+    kept.save(tmp_path / "dqfd")
+    obs = {k: v[:20] for k, v in demos.observations.items()}
+    loaded = DQN.load(tmp_path / "dqfd")
+    np.testing.assert_array_equal(loaded.predict(obs, deterministic=True)[0], kept.predict(obs, deterministic=True)[0])
+    again = DQfD.load(tmp_path / "dqfd")
+    assert again.demonstrations is None and again.margin == kept.margin
+
+
+def test_dqfd_refusals(demos):
+    env = make_vec_env("CrowdNav-v0", env_kwargs=ENV_KWARGS)
+    for kwargs, match in ((dict(demo_batch_size=0), "demo_batch_size"), (dict(margin=-1.0), "margin"),
+                          (dict(margin_coef=float("nan")), "margin_coef")):
+        with pytest.raises(ValueError, match=match):
+            DQfD("ApgPolicy", env, policy_kwargs=SMALL, **kwargs)
+    model = DQfD("ApgPolicy", env, policy_kwargs=SMALL, buffer_size=100)
+    with pytest.raises(TypeError, match="Demonstrations"):
+        model.set_demonstrations({"actions": []})

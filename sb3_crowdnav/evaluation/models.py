@@ -17,7 +17,7 @@ from typing import Any
 
 
 def algorithms() -> dict[str, type]:
-    """Algorithm name → class: ``apg_value`` (when available), ``dqn``, ``ppo``, ``a2c``."""
+    """Algorithm name → class: ``apg_value`` (when available), ``dqn``, ``dqfd`` (DQN + demonstrations), ``ppo``, ``a2c``."""
     from stable_baselines3 import A2C, DQN, PPO
 
     algos: dict[str, type] = {}
@@ -27,7 +27,9 @@ def algorithms() -> dict[str, type]:
         algos["apg_value"] = APGValue
     except ImportError:  # APGValue not built (yet)
         pass
-    algos.update({"dqn": DQN, "ppo": PPO, "a2c": A2C})
+    from sb3_crowdnav.imitation import DQfD
+
+    algos.update({"dqn": DQN, "dqfd": DQfD, "ppo": PPO, "a2c": A2C})
     return algos
 
 

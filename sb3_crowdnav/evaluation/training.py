@@ -26,7 +26,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-DEFAULT_POLICIES = {"apg_value": "ApgPolicy", "dqn": "MultiInputPolicy", "ppo": "MultiInputPolicy",
+DEFAULT_POLICIES = {"apg_value": "ApgPolicy", "dqn": "MultiInputPolicy", "dqfd": "MultiInputPolicy", "ppo": "MultiInputPolicy",
                     "a2c": "MultiInputPolicy"}
 ZOO_ONLY_KEYS = ("env_wrapper", "callback", "vec_env_wrapper", "frame_stack")
 SCHEDULE_KEYS = ("learning_rate", "clip_range", "clip_range_vf")
@@ -232,15 +232,22 @@ def train(algo: str, hyperparams: Mapping[str, Any], out_dir: str | Path, env_id
                                  ("checkpoint_freq", checkpoint_freq, 0)):
         if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
             raise ValueError(f"{name} must be an int >= {minimum}, got {value!r}")
-    if imitation_episodes and algo not in ("ppo", "a2c", "dqn"):
-        raise ValueError(f"imitation_episodes is for ppo, a2c and dqn; {algo} sets imitation in its hyperparameters")
+    if imitation_episodes and algo not in ("ppo", "a2c", "dqn", "dqfd"):
+        raise ValueError(f"imitation_episodes is for ppo, a2c, dqn and dqfd; {algo} sets imitation in its hyperparameters")
+    if algo == "dqfd" and not imitation_episodes:
+        raise ValueError("algo 'dqfd' learns from demonstrations: give imitation_episodes >= 1")
     model = algos[algo](cfg["policy"], env, seed=seed, tensorboard_log=str(out / "tb"), verbose=verbose, **kwargs)
     if imitation_episodes:
         from sb3_crowdnav import imitation
 
         demos = imitation.collect_demonstrations(env, imitation_episodes)
-        pretrain = imitation.pretrain_dqn if algo == "dqn" else imitation.pretrain_actor_critic
-        losses = pretrain(model, demos, epochs=imitation_epochs, learning_rate=imitation_learning_rate)
+        if algo == "dqfd":  # the demonstrations stay beside the replay buffer, not in it
+            losses = imitation.pretrain_dqn(model, demos, epochs=imitation_epochs, learning_rate=imitation_learning_rate,
+                                            margin=model.margin, margin_coef=model.margin_coef, fill_buffer=False)
+            model.set_demonstrations(demos)
+        else:
+            pretrain = imitation.pretrain_dqn if algo == "dqn" else imitation.pretrain_actor_critic
+            losses = pretrain(model, demos, epochs=imitation_epochs, learning_rate=imitation_learning_rate)
         if verbose:
             print(f"imitation: {len(demos)} transitions of {imitation_episodes} ORCA episodes {demos.outcomes}; "
                   f"loss per epoch {[round(x, 4) for x in losses]}")
