@@ -21,7 +21,7 @@ from sb3_crowdnav.nn import (
     robot_centric,
     social_forces,
 )
-from sb3_crowdnav.nn.layers import set_onednn_inference
+from sb3_crowdnav.nn.layers import set_onednn_inference, set_onednn_training
 from sb3_crowdnav.sim.layout import HUMAN_DIM, ROBOT_DIM, Human, Robot
 
 T, N = 5, 10
@@ -323,6 +323,63 @@ def test_inference_path_equals_training_path(name, space):
         set_onednn_inference(True)
     assert previous in (True, False)
 
+
+
+@pytest.mark.parametrize("name", list(EXTRACTORS))
+def test_onednn_gradients_equal_plain_linear_gradients(name, space):
+    """With gradients the MLPs run oneDNN's forward and backward kernels; values and gradients must match nn.Linear's."""
+    model = make(name, space)
+    obs = random_obs(8, [0, 1, 2, 4, 6, 8, 10, 6], seed=11)
+
+    def run(onednn: bool) -> list[th.Tensor]:
+        previous = set_onednn_training(onednn)
+        try:
+            model.zero_grad()
+            out = model(obs)
+            (out * th.linspace(-1.0, 1.0, out.shape[1])).sum().backward()
+        finally:
+            set_onednn_training(True)
+        assert previous in (True, False)
+        return [out.detach()] + [p.grad.clone() for p in model.parameters() if p.grad is not None]
+
+    fast, plain = run(True), run(False)
+    assert len(fast) == len(plain) > 1
+    for a, b in zip(fast, plain, strict=True):
+        assert th.allclose(a, b, rtol=1e-4, atol=1e-5)
+
+
+def test_onednn_linear_gradient_against_finite_differences():
+    """The custom backward (ReLU mask, input, weight and bias gradients) against central finite differences."""
+    from sb3_crowdnav.nn.layers import linear
+
+    gen = th.Generator().manual_seed(0)
+    layer = th.nn.Linear(4, 3)
+    with th.no_grad():  # fixed weights: the test must not depend on the global RNG (which inputs sit near a ReLU kink)
+        layer.weight.copy_(th.randn(3, 4, generator=gen))
+        layer.bias.copy_(th.randn(3, generator=gen))
+    x = th.randn(2, 5, 4, generator=gen, requires_grad=True)
+    weights = th.randn(2, 5, 3, generator=gen)
+
+    def loss() -> th.Tensor:
+        return (linear(x, layer, relu=True) * weights).sum()
+
+    loss().backward()
+    assert x.grad is not None and layer.weight.grad is not None and layer.bias.grad is not None
+    eps = 1e-2
+    for tensor, grad in ((x, x.grad), (layer.weight, layer.weight.grad), (layer.bias, layer.bias.grad)):
+        flat, gflat = tensor.data.view(-1), grad.view(-1)
+        for i in range(0, flat.numel(), 3):
+            old = flat[i].item()
+            with th.no_grad():
+                flat[i] = old + eps
+                up = loss().item()
+                flat[i] = old - eps
+                down = loss().item()
+                flat[i] = old
+            assert (up - down) / (2 * eps) == pytest.approx(gflat[i].item(), abs=2e-3)
+    # its output may be modified in place (the APG encoder adds to it)
+    y = linear(x, layer)
+    y.add_(1.0).sum().backward()
 
 @pytest.mark.parametrize("name", list(EXTRACTORS))
 def test_wrong_tensor_shapes_raise(name, space):

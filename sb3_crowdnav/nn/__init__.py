@@ -21,7 +21,7 @@ from sb3_crowdnav.nn.extractors import (
     SfExtractor,
 )
 from sb3_crowdnav.nn.interactions import angular_pedestrian_grid, local_occupancy_map, social_forces
-from sb3_crowdnav.nn.layers import MLP, set_onednn_inference
+from sb3_crowdnav.nn.layers import MLP, set_onednn_inference, set_onednn_training
 from sb3_crowdnav.nn.perf import configure_cpu, tune_malloc
 from sb3_crowdnav.nn.policies import ApgActorCriticPolicy, ApgDQNPolicy
 from sb3_crowdnav.nn.transforms import (
@@ -56,6 +56,7 @@ __all__ = [
     "parse_observation_space",
     "robot_centric",
     "set_onednn_inference",
+    "set_onednn_training",
     "social_forces",
     "split_observation",
     "tune_malloc",
