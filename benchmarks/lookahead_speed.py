@@ -1,7 +1,8 @@
 """Lookahead decision time of APGValue (SPEC §7): one env, and per env with 16 envs batched.
 
-Usage: python benchmarks/lookahead_speed.py [--extractor apg] [--decisions 300] [--dtype float32|bfloat16]
-Prints median milliseconds; one torch thread.
+Usage: python benchmarks/lookahead_speed.py [--extractor apg] [--decisions 300] [--dtype float32|bfloat16] [--threads 1]
+Prints median milliseconds, and the multiply-add rate of the encoder's per-(step, pedestrian) layers
+(the work that cannot be shared between actions); one torch thread unless ``--threads``.
 """
 
 from __future__ import annotations
@@ -50,8 +51,9 @@ def main() -> None:
     parser.add_argument("--decisions", type=int, default=300)
     parser.add_argument("--dtype", default="float32", choices=("float32", "bfloat16"),
                         help="lookahead precision (ValueLookaheadPolicy's lookahead_dtype)")
+    parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads (the package's default: 1)")
     args = parser.parse_args()
-    configure_cpu(num_threads=1)  # one torch thread + keep freed tensor memory (sb3_crowdnav.nn.perf)
+    configure_cpu(num_threads=args.threads)  # one torch thread + keep freed tensor memory (sb3_crowdnav.nn.perf)
     model = APGValue("ApgPolicy", "CrowdNav-v0", imitation_episodes=0, seed=0,
                      policy_kwargs=dict(features_extractor_class=EXTRACTORS[args.extractor], lookahead_dtype=args.dtype))
     one = time_decisions(model, observations(1, args.decisions), single=True)
@@ -67,6 +69,19 @@ def main() -> None:
     print(f"single env decision: {one:.2f} ms (target < 3 ms; reference code ~92 ms)")
     print(f"16 envs batched: {sixteen:.2f} ms per call = {sixteen / 16:.3f} ms per env (target < 0.5 ms)")
     print(f"  of which propagation + reward model for 16 x 80 states: {t_prop:.2f} ms")
+    if args.extractor == "apg":
+        macs = apg_row_macs(model)
+        rows = 80 * 6 * 5  # (action, pedestrian, history step) rows of one decision
+        print(f"APG per-row layers: {macs} multiply-adds per row, {macs * rows / 1e6:.0f} M per decision; "
+              f"< 0.5 ms per env needs {macs * rows / 0.5e-3 / 1e9:.0f} G multiply-adds/s, single env measured "
+              f"{macs * rows / one / 1e6:.0f} G/s, batched {macs * rows * 16 / sixteen / 1e6:.0f} G/s (all overheads included)")
+
+
+def apg_row_macs(model: APGValue) -> int:
+    """Multiply-adds per (state, pedestrian, step) row of the APG encoder: ψ_e, ψ_h's hidden layers, ψ_alpha."""
+    fe = model.policy.value_net.features_extractor
+    layers = [*fe.psi_e.layers, *fe.psi_h_hidden.layers, fe.psi_alpha_step, *fe.psi_alpha_rest.layers]
+    return sum(layer.in_features * layer.out_features for layer in layers)
 
 
 if __name__ == "__main__":
