@@ -67,8 +67,10 @@ class EpisodeCheckpoint(BaseCallback):
         from sb3_crowdnav.evaluation import run_episodes, summarize
 
         model = self.model
+        start = time.time()
         s = summarize(run_episodes(model, self.eval_episodes, self.env_kwargs, seed_offset=VALIDATION_SEED_OFFSET))
         row = {"episodes": model._episode_num, "timesteps": model.num_timesteps, "wall": time.time(),
+               "eval_seconds": time.time() - start,
                "success": s.success_rate, "collision": s.collision_rate, "timeout": s.timeout_rate,
                "time": s.navigation_time, "gap": s.min_separation, "return": s.discounted_return,
                "comfort_time": s.comfort_zone_time, "heading": s.heading_change}
@@ -145,6 +147,9 @@ def main() -> None:
     p.add_argument("--from-imitation", type=Path, help="start from a saved post-imitation model (skips imitation)")
     p.add_argument("--overlap", action="store_true",
                    help="APGValue(overlap_training=True): gradient steps on the second core while acting (~1.4-1.6x)")
+    p.add_argument("--lookahead-dtype", choices=("float32", "bfloat16"), default="float32",
+                   help="precision of the acting lookahead (bfloat16 needs native CPU kernels; TD targets and gradient "
+                        "steps stay float32)")
     args = p.parse_args()
     configure_cpu(num_threads=1)  # one torch thread + keep freed tensor memory (sb3_crowdnav.nn.perf)
     policy, reward = VARIANTS[args.variant]
@@ -183,11 +188,12 @@ def main() -> None:
                          exploration_episodes=args.exploration_episodes, imitation_learning_rate=args.il_learning_rate,
                          overlap_training=args.overlap,
                          policy_kwargs=dict(zip(("optimizer_class", "optimizer_kwargs"), OPTIMIZERS[args.optimizer],
-                                                strict=True)))
+                                                strict=True), lookahead_dtype=args.lookahead_dtype))
         model.learn(0, tb_log_name=args.variant)  # imitation pre-training only; kept so variants can restart from it
         model.save(args.out / "imitation.zip")
         model.save_replay_buffer(args.out / "imitation_replay_buffer.pkl")
         reset = False
+    model.policy.set_lookahead_dtype(args.lookahead_dtype)  # also for a resumed or --from-imitation run
     callback = EpisodeCheckpoint(args.out, args.rl_episodes, args.checkpoint_episodes, args.eval_episodes,
                                  select_by=args.select_by, env_kwargs=dict(reward=reward, num_humans=args.num_humans))
     start = time.time()

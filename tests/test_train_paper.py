@@ -7,6 +7,11 @@ import runpy
 import sys
 from pathlib import Path
 
+import pytest
+
+from sb3_crowdnav.apg_value import APGValue
+from sb3_crowdnav.nn.layers import bfloat16_supported
+
 SCRIPT = Path(__file__).resolve().parents[1] / "examples" / "train_paper.py"
 
 
@@ -23,6 +28,7 @@ def test_checkpoints_validation_selection_and_resume(tmp_path, monkeypatch, caps
     rows = [json.loads(line) for line in (out / "eval_curve.jsonl").read_text().splitlines()]
     assert [r["episodes"] for r in rows] == [2, 4]
     assert all({"success", "return", "comfort_time", "heading"} <= set(r) for r in rows)
+    assert all(r["eval_seconds"] > 0 for r in rows)
     best = json.loads((out / "best.json").read_text())
     assert best["select_by"] == "return"
     assert best["score"] == [max(r["return"] for r in rows)]
@@ -33,3 +39,12 @@ def test_checkpoints_validation_selection_and_resume(tmp_path, monkeypatch, caps
     assert "resuming from" in capsys.readouterr().out
     rows = [json.loads(line) for line in (out / "eval_curve.jsonl").read_text().splitlines()]
     assert [r["episodes"] for r in rows] == [2, 4, 6]
+    assert APGValue.load(out / "final.zip").policy.lookahead_dtype == "float32"
+
+
+@pytest.mark.skipif(not bfloat16_supported(), reason="no native bfloat16 kernels on this CPU")
+def test_bfloat16_lookahead_is_saved(tmp_path, monkeypatch):
+    out = tmp_path / "run"
+    _run(monkeypatch, "--out", str(out), "--il-episodes", "2", "--il-epochs", "1", "--num-humans", "2",
+         "--checkpoint-episodes", "2", "--eval-episodes", "0", "--rl-episodes", "2", "--lookahead-dtype", "bfloat16")
+    assert APGValue.load(out / "final.zip").policy.lookahead_dtype == "bfloat16"
