@@ -372,8 +372,9 @@ class APGValue(OffPolicyAlgorithm):
             self._update_learning_rate(self.policy.optimizer)
             self._record_losses(self._gradient_steps(self._sample_batches(gradient_steps, batch_size)))
             return
-        # overlap_training: prepare the next batches while the previous steps finish (their targets read V_target
-        # only), act with the result of those steps, start the next ones in the background
+        # overlap_training: sample the next batches here (the replay buffer and its random state belong to the acting
+        # thread), act with the result of the previous steps, hand the batches to the learner thread, which computes
+        # their targets (V_target only) and takes the steps
         batches = self._sample_batches(gradient_steps, batch_size)
         self._join_learner()
         self._sync_acting_net()
@@ -381,31 +382,27 @@ class APGValue(OffPolicyAlgorithm):
         assert self._learner is not None
         self._learner_job = self._learner.submit(self._gradient_steps, batches)
 
-    def _sample_batches(self, gradient_steps: int, batch_size: int) -> list[tuple[Any, th.Tensor, th.Tensor | None]]:
-        """Sample the batches of one training call and compute their targets: [(data, target, weights)].
+    def _sample_batches(self, gradient_steps: int, batch_size: int) -> list[Any]:
+        """Sample the replay batches of one training call."""
+        return [self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
+                for _ in range(gradient_steps)]
 
-        Targets only read V_target, which changes between training calls only, so computing them before the
-        gradient steps (with ``overlap_training``: in the acting thread) gives the same numbers as computing each
-        just before its step.
+    def _batch_target(self, data: Any) -> tuple[th.Tensor, th.Tensor | None]:
+        """Regression target of a sampled batch (see ``value_target``) and per-sample weights (None: all count).
+
+        Targets only read V_target, which changes between training calls only (``_on_step`` waits for the learner
+        thread before updating it), so the numbers do not depend on which thread computes them or when.
         """
-        batches = []
-        for _ in range(gradient_steps):
-            data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
-            weights = None
-            if self.value_target == "lookahead":
-                target = data.lookahead_targets.flatten()
-                known = th.isfinite(target)
-                if not known.all():
-                    td = self._td_target(data.rewards.flatten(), data.next_observations, data.observations,
-                                         data.dones.flatten())
-                    target = th.where(known, target, td)
-            else:
-                target = self._td_target(data.rewards.flatten(), data.next_observations, data.observations,
-                                         data.dones.flatten())
-                if self.value_target == "greedy_td":
-                    weights = data.greedy.flatten()
-            batches.append((data, target, weights))
-        return batches
+        if self.value_target == "lookahead":
+            target = data.lookahead_targets.flatten()
+            known = th.isfinite(target)
+            if not known.all():
+                td = self._td_target(data.rewards.flatten(), data.next_observations, data.observations,
+                                     data.dones.flatten())
+                target = th.where(known, target, td)
+            return target, None
+        target = self._td_target(data.rewards.flatten(), data.next_observations, data.observations, data.dones.flatten())
+        return target, (data.greedy.flatten() if self.value_target == "greedy_td" else None)
 
     def _record_losses(self, losses: list[float]) -> None:
         self._n_updates += len(losses)
@@ -439,10 +436,11 @@ class APGValue(OffPolicyAlgorithm):
             self.policy.set_lookahead_dtype(self.policy.lookahead_dtype)  # give V back its acting precision
             self._init_learner()
 
-    def _gradient_steps(self, batches: list[tuple[Any, th.Tensor, th.Tensor | None]]) -> list[float]:
-        """One gradient step on V per prepared batch; returns the losses (the learner thread's work when overlapping)."""
+    def _gradient_steps(self, batches: list[Any]) -> list[float]:
+        """One gradient step on V per sampled batch; returns the losses (the learner thread's work when overlapping)."""
         losses = []
-        for data, target, weights in batches:
+        for data in batches:
+            target, weights = self._batch_target(data)
             error = self.policy.values(data.observations) - target
             if weights is None:
                 loss = error.square().mean()
