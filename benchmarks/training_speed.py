@@ -5,7 +5,7 @@ Measures (one torch thread, 6 pedestrians):
   (2) RL training [env steps/s and episodes/h] (ε-greedy lookahead + one batch-100 gradient step every 4 env steps);
   (3) the projected wall time of 3,000 IL + 10,000 RL episodes, for the measured RL episode length and for
       ``--episode-length`` steps per episode: the mean over the paper's schedule, where ε falls from 0.5 to 0.1
-      (default 50, measured on a full APG_RL run; the short run here starts from a 200-episode imitation model
+      (default 51.2, the mean of a full APG_RL run; the short run here starts from a 200-episode imitation model
       and its episodes end early in collisions, so its own mean is optimistic).
 
 Usage: python benchmarks/training_speed.py [--n-envs 1] [--rl-steps 3000] [--il-episodes 200]
@@ -37,7 +37,10 @@ def main() -> None:
     p.add_argument("--imitation-epochs", type=int, default=10)
     p.add_argument("--il-schedule", type=int, default=3000)
     p.add_argument("--rl-schedule", type=int, default=10000)
-    p.add_argument("--episode-length", type=float, default=50.0,
+    p.add_argument("--epsilon", type=float, default=None,
+                   help="hold ε at this value while measuring (default: the paper's 0.5 at the start of RL; late in "
+                        "the schedule ε = 0.1 and nearly every step runs a lookahead)")
+    p.add_argument("--episode-length", type=float, default=51.2,
                    help="mean RL episode length [steps] over the paper's schedule, for the projection")
     p.add_argument("--dtype", default="float32", choices=("float32", "bfloat16"), help="lookahead precision when acting")
     p.add_argument("--optimizer", default="adam", choices=("adam", "sgd"), help="RL optimiser (APGValue's default: adam)")
@@ -48,8 +51,9 @@ def main() -> None:
     policy_kwargs = dict(lookahead_dtype=args.dtype)
     if args.optimizer == "sgd":
         policy_kwargs.update(optimizer_class=th.optim.SGD, optimizer_kwargs={"momentum": 0.9})
+    eps = {} if args.epsilon is None else dict(exploration_initial_eps=args.epsilon, exploration_final_eps=args.epsilon)
     model = APGValue("ApgPolicy", env, seed=0, imitation_episodes=args.il_episodes, imitation_epochs=2,
-                     policy_kwargs=policy_kwargs, overlap_training=args.overlap)
+                     policy_kwargs=policy_kwargs, overlap_training=args.overlap, **eps)
 
     model.set_logger(configure(None, [""]))
     t0 = time.perf_counter()
@@ -71,7 +75,7 @@ def main() -> None:
     il_collect_s = args.il_schedule / (args.il_episodes / collect)
     il_regress_s = per_epoch_per_k * args.imitation_epochs * args.il_schedule * states_per_episode / 1000
     print(f"n_envs={args.n_envs} torch_threads={th.get_num_threads()} overlap_training={args.overlap} "
-          f"optimizer={args.optimizer} dtype={args.dtype}")
+          f"optimizer={args.optimizer} dtype={args.dtype} epsilon={model.exploration_rate:.2f}")
     print(f"imitation collection: {args.il_episodes / collect:.1f} episodes/s ({states_per_episode:.1f} states/episode)")
     print(f"imitation regression: {per_epoch_per_k:.3f} s per epoch per 1,000 states")
     print(f"RL: {steps_per_s:.0f} env steps/s, mean episode length {ep_len:.1f} steps, "

@@ -41,6 +41,15 @@ SelfAPGValue = TypeVar("SelfAPGValue", bound="APGValue")
 VALUE_TARGETS = ("td", "greedy_td", "lookahead")
 
 
+@dataclasses.dataclass
+class _Batch:
+    """A replay batch of one gradient step; ``target`` None until computed (by the acting or the learner thread)."""
+
+    data: Any
+    target: th.Tensor | None = None
+    weights: th.Tensor | None = None
+
+
 def check_env_compatible(env: VecEnv | None) -> None:
     """Refuse wrappers that corrupt the physical states the lookahead propagates."""
     if env is None:
@@ -373,18 +382,23 @@ class APGValue(OffPolicyAlgorithm):
             self._record_losses(self._gradient_steps(self._sample_batches(gradient_steps, batch_size)))
             return
         # overlap_training: sample the next batches here (the replay buffer and its random state belong to the acting
-        # thread), act with the result of the previous steps, hand the batches to the learner thread, which computes
-        # their targets (V_target only) and takes the steps
+        # thread), act with the result of the previous steps, hand the batches to the learner thread. Their targets
+        # (V_target only, fixed until the next join) are computed by whichever thread waited at the last hand-over:
+        # early in training most actions are ε-random and acting is cheap, late it runs a lookahead at nearly every
+        # step. The numbers are the same in either thread, so this timing-based choice does not change the run.
         batches = self._sample_batches(gradient_steps, batch_size)
+        learner_was_slower = self._learner_job is not None and not self._learner_job.done()
+        if learner_was_slower:
+            batches = [_Batch(b.data, *self._batch_target(b.data)) for b in batches]
         self._join_learner()
         self._sync_acting_net()
         self._update_learning_rate(self.policy.optimizer)
         assert self._learner is not None
         self._learner_job = self._learner.submit(self._gradient_steps, batches)
 
-    def _sample_batches(self, gradient_steps: int, batch_size: int) -> list[Any]:
-        """Sample the replay batches of one training call."""
-        return [self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
+    def _sample_batches(self, gradient_steps: int, batch_size: int) -> list[_Batch]:
+        """Sample the replay batches of one training call (targets not computed yet)."""
+        return [_Batch(self.replay_buffer.sample(batch_size, env=self._vec_normalize_env))  # type: ignore[union-attr]
                 for _ in range(gradient_steps)]
 
     def _batch_target(self, data: Any) -> tuple[th.Tensor, th.Tensor | None]:
@@ -436,11 +450,13 @@ class APGValue(OffPolicyAlgorithm):
             self.policy.set_lookahead_dtype(self.policy.lookahead_dtype)  # give V back its acting precision
             self._init_learner()
 
-    def _gradient_steps(self, batches: list[Any]) -> list[float]:
+    def _gradient_steps(self, batches: list[_Batch]) -> list[float]:
         """One gradient step on V per sampled batch; returns the losses (the learner thread's work when overlapping)."""
         losses = []
-        for data in batches:
-            target, weights = self._batch_target(data)
+        for batch in batches:
+            data, target, weights = batch.data, batch.target, batch.weights
+            if target is None:
+                target, weights = self._batch_target(data)
             error = self.policy.values(data.observations) - target
             if weights is None:
                 loss = error.square().mean()
