@@ -32,6 +32,7 @@ benchmark: $(STAMP)
 	$(BIN)/python benchmarks/env_speed.py
 	$(BIN)/python benchmarks/network_speed.py
 	$(BIN)/python benchmarks/lookahead_speed.py
+	$(BIN)/python benchmarks/matmul_rate.py
 
 reproduce: $(STAMP)
 	$(BIN)/python examples/reproduce.py
