@@ -96,7 +96,7 @@ class APGValue(OffPolicyAlgorithm):
     :param tau: target-network update coefficient (1 = hard copy)
     :param gamma: discount per second at v_pref = 1 (Table 1: 0.9); a step is discounted by γ^(Δt·v_pref)
     :param train_freq: train every ``train_freq`` env steps (per env); 4 keeps the paper's schedule near one
-        hour on 2 CPU cores (a batch-100 gradient step of the Table 2 network costs ~25 ms, a decision ~5 ms)
+        hour on 2 CPU cores (a batch-100 gradient step of the Table 2 network costs ~15 ms, a decision ~3.5 ms)
     :param gradient_steps: gradient steps per training call
     :param target_update_interval: copy V into V_target every this many env transitions
     :param exploration_initial_eps: ε at the first RL episode (0.5)
@@ -130,8 +130,9 @@ class APGValue(OffPolicyAlgorithm):
         next ``train_freq`` steps, acting with a copy of V taken when the steps started (V is one training call
         stale when acting). Uses a second CPU core (torch ops release the GIL); the run stays deterministic, because
         every hand-over happens at a fixed point of the schedule (the next training call, a target-network update,
-        ``save`` and the end of ``learn``), but it is not the same run as with ``False``. ~1.6x faster training
-        on 2 cores (``benchmarks/training_speed.py --overlap``).
+        ``save`` and the end of ``learn``), but it is not the same run as with ``False``. The TD targets are
+        computed by whichever thread waited at the last hand-over (same numbers either way). 1.2-1.6x faster
+        training on 2 cores (``benchmarks/training_speed.py --overlap``); the paper's schedule in ~66 min.
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {
