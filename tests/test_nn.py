@@ -324,7 +324,6 @@ def test_inference_path_equals_training_path(name, space):
     assert previous in (True, False)
 
 
-
 @pytest.mark.parametrize("name", list(EXTRACTORS))
 def test_onednn_gradients_equal_plain_linear_gradients(name, space):
     """With gradients the MLPs run oneDNN's forward and backward kernels; values and gradients must match nn.Linear's."""
@@ -380,6 +379,7 @@ def test_onednn_linear_gradient_against_finite_differences():
     # its output may be modified in place (the APG encoder adds to it)
     y = linear(x, layer)
     y.add_(1.0).sum().backward()
+
 
 @pytest.mark.parametrize("name", list(EXTRACTORS))
 def test_wrong_tensor_shapes_raise(name, space):

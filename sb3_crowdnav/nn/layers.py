@@ -95,7 +95,6 @@ class _OneDnnLinear(th.autograd.Function):
     def forward(ctx, x: th.Tensor, weight: th.Tensor, bias: th.Tensor | None, relu: bool) -> th.Tensor:
         out = th.ops.mkldnn._linear_pointwise(x, weight, bias, "relu" if relu else "none", [], "")
         ctx.relu = relu
-        ctx.has_bias = bias is not None
         ctx.save_for_backward(x, weight, out if relu else None)
         return out
 
@@ -111,7 +110,7 @@ class _OneDnnLinear(th.autograd.Function):
             grad_x = th.ops.mkldnn._linear_pointwise(grad, weight.t().contiguous(), None, "none", [], "")
         if ctx.needs_input_grad[1]:
             grad_w = th.ops.mkldnn._linear_pointwise(grad.t(), x.t(), None, "none", [], "")
-        if ctx.has_bias and ctx.needs_input_grad[2]:
+        if ctx.needs_input_grad[2]:  # False when there is no bias
             grad_b = grad.sum(dim=0)
         return grad_x, grad_w, grad_b, None
 
