@@ -18,7 +18,8 @@ from sb3_crowdnav.sim.layout import Human, Robot
 
 REWARD_KEYS = ("reward_success", "reward_collision", "reward_discomfort", "reward_social", "reward_angular")
 STATS_KEYS = ("outcome", "navigation_time", "path_length", "min_separation", "discomfort_frequency",
-              "comfort_zone_time", "heading_change", "discounted_return", "num_humans")
+              "comfort_zone_time", "heading_change", "discounted_return", "num_humans",
+              "discomfort_separation", "comfort_zone_separation")
 
 
 @pytest.mark.parametrize("env_id", sorted(ENV_IDS))
@@ -197,6 +198,38 @@ def test_success_episode_statistics():
     assert stats["path_length"] == pytest.approx(steps * 0.25)
     assert stats["discounted_return"] == pytest.approx(0.9 ** ((steps - 1) * 0.25))
     assert stats["min_separation"] == math.inf and stats["discomfort_frequency"] == 0.0
+
+
+def test_in_zone_separation_statistics_match_the_steps():
+    """The episode's in-zone separations are the means of the per-step ``min_distance`` in those steps."""
+    from sb3_crowdnav import OrcaPolicy
+
+    env = CrowdNavEnv(reward="comfort")
+    orca = OrcaPolicy.from_env(env)
+    checked = 0
+    for seed in range(40):
+        obs, _ = env.reset(seed=seed)
+        steps = []
+        while True:
+            action, _ = orca.predict(obs)
+            obs, _, terminated, truncated, info = env.step(int(action))
+            steps.append((info["min_distance"], info["in_comfort_zone"]))
+            if terminated or truncated:
+                break
+        stats = info["episode_stats"]
+        close = [d for d, _ in steps if d < env.reward_config.discomfort_dist]
+        zone = [d for d, inside in steps if inside]
+        assert stats["discomfort_frequency"] == pytest.approx(len(close) / len(steps))
+        assert stats["comfort_zone_time"] == pytest.approx(len(zone) * 0.25)
+        for key, values in (("discomfort_separation", close), ("comfort_zone_separation", zone)):
+            if values:
+                assert stats[key] == pytest.approx(np.mean(values))
+            else:
+                assert math.isnan(stats[key])
+        checked += bool(close) and bool(zone) and len(close) != len(zone)
+        if checked >= 3:
+            break
+    assert checked >= 3, "too few episodes with both kinds of step to check"
 
 
 def test_collision_ends_the_episode():

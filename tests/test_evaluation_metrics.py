@@ -1,6 +1,7 @@
 """Metrics, tables and the restricted evaluator on hand-built records (no env)."""
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -65,6 +66,27 @@ def test_summarize_hand_computed():
     assert s.discomfort_frequency == pytest.approx((10 + 0 + 10 + 0) / (40 + 48 + 20 + 100))  # pooled over steps
     assert s.comfort_zone_time == pytest.approx(3.5 / 4)
     assert s.heading_change == pytest.approx(6.0 / 4)
+
+
+def test_in_zone_separations_are_pooled_over_steps():
+    recs = [
+        # 10 discomfort steps at a mean of 0.10 m; 4 comfort-zone steps (1.0 s) at a mean of 0.50 m
+        replace(record(0, "success", 40, 10.0, 1.0, 0.4, 0.05, 0.25, comfort=1.0),
+                discomfort_separation=0.10, comfort_zone_separation=0.50),
+        # 2 discomfort steps at 0.16 m; 12 comfort-zone steps (3.0 s) at 0.30 m
+        replace(record(1, "collision", 20, 5.0, -0.25, -0.2, -0.01, 0.1, comfort=3.0),
+                discomfort_separation=0.16, comfort_zone_separation=0.30),
+        # no such step: nan, left out
+        record(2, "success", 36, 9.0, 1.0, 0.4, 0.9, 0.0, comfort=0.0),
+    ]
+    s = summarize(recs)
+    assert s.discomfort_separation == pytest.approx((10 * 0.10 + 2 * 0.16) / 12)  # not (0.10 + 0.16) / 2
+    assert s.comfort_zone_separation == pytest.approx((4 * 0.50 + 12 * 0.30) / 16)
+    none = summarize([recs[2]])
+    assert math.isnan(none.discomfort_separation) and math.isnan(none.comfort_zone_separation)
+    row = results_table({"A": s}).rows[0]
+    assert row["discomfort_gap"] == s.discomfort_separation and row["comfort_gap"] == s.comfort_zone_separation
+    assert "gap in comfort zones (m)" in results_table({"A": s}).to_markdown()
 
 
 def test_summarize_without_success_and_bad_input():

@@ -138,7 +138,9 @@ class CrowdNavEnv(gym.Env):
         self._path_length = 0.0
         self._min_sep = np.inf
         self._discomfort_steps = 0
+        self._discomfort_dist_sum = 0.0
         self._comfort_steps = 0
+        self._comfort_dist_sum = 0.0
         self._heading_change = 0.0
         self._discounted_return = 0.0
         self.trajectory: list[tuple[np.ndarray, np.ndarray]] = []
@@ -188,8 +190,12 @@ class CrowdNavEnv(gym.Env):
         (x0, y0), (x1, y1) = prev[Robot.POS], robot[Robot.POS]
         self._path_length += math.hypot(x1 - x0, y1 - y0)
         self._min_sep = min(self._min_sep, min_dist)
-        self._discomfort_steps += int(min_dist < self.reward_config.discomfort_dist)
-        self._comfort_steps += int(terms.in_comfort_zone)
+        if min_dist < self.reward_config.discomfort_dist:
+            self._discomfort_steps += 1
+            self._discomfort_dist_sum += min_dist
+        if terms.in_comfort_zone:
+            self._comfort_steps += 1
+            self._comfort_dist_sum += min_dist
         self._heading_change += abs(_wrap_scalar(robot[Robot.HEADING] - prev[Robot.HEADING]))
         self._discounted_return += self.gamma ** ((sim.steps - 1) * self.scene.time_step * self.scene.robot_v_pref) * reward
         self._record()
@@ -214,6 +220,10 @@ class CrowdNavEnv(gym.Env):
                 "min_separation": self._min_sep,
                 "discomfort_frequency": self._discomfort_steps / sim.steps,
                 "comfort_zone_time": self._comfort_steps * self.scene.time_step,
+                "discomfort_separation": (self._discomfort_dist_sum / self._discomfort_steps
+                                          if self._discomfort_steps else math.nan),
+                "comfort_zone_separation": (self._comfort_dist_sum / self._comfort_steps
+                                            if self._comfort_steps else math.nan),
                 "heading_change": self._heading_change,
                 "discounted_return": self._discounted_return,
                 "num_humans": sim.num_humans,

@@ -14,6 +14,15 @@ episodes (as the field reports them), the returns, heading change and comfort-zo
 **all** episodes, the minimum separation ("gap") over all episodes with at least one pedestrian
 (a collision contributes its value ≤ 0), and the discomfort frequency pooled over all steps
 (Σ discomfort steps / Σ steps).
+
+Two separations are pooled over **steps** rather than episodes, as the field's CrowdNav code
+reports its "average min separate distance in danger": ``discomfort_separation``, the mean
+minimum surface distance over all steps closer than the discomfort distance (0.2 m), and
+``comfort_zone_separation``, the same over all steps inside a pedestrian's comfort ellipse
+(Eq. 9). Both are ``nan`` when no episode has such a step. The paper's "gap" of Table 5 (0.14 m
+for APG_RL, 0.64 / 0.50 m for the comfort variants) is consistent with these in-zone averages
+(0.14 < 0.2 m; 0.64 and 0.50 fit inside the 0.7 m-wide comfort zone) and not with an
+episode minimum, which is why the tables report both next to ``min_separation``.
 """
 
 from __future__ import annotations
@@ -83,9 +92,18 @@ class Summary:
     comfort_zone_time: float  # [s] per episode
     heading_change: float  # [rad] per episode
     path_length: float  # [m], successful episodes
+    discomfort_separation: float = math.nan  # [m], mean over all steps closer than 0.2 m
+    comfort_zone_separation: float = math.nan  # [m], mean over all steps inside a comfort ellipse
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
+
+
+def _pooled(values: Sequence[float], weights: Sequence[float]) -> float:
+    """Σ w·v / Σ w over the finite values with w > 0 (``nan`` when there are none)."""
+    pairs = [(v, w) for v, w in zip(values, weights, strict=True) if w > 0 and math.isfinite(v)]
+    total = sum(w for _, w in pairs)
+    return sum(v * w for v, w in pairs) / total if total > 0 else math.nan
 
 
 def summarize(records: Sequence[Any], confidence: float = 0.95) -> Summary:
@@ -118,6 +136,11 @@ def summarize(records: Sequence[Any], confidence: float = 0.95) -> Summary:
         comfort_zone_time=_mean([r.comfort_zone_time for r in records]),
         heading_change=_mean([r.heading_change for r in records]),
         path_length=_mean([r.path_length for r in success]),
+        # weights proportional to each episode's number of such steps (the time step is common)
+        discomfort_separation=_pooled([getattr(r, "discomfort_separation", math.nan) for r in records],
+                                      [r.discomfort_frequency * r.steps for r in records]),
+        comfort_zone_separation=_pooled([getattr(r, "comfort_zone_separation", math.nan) for r in records],
+                                        [r.comfort_zone_time for r in records]),
     )
 
 

@@ -17,6 +17,7 @@ model ``.zip`` (APGValue, DQN, PPO, ... detected by :func:`~sb3_crowdnav.evaluat
 
 from __future__ import annotations
 
+import math
 import multiprocessing as mp
 import sys
 from collections.abc import Iterable, Mapping, Sequence
@@ -75,6 +76,10 @@ class EpisodeRecord:
     ``min_separation`` is the smallest surface distance to any pedestrian (``inf`` without
     pedestrians, ≤ 0 after a collision); ``discomfort_frequency`` the share of this episode's
     steps with a pedestrian closer than the discomfort distance (0.2 m).
+    ``discomfort_separation`` and ``comfort_zone_separation`` are the mean over this episode's
+    discomfort steps, respectively its steps inside a pedestrian's comfort ellipse, of the
+    step's minimum surface distance to any pedestrian (``nan`` when there is no such step); the
+    first is the field's "average min separate distance in danger".
     """
 
     seed: int
@@ -89,6 +94,8 @@ class EpisodeRecord:
     comfort_zone_time: float
     heading_change: float
     num_humans: int
+    discomfort_separation: float = math.nan
+    comfort_zone_separation: float = math.nan
     trajectory: Trajectory | None = field(default=None, repr=False)
 
     def to_dict(self) -> dict[str, Any]:
@@ -237,6 +244,8 @@ def run_episode(env: gym.Env, policy: Any, seed: int, deterministic: bool = True
         comfort_zone_time=float(stats["comfort_zone_time"]),
         heading_change=float(stats["heading_change"]),
         num_humans=int(stats["num_humans"]),
+        discomfort_separation=float(stats["discomfort_separation"]),
+        comfort_zone_separation=float(stats["comfort_zone_separation"]),
         trajectory=_trajectory(env) if keep_trajectory else None,
     )
 

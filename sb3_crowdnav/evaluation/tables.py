@@ -2,9 +2,10 @@
 
 Table 3 layout (one row per policy): the paper's columns first — method, success, collision,
 time (s), return — then timeout, gap (m), discomfort, comfort-zone time (s), heading change
-(rad), path length (m) and the number of episodes. Table 4 layout (one row per number of
-pedestrians N) has ``humans`` in place of ``method``. In Markdown a rate is printed with its
-Wilson 95 % interval, ``0.990 [0.977, 0.996]``; the CSV has separate ``*_ci_low`` /
+(rad), path length (m), the number of episodes, and the mean minimum separation over the steps
+in discomfort (< 0.2 m) and inside comfort zones (see :mod:`sb3_crowdnav.evaluation.metrics`).
+Table 4 layout (one row per number of pedestrians N) has ``humans`` in place of ``method``. In
+Markdown a rate is printed with its Wilson 95 % interval, ``0.990 [0.977, 0.996]``; the CSV has separate ``*_ci_low`` /
 ``*_ci_high`` columns and full precision.
 """
 
@@ -25,9 +26,11 @@ CSV_COLUMNS = (
     "time", "return",
     "timeout", "timeout_ci_low", "timeout_ci_high",
     "gap", "discomfort", "comfort_time", "heading_change", "path_length", "reward_sum", "episodes",
+    "discomfort_gap", "comfort_gap",
 )
 MARKDOWN_HEADERS = ("success", "collision", "time (s)", "return", "timeout", "gap (m)", "discomfort",
-                    "comfort (s)", "heading (rad)", "path (m)", "episodes")
+                    "comfort (s)", "heading (rad)", "path (m)", "episodes", "gap in discomfort (m)",
+                    "gap in comfort zones (m)")
 
 
 def summary_row(summary: Summary) -> dict[str, Any]:
@@ -41,6 +44,7 @@ def summary_row(summary: Summary) -> dict[str, Any]:
         "gap": s.min_separation, "discomfort": s.discomfort_frequency, "comfort_time": s.comfort_zone_time,
         "heading_change": s.heading_change, "path_length": s.path_length, "reward_sum": s.episode_return,
         "episodes": s.episodes,
+        "discomfort_gap": s.discomfort_separation, "comfort_gap": s.comfort_zone_separation,
     }
 
 
@@ -58,6 +62,7 @@ def _markdown_cells(s: Summary) -> list[str]:
         _num(s.navigation_time, 2), _num(s.discounted_return, 4), _rate(s.timeout_rate, s.timeout_ci),
         _num(s.min_separation, 3), _num(s.discomfort_frequency, 3), _num(s.comfort_zone_time, 2),
         _num(s.heading_change, 2), _num(s.path_length, 2), str(s.episodes),
+        _num(s.discomfort_separation, 3), _num(s.comfort_zone_separation, 3),
     ]
 
 
