@@ -27,6 +27,9 @@ import sb3_crowdnav  # noqa: F401
 from sb3_crowdnav.nn import configure_cpu
 from sb3_crowdnav.apg_value import APGValue
 from sb3_crowdnav.apg_value.apg_value import VALUE_TARGETS
+# imported up front, not at the first validation: a run that lasts an hour must not mix this package's
+# modules from before and after an edit of the working tree (a run died that way on a changed episode record)
+from sb3_crowdnav.evaluation import run_episodes, summarize
 
 VARIANTS = {
     # name: (policy alias, reward)
@@ -64,8 +67,6 @@ class EpisodeCheckpoint(BaseCallback):
         self._last = -1
 
     def validate(self) -> None:
-        from sb3_crowdnav.evaluation import run_episodes, summarize
-
         model = self.model
         start = time.time()
         s = summarize(run_episodes(model, self.eval_episodes, self.env_kwargs, seed_offset=VALIDATION_SEED_OFFSET))
