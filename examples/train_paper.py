@@ -8,6 +8,10 @@ Every ``--checkpoint-episodes`` RL episodes the model (and its replay buffer) is
 ``OUT/checkpoint.zip`` / ``OUT/replay_buffer.pkl`` (written to a temporary name first, so an
 interrupted save never destroys the previous checkpoint); TensorBoard logs go to ``OUT/tb``.
 At the end the final model is ``OUT/final.zip``.
+
+A run takes an hour or more; if you keep editing the package meanwhile, start it from a frozen copy
+(``git worktree add --detach ../frozen HEAD`` and ``PYTHONPATH=../frozen python ../frozen/examples/train_paper.py ...``)
+so that modules imported late (rendering, a checkpoint's classes) come from the same version.
 """
 
 from __future__ import annotations
