@@ -147,3 +147,12 @@ def test_prepare_splits_zoo_hyperparams():
     with pytest.raises(ValueError):
         prepare("ppo", {"policy_kwargs": "dict(x=os.system)"})
     assert np.isfinite(cfg["kwargs"]["learning_rate"](0.0))
+
+
+def test_records_with_nan_separations_compare_equal():
+    a = record(0, "success", 40, 10.0, 1.0, 0.4, 0.5, 0.0)  # no discomfort step: nan separations
+    assert math.isnan(a.discomfort_separation)
+    assert a == record(0, "success", 40, 10.0, 1.0, 0.4, 0.5, 0.0)
+    assert a != replace(a, discomfort_separation=0.1)
+    assert a != replace(a, steps=41)
+    assert a.__eq__("not a record") is NotImplemented

@@ -102,6 +102,18 @@ class EpisodeRecord:
         """The scalar fields (no trajectory), e.g. for a CSV row."""
         return {f.name: getattr(self, f.name) for f in fields(self) if f.name != "trajectory"}
 
+    def __eq__(self, other: object) -> bool:
+        """Field by field, with ``nan == nan`` (an episode without discomfort steps has a ``nan`` separation)."""
+        if not isinstance(other, EpisodeRecord):
+            return NotImplemented
+        return all(_same(getattr(self, f.name), getattr(other, f.name)) for f in fields(self))
+
+
+def _same(a: Any, b: Any) -> bool:
+    if isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b):
+        return True
+    return bool(a == b)
+
 
 RECORD_FIELDS = tuple(f.name for f in fields(EpisodeRecord) if f.name != "trajectory")
 
