@@ -137,9 +137,9 @@ def summarize(records: Sequence[Any], confidence: float = 0.95) -> Summary:
         heading_change=_mean([r.heading_change for r in records]),
         path_length=_mean([r.path_length for r in success]),
         # weights proportional to each episode's number of such steps (the time step is common)
-        discomfort_separation=_pooled([getattr(r, "discomfort_separation", math.nan) for r in records],
+        discomfort_separation=_pooled([r.discomfort_separation for r in records],
                                       [r.discomfort_frequency * r.steps for r in records]),
-        comfort_zone_separation=_pooled([getattr(r, "comfort_zone_separation", math.nan) for r in records],
+        comfort_zone_separation=_pooled([r.comfort_zone_separation for r in records],
                                         [r.comfort_zone_time for r in records]),
     )
 
