@@ -9,6 +9,13 @@ Every ``--checkpoint-episodes`` RL episodes the model (and its replay buffer) is
 interrupted save never destroys the previous checkpoint); TensorBoard logs go to ``OUT/tb``.
 At the end the final model is ``OUT/final.zip``.
 
+SIGTERM or SIGINT (Ctrl-C, ``kill PID``, the end of a session) during the RL phase stops the run at the
+end of the current step and writes the checkpoint first, so no more than the unfinished episode is
+lost; the process then exits with status 128 + the signal number and no ``final.zip``, and running the
+same command again resumes. A second signal kills at once (the checkpoint files are replaced
+atomically, so the previous checkpoint survives). During imitation a signal kills the run as usual
+(imitation restarts; it takes minutes).
+
 A run takes an hour or more; if you keep editing the package meanwhile, start it from a frozen copy
 (``git worktree add --detach ../frozen HEAD`` and ``PYTHONPATH=../frozen python ../frozen/examples/train_paper.py ...``)
 so that modules imported late (rendering, a checkpoint's classes) come from the same version.
@@ -20,6 +27,8 @@ import argparse
 import json
 import os
 import shutil
+import signal
+import sys
 import time
 from pathlib import Path
 
@@ -69,6 +78,8 @@ class EpisodeCheckpoint(BaseCallback):
         self.out, self.max_episodes, self.every, self.eval_episodes = out, max_episodes, every, eval_episodes
         self.select_by, self.env_kwargs = select_by, dict(env_kwargs or {})
         self._last = -1
+        self.stopped_by: int | None = None  # the signal that stopped training early, if any
+        self._previous_handlers: dict[int, object] = {}
 
     def validate(self) -> None:
         model = self.model
@@ -105,10 +116,25 @@ class EpisodeCheckpoint(BaseCallback):
         (self.out / "progress.json").write_text(json.dumps(
             {"episodes": model._episode_num, "timesteps": model.num_timesteps, "time": time.time()}))
 
+    def _stop(self, signum: int, _frame) -> None:
+        self.stopped_by = signum
+        self._restore_handlers()  # a second signal acts as usual
+
+    def _restore_handlers(self) -> None:
+        for signum, handler in self._previous_handlers.items():
+            signal.signal(signum, handler)
+        self._previous_handlers = {}
+
     def _on_training_start(self) -> None:
         self._last = self.model._episode_num  # a resumed run does not checkpoint and validate its first episode count again
+        self._previous_handlers = {s: signal.signal(s, self._stop) for s in (signal.SIGTERM, signal.SIGINT)}
+
+    def _on_training_end(self) -> None:
+        self._restore_handlers()
 
     def _on_step(self) -> bool:
+        if self.stopped_by is not None:
+            return False
         episodes = self.model._episode_num
         if episodes != self._last and episodes > 0 and episodes % self.every == 0:
             self._last = episodes
@@ -206,6 +232,10 @@ def main() -> None:
     model.learn(total_timesteps=args.rl_episodes * 100 * 2, callback=callback, reset_num_timesteps=reset,
                 tb_log_name=args.variant, log_interval=50)
     callback.save()
+    if callback.stopped_by is not None:
+        print(f"stopped by signal {callback.stopped_by} after {model._episode_num} RL episodes, "
+              f"{model.num_timesteps} steps; checkpoint written, run the same command again to resume", flush=True)
+        sys.exit(128 + callback.stopped_by)
     model.save(args.out / "final.zip")
     print(f"done: {model._episode_num} RL episodes, {model.num_timesteps} steps, {time.time() - start:.0f} s this run",
           flush=True)

@@ -4,7 +4,10 @@ from __future__ import annotations
 
 import json
 import runpy
+import signal
+import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -48,3 +51,32 @@ def test_bfloat16_lookahead_is_saved(tmp_path, monkeypatch):
     _run(monkeypatch, "--out", str(out), "--il-episodes", "2", "--il-epochs", "1", "--num-humans", "2",
          "--checkpoint-episodes", "2", "--eval-episodes", "0", "--rl-episodes", "2", "--lookahead-dtype", "bfloat16")
     assert APGValue.load(out / "final.zip").policy.lookahead_dtype == "bfloat16"
+
+
+def test_sigterm_writes_a_checkpoint_and_the_run_resumes(tmp_path, monkeypatch, capsys):
+    out = tmp_path / "run"
+    common = ["--out", str(out), "--il-episodes", "2", "--il-epochs", "1", "--num-humans", "2",
+              "--checkpoint-episodes", "2", "--eval-episodes", "0"]
+    proc = subprocess.Popen([sys.executable, "-u", str(SCRIPT), *common, "--rl-episodes", "100000"],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not (out / "checkpoint_2.zip").exists():  # in the RL phase, with a first checkpoint written
+            assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()[0] if proc.poll() else ""
+            time.sleep(0.05)
+        proc.send_signal(signal.SIGTERM)
+        output, _ = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert proc.returncode == 128 + signal.SIGTERM, output
+    assert "stopped by signal" in output
+    assert not (out / "final.zip").exists()
+    progress = json.loads((out / "progress.json").read_text())
+    saved = APGValue.load(out / "checkpoint.zip")
+    assert progress["episodes"] == saved._episode_num >= 2
+    assert progress["timesteps"] == saved.num_timesteps
+    capsys.readouterr()
+    _run(monkeypatch, *common, "--rl-episodes", str(progress["episodes"] + 2))
+    assert f"resuming from {out / 'checkpoint.zip'} at episode {progress['episodes']}," in capsys.readouterr().out
+    assert APGValue.load(out / "final.zip")._episode_num == progress["episodes"] + 2
+    assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL  # handlers restored after training
