@@ -57,14 +57,14 @@ def table5(summaries: dict) -> str:
     """
     lines = ["| method | success (ours / paper) | time [s] (ours / paper) | gap: episode min [m] | "
              "gap: mean in discomfort [m] | gap: mean in comfort zones [m] | paper gap [m] | "
-             "time in comfort zones [s] | heading change [rad] |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "time in comfort zones [s] | heading change [rad] | sharp turns (>= π/2) |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for name, s in summaries.items():
         p = PAPER_T3.get(name, (None,) * 5)
         lines.append(
             f"| {name} | {s.success_rate:.3f} / {_fmt(p[0])} | {_fmt(s.navigation_time)} / {_fmt(p[2])} | "
             f"{_fmt(s.min_separation)} | {_fmt(s.discomfort_separation)} | {_fmt(s.comfort_zone_separation)} | "
-            f"{_fmt(p[4])} | {_fmt(s.comfort_zone_time)} | {_fmt(s.heading_change)} |")
+            f"{_fmt(p[4])} | {_fmt(s.comfort_zone_time)} | {_fmt(s.heading_change)} | {_fmt(s.sharp_turns)} |")
     return "\n".join(lines)
 
 

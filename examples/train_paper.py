@@ -89,7 +89,7 @@ class EpisodeCheckpoint(BaseCallback):
                "eval_seconds": time.time() - start,
                "success": s.success_rate, "collision": s.collision_rate, "timeout": s.timeout_rate,
                "time": s.navigation_time, "gap": s.min_separation, "return": s.discounted_return,
-               "comfort_time": s.comfort_zone_time, "heading": s.heading_change}
+               "comfort_time": s.comfort_zone_time, "heading": s.heading_change, "sharp_turns": s.sharp_turns}
         for key in ("success", "collision", "timeout", "time", "gap", "return"):
             model.logger.record(f"eval/{key}", row[key])
         with open(self.out / "eval_curve.jsonl", "a") as f:

@@ -19,7 +19,7 @@ from sb3_crowdnav.sim.layout import Human, Robot
 REWARD_KEYS = ("reward_success", "reward_collision", "reward_discomfort", "reward_social", "reward_angular")
 STATS_KEYS = ("outcome", "navigation_time", "path_length", "min_separation", "discomfort_frequency",
               "comfort_zone_time", "heading_change", "discounted_return", "num_humans",
-              "discomfort_separation", "comfort_zone_separation")
+              "discomfort_separation", "comfort_zone_separation", "sharp_turns")
 
 
 @pytest.mark.parametrize("env_id", sorted(ENV_IDS))
@@ -174,6 +174,15 @@ def test_timeout_is_truncation():
     assert stats["navigation_time"] == pytest.approx(25.0)
     assert stats["path_length"] == pytest.approx(100 * 0.2 * 0.25)
     assert stats["heading_change"] == pytest.approx(100 * math.pi / 2)
+    assert stats["sharp_turns"] == 100  # every turn is exactly the default threshold, π/2 (counted, as Eq. 13 does)
+
+    gentle = CrowdNavEnv(num_humans=0, time_limit=1.25, angular_penalty_threshold=math.pi / 2 + 0.01)  # 5 steps
+    gentle.reset(seed=0)
+    for action in (circle, circle, circle, 0, 8):  # three quarter turns, straight on, a half turn (index 8: π)
+        *_, truncated, info = gentle.step(action)
+    assert truncated
+    assert info["episode_stats"]["heading_change"] == pytest.approx(3 * math.pi / 2 + math.pi)
+    assert info["episode_stats"]["sharp_turns"] == 1  # only the half turn reaches π/2 + 0.01
 
     short = CrowdNavEnv(num_humans=0, time_limit=2.0)
     short.reset(seed=0)
@@ -262,3 +271,27 @@ def test_rgb_array_rendering():
     assert frame.ndim == 3 and frame.shape[2] == 3 and frame.dtype == np.uint8
     assert frame.shape[0] > 100 and frame.shape[1] > 100
     assert frame.std() > 0  # something was drawn
+
+
+def test_sharp_turns_are_the_turns_eq13_penalises():
+    """``sharp_turns`` counts the steps turning by >= π/2; under ``"comfort_angular"`` exactly the non-terminal
+    ones carry the angular penalty, and the count is the same under a reward that does not penalise turns."""
+    counts = {}
+    for reward in ("comfort_angular", "crowdnav"):
+        env = CrowdNavEnv(reward=reward, num_humans=2)
+        env.reset(seed=3)
+        rng = np.random.default_rng(0)
+        sharp = 0
+        while True:
+            h0 = float(env.sim.robot[Robot.HEADING])
+            *_, terminated, truncated, info = env.step(int(rng.integers(80)))
+            turn = abs((float(env.sim.robot[Robot.HEADING]) - h0 + math.pi) % (2 * math.pi) - math.pi)
+            is_sharp = turn >= math.pi / 2 - 1e-6
+            sharp += is_sharp
+            if reward == "comfort_angular" and not terminated:
+                assert (info["reward_angular"] < 0) == is_sharp
+            if terminated or truncated:
+                break
+        assert info["episode_stats"]["sharp_turns"] == sharp > 5  # random directions turn sharply often
+        counts[reward] = (sharp, info["episode_stats"]["heading_change"])
+    assert counts["comfort_angular"] == counts["crowdnav"]

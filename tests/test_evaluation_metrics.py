@@ -89,6 +89,18 @@ def test_in_zone_separations_are_pooled_over_steps():
     assert "gap in comfort zones (m)" in results_table({"A": s}).to_markdown()
 
 
+def test_sharp_turns_are_averaged_over_all_episodes():
+    recs = [replace(record(0, "success", 40, 10.0, 1.0, 0.4, 0.3, 0.0), sharp_turns=3),
+            replace(record(1, "collision", 9, 2.0, -0.25, -0.2, -0.1, 0.2), sharp_turns=0),  # failures count too
+            replace(record(2, "timeout", 100, 25.0, 0.0, 0.0, 0.5, 0.0), sharp_turns=12)]
+    s = summarize(recs)
+    assert s.sharp_turns == pytest.approx(5.0)
+    table = results_table({"A": s})
+    assert table.rows[0]["sharp_turns"] == pytest.approx(5.0)
+    header, _, row = table.to_markdown().splitlines()
+    assert header.rstrip(" |").endswith("sharp turns") and row.rstrip(" |").endswith("5.00")
+
+
 def test_summarize_without_success_and_bad_input():
     s = summarize([record(0, "collision", 4, 1.0, -0.25, -0.25, -0.1, 1.0)])
     assert math.isnan(s.navigation_time) and s.collision_rate == 1.0

@@ -13,6 +13,7 @@ from gymnasium import spaces
 from sb3_crowdnav.sim.actions import N_ACTIONS, _wrap_scalar
 from sb3_crowdnav.sim.config import REWARDS, RewardConfig, SceneConfig
 from sb3_crowdnav.sim.layout import HUMAN_DIM, Human, Robot
+from sb3_crowdnav.sim.rewards import is_sharp_turn
 from sb3_crowdnav.sim.simulator import CrowdSimulator
 
 SCENE_KEYS = {f.name for f in dataclasses.fields(SceneConfig)}
@@ -77,6 +78,11 @@ class CrowdNavEnv(gym.Env):
     Terminated on collision (the robot and a pedestrian overlap at any moment of the step) or
     success (robot centre within its radius of the goal). Truncated at the time limit (25 s =
     100 steps) — the env truncates by itself, so changing ``time_limit`` changes the episode length.
+    On the last step ``info["episode_stats"]`` holds the episode's metrics: outcome, navigation time,
+    path length, minimum separation, discomfort frequency, comfort-zone time, the mean separation
+    over the discomfort steps and over the comfort-zone steps, the total heading change, the number
+    of sharp turns (steps turning by at least ``angular_penalty_threshold``, Eq. 13's trigger, counted
+    under every reward), the discounted return and the number of pedestrians.
 
     ## Arguments
 
@@ -142,6 +148,7 @@ class CrowdNavEnv(gym.Env):
         self._comfort_steps = 0
         self._comfort_dist_sum = 0.0
         self._heading_change = 0.0
+        self._sharp_turns = 0
         self._discounted_return = 0.0
         self.trajectory: list[tuple[np.ndarray, np.ndarray]] = []
 
@@ -196,7 +203,9 @@ class CrowdNavEnv(gym.Env):
         if terms.in_comfort_zone:
             self._comfort_steps += 1
             self._comfort_dist_sum += min_dist
-        self._heading_change += abs(_wrap_scalar(robot[Robot.HEADING] - prev[Robot.HEADING]))
+        turn = _wrap_scalar(robot[Robot.HEADING] - prev[Robot.HEADING])
+        self._heading_change += abs(turn)
+        self._sharp_turns += is_sharp_turn(turn, self.reward_config)
         self._discounted_return += self.gamma ** ((sim.steps - 1) * self.scene.time_step * self.scene.robot_v_pref) * reward
         self._record()
 
@@ -225,6 +234,7 @@ class CrowdNavEnv(gym.Env):
                 "comfort_zone_separation": (self._comfort_dist_sum / self._comfort_steps
                                             if self._comfort_steps else math.nan),
                 "heading_change": self._heading_change,
+                "sharp_turns": self._sharp_turns,
                 "discounted_return": self._discounted_return,
                 "num_humans": sim.num_humans,
             }

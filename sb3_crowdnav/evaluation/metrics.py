@@ -10,8 +10,8 @@ Unlike the normal ("Wald") interval it stays inside [0, 1] and does not collapse
 p̂ = 0 or 1 (0.99 over 500 episodes → [0.977, 0.996]).
 
 Averages (see :class:`Summary`): the navigation time and path length over **successful**
-episodes (as the field reports them), the returns, heading change and comfort-zone time over
-**all** episodes, the minimum separation ("gap") over all episodes with at least one pedestrian
+episodes (as the field reports them), the returns, heading change, sharp turns and comfort-zone
+time over **all** episodes, the minimum separation ("gap") over all episodes with at least one pedestrian
 (a collision contributes its value ≤ 0), and the discomfort frequency pooled over all steps
 (Σ discomfort steps / Σ steps).
 
@@ -94,6 +94,7 @@ class Summary:
     path_length: float  # [m], successful episodes
     discomfort_separation: float = math.nan  # [m], mean over all steps closer than 0.2 m
     comfort_zone_separation: float = math.nan  # [m], mean over all steps inside a comfort ellipse
+    sharp_turns: float = math.nan  # per episode: steps turning by >= the angular-penalty threshold (Eq. 13)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -141,6 +142,7 @@ def summarize(records: Sequence[Any], confidence: float = 0.95) -> Summary:
                                       [r.discomfort_frequency * r.steps for r in records]),
         comfort_zone_separation=_pooled([r.comfort_zone_separation for r in records],
                                         [r.comfort_zone_time for r in records]),
+        sharp_turns=_mean([r.sharp_turns for r in records]),
     )
 
 

@@ -79,7 +79,9 @@ class EpisodeRecord:
     ``discomfort_separation`` and ``comfort_zone_separation`` are the mean over this episode's
     discomfort steps, respectively its steps inside a pedestrian's comfort ellipse, of the
     step's minimum surface distance to any pedestrian (``nan`` when there is no such step); the
-    first is the field's "average min separate distance in danger".
+    first is the field's "average min separate distance in danger". ``sharp_turns`` counts the
+    steps whose heading change reaches the env's ``angular_penalty_threshold`` (π/2 by default; the
+    turns Eq. 13 penalises), whatever reward the episode ran under.
     """
 
     seed: int
@@ -96,6 +98,7 @@ class EpisodeRecord:
     num_humans: int
     discomfort_separation: float = math.nan
     comfort_zone_separation: float = math.nan
+    sharp_turns: int = 0
     trajectory: Trajectory | None = field(default=None, repr=False)
 
     def to_dict(self) -> dict[str, Any]:
@@ -258,6 +261,7 @@ def run_episode(env: gym.Env, policy: Any, seed: int, deterministic: bool = True
         num_humans=int(stats["num_humans"]),
         discomfort_separation=float(stats["discomfort_separation"]),
         comfort_zone_separation=float(stats["comfort_zone_separation"]),
+        sharp_turns=int(stats["sharp_turns"]),
         trajectory=_trajectory(env) if keep_trajectory else None,
     )
 

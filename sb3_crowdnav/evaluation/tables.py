@@ -26,11 +26,11 @@ CSV_COLUMNS = (
     "time", "return",
     "timeout", "timeout_ci_low", "timeout_ci_high",
     "gap", "discomfort", "comfort_time", "heading_change", "path_length", "reward_sum", "episodes",
-    "discomfort_gap", "comfort_gap",
+    "discomfort_gap", "comfort_gap", "sharp_turns",
 )
 MARKDOWN_HEADERS = ("success", "collision", "time (s)", "return", "timeout", "gap (m)", "discomfort",
                     "comfort (s)", "heading (rad)", "path (m)", "episodes", "gap in discomfort (m)",
-                    "gap in comfort zones (m)")
+                    "gap in comfort zones (m)", "sharp turns")
 
 
 def summary_row(summary: Summary) -> dict[str, Any]:
@@ -45,6 +45,7 @@ def summary_row(summary: Summary) -> dict[str, Any]:
         "heading_change": s.heading_change, "path_length": s.path_length, "reward_sum": s.episode_return,
         "episodes": s.episodes,
         "discomfort_gap": s.discomfort_separation, "comfort_gap": s.comfort_zone_separation,
+        "sharp_turns": s.sharp_turns,
     }
 
 
@@ -62,7 +63,7 @@ def _markdown_cells(s: Summary) -> list[str]:
         _num(s.navigation_time, 2), _num(s.discounted_return, 4), _rate(s.timeout_rate, s.timeout_ci),
         _num(s.min_separation, 3), _num(s.discomfort_frequency, 3), _num(s.comfort_zone_time, 2),
         _num(s.heading_change, 2), _num(s.path_length, 2), str(s.episodes),
-        _num(s.discomfort_separation, 3), _num(s.comfort_zone_separation, 3),
+        _num(s.discomfort_separation, 3), _num(s.comfort_zone_separation, 3), _num(s.sharp_turns, 2),
     ]
 
 

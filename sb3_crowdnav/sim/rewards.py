@@ -32,6 +32,12 @@ from sb3_crowdnav.sim.actions import _wrap_scalar, wrap_angle
 from sb3_crowdnav.sim.config import RewardConfig
 
 STILL_SPEED = 1e-3  # [m/s] below this a pedestrian counts as standing still
+ANGLE_TOLERANCE = 1e-9  # [rad] a turn of exactly the threshold (a table direction) counts despite rounding
+
+
+def is_sharp_turn(turn: float, cfg: RewardConfig) -> bool:
+    """Whether a heading change of ``|turn|`` rad in one step triggers Eq. 13 (``>= angular_penalty_threshold``)."""
+    return abs(turn) >= cfg.angular_penalty_threshold - ANGLE_TOLERANCE
 
 
 class RewardTerms(NamedTuple):
@@ -172,7 +178,8 @@ def compute_reward(
     angular_term = zero
     if cfg.uses_angular:
         turn = np.abs(wrap_angle(heading1 - heading0))
-        angular_term = np.where(~terminal & (turn >= cfg.angular_penalty_threshold - 1e-9), -cfg.angular_penalty, 0.0)
+        sharp = turn >= cfg.angular_penalty_threshold - ANGLE_TOLERANCE  # is_sharp_turn, broadcast
+        angular_term = np.where(~terminal & sharp, -cfg.angular_penalty, 0.0)
     reward = success_term + collision_term + discomfort + social_term + angular_term
     return RewardTerms(
         reward=reward,
@@ -250,8 +257,7 @@ def _compute_reward_single(cfg, time_step, robot_pos0, robot_pos1, heading0, hea
     social_term = social if cfg.uses_social and not terminal else 0.0
     angular_term = 0.0
     if cfg.uses_angular and not terminal:
-        turn = abs(_wrap_scalar(float(heading1) - float(heading0)))
-        if turn >= cfg.angular_penalty_threshold - 1e-9:
+        if is_sharp_turn(_wrap_scalar(float(heading1) - float(heading0)), cfg):
             angular_term = -cfg.angular_penalty
     reward = success_term + collision_term + discomfort + social_term + angular_term
     f64, b_ = np.float64, np.bool_
