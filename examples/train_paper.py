@@ -16,6 +16,11 @@ same command again resumes. A second signal kills at once (the checkpoint files 
 atomically, so the previous checkpoint survives). During imitation a signal kills the run as usual
 (imitation restarts; it takes minutes).
 
+To continue a run on another machine, copying ``checkpoint.zip`` and ``progress.json`` is enough (add
+``eval_curve.jsonl``, ``best.json`` and ``best.zip`` to keep the validation curve and the best-so-far
+selection); the replay buffer (~200 MB) can stay behind: a run resumed without ``replay_buffer.pkl`` starts
+with an empty buffer and makes no gradient step until it has collected ``--refill-steps`` new transitions.
+
 A run takes an hour or more; if you keep editing the package meanwhile, start it from a frozen copy
 (``git worktree add --detach ../frozen HEAD`` and ``PYTHONPATH=../frozen python ../frozen/examples/train_paper.py ...``)
 so that modules imported late (rendering, a checkpoint's classes) come from the same version.
@@ -178,10 +183,15 @@ def main() -> None:
     p.add_argument("--from-imitation", type=Path, help="start from a saved post-imitation model (skips imitation)")
     p.add_argument("--overlap", action="store_true",
                    help="APGValue(overlap_training=True): gradient steps on the second core while acting (~1.4-1.6x)")
+    p.add_argument("--refill-steps", type=int, default=5_000,
+                   help="resuming without OUT/replay_buffer.pkl (a run moved to another machine): env steps collected "
+                        "into the empty buffer before gradient steps start again")
     p.add_argument("--lookahead-dtype", choices=("float32", "bfloat16"), default="float32",
                    help="precision of the acting lookahead (bfloat16 needs native CPU kernels; TD targets and gradient "
                         "steps stay float32)")
     args = p.parse_args()
+    if args.refill_steps < 0:
+        p.error(f"--refill-steps must be >= 0, got {args.refill_steps}")
     configure_cpu(num_threads=1)  # one torch thread + keep freed tensor memory (sb3_crowdnav.nn.perf)
     policy, reward = VARIANTS[args.variant]
     args.out.mkdir(parents=True, exist_ok=True)
@@ -193,9 +203,13 @@ def main() -> None:
                        env_kwargs=dict(reward=reward, num_humans=args.num_humans))
     if ckpt.exists():
         model = APGValue.load(ckpt, env=env, tensorboard_log=str(args.out / "tb"), overlap_training=args.overlap)
+        print(f"resuming from {ckpt} at episode {model._episode_num}, {model.num_timesteps} steps", flush=True)
         if (args.out / "replay_buffer.pkl").exists():
             model.load_replay_buffer(args.out / "replay_buffer.pkl")
-        print(f"resuming from {ckpt} at episode {model._episode_num}, {model.num_timesteps} steps", flush=True)
+        else:  # a run carried to another machine without its (large) buffer: refill it before the next gradient step
+            model.learning_starts = model.num_timesteps + args.refill_steps
+            print(f"no replay buffer in {args.out}: collecting {args.refill_steps} transitions before training again",
+                  flush=True)
         reset = False
     elif args.from_imitation is not None:
         model = APGValue.load(args.from_imitation, env=env, tensorboard_log=str(args.out / "tb"), verbose=1,

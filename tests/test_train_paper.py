@@ -80,3 +80,29 @@ def test_sigterm_writes_a_checkpoint_and_the_run_resumes(tmp_path, monkeypatch, 
     assert f"resuming from {out / 'checkpoint.zip'} at episode {progress['episodes']}," in capsys.readouterr().out
     assert APGValue.load(out / "final.zip")._episode_num == progress["episodes"] + 2
     assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL  # handlers restored after training
+
+
+@pytest.mark.parametrize("refill", [0, 100_000])
+def test_resume_without_replay_buffer_refills_before_training(tmp_path, monkeypatch, capsys, refill):
+    """A run carried to another machine without replay_buffer.pkl: no gradient step until the buffer is refilled."""
+    out = tmp_path / "run"
+    common = ["--out", str(out), "--il-episodes", "2", "--il-epochs", "1", "--num-humans", "2",
+              "--checkpoint-episodes", "2", "--eval-episodes", "0"]
+    _run(monkeypatch, *common, "--rl-episodes", "2")
+    before = APGValue.load(out / "checkpoint.zip")
+    (out / "replay_buffer.pkl").unlink()
+    capsys.readouterr()
+    _run(monkeypatch, *common, "--rl-episodes", "4", "--refill-steps", str(refill))
+    assert f"no replay buffer in {out}: collecting {refill} transitions" in capsys.readouterr().out
+    after = APGValue.load(out / "final.zip")
+    assert after._episode_num == 4 and after.num_timesteps > before.num_timesteps
+    if refill:  # 2 episodes are far fewer than 100,000 steps: V is untouched
+        assert after._n_updates == before._n_updates
+    else:
+        assert after._n_updates > before._n_updates
+
+
+def test_negative_refill_steps_is_rejected(tmp_path, monkeypatch, capsys):
+    with pytest.raises(SystemExit):
+        _run(monkeypatch, "--out", str(tmp_path / "run"), "--refill-steps", "-1")
+    assert "--refill-steps must be >= 0, got -1" in capsys.readouterr().err
