@@ -16,9 +16,8 @@ import torch as th
 from stable_baselines3.common.env_util import make_vec_env
 
 import sb3_crowdnav  # noqa: F401
-from sb3_crowdnav.nn import configure_cpu
 from sb3_crowdnav.apg_value import APGValue
-from sb3_crowdnav.nn import EXTRACTORS
+from sb3_crowdnav.nn import EXTRACTORS, configure_cpu
 
 
 def observations(n_envs: int, count: int) -> list[dict[str, np.ndarray]]:

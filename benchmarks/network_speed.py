@@ -19,7 +19,7 @@ from stable_baselines3.common.torch_layers import create_mlp
 from sb3_crowdnav.nn import EXTRACTORS
 from sb3_crowdnav.nn.layers import set_onednn_inference
 from sb3_crowdnav.nn.perf import configure_cpu
-from sb3_crowdnav.sim.layout import HUMAN_DIM, ROBOT_DIM, Human, Robot
+from sb3_crowdnav.sim.observation import HUMAN_DIM, ROBOT_DIM, Human, Robot
 
 
 def make_space(history_length: int, max_humans: int) -> spaces.Dict:

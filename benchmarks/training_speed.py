@@ -20,13 +20,16 @@ from __future__ import annotations
 import argparse
 import time
 
+import numpy as np
 import torch as th
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.logger import configure
 
 import sb3_crowdnav  # noqa: F401
-from sb3_crowdnav.nn import configure_cpu
 from sb3_crowdnav.apg_value import APGValue
+from sb3_crowdnav.apg_value.pretraining import pretrain_from_orca
+from sb3_crowdnav.imitation import pretrain_value
+from sb3_crowdnav.nn import configure_cpu
 
 
 def main() -> None:
@@ -56,14 +59,21 @@ def main() -> None:
                      policy_kwargs=policy_kwargs, overlap_training=args.overlap, **eps)
 
     model.set_logger(configure(None, [""]))
+    epochs, model.imitation_epochs = model.imitation_epochs, 0
     t0 = time.perf_counter()
-    obs, returns = model._collect_imitation()
+    pretrain_from_orca(model)  # epochs 0: the collection alone (into the replay buffer, as in training)
     collect = time.perf_counter() - t0
-    states_per_episode = len(returns) / args.il_episodes
+    buffer = model.replay_buffer
+    states = buffer.size() * buffer.n_envs
+    states_per_episode = states / args.il_episodes
+    observations = {k: v[: buffer.size()].reshape(states, -1) for k, v in buffer.observations.items()}
+    net = model.policy.value_net
+    optimizer = th.optim.SGD(net.parameters(), lr=model.imitation_learning_rate, momentum=0.9)
     t1 = time.perf_counter()
-    model._fit_imitation(obs, returns, epochs=2)
-    per_epoch_per_k = (time.perf_counter() - t1) / 2 / (len(returns) / 1000)
-    model.imitation_done = True
+    pretrain_value(net, observations, np.zeros(states, dtype=np.float32), optimizer, 2, model.batch_size,
+                   th.Generator().manual_seed(0), model.max_grad_norm)
+    per_epoch_per_k = (time.perf_counter() - t1) / 2 / (states / 1000)
+    model.imitation_epochs, model.imitation_done = epochs, True
 
     t2 = time.perf_counter()
     model.learn(args.rl_steps, reset_num_timesteps=False)

@@ -27,7 +27,7 @@ import sb3_crowdnav  # noqa: F401
 from sb3_crowdnav import CrowdNavEnv
 from sb3_crowdnav.evaluation.runner import TEST_SEED_OFFSET, make_policy, policy_label
 from sb3_crowdnav.nn import configure_cpu
-from sb3_crowdnav.sim.layout import HUMAN_DIM, Human, Robot
+from sb3_crowdnav.sim.observation import HUMAN_DIM, Human, Robot
 from sb3_crowdnav.sim.rewards import walking_direction
 
 DEFAULT_REWARDS = {"apg_crl": "comfort", "apg_carl": "comfort_angular"}

@@ -12,8 +12,7 @@ import argparse
 import collections
 from pathlib import Path
 
-from sb3_crowdnav.evaluation.models import load_model
-from sb3_crowdnav.pretrained_models import PRETRAINED, WEIGHTS_DIR
+from sb3_crowdnav.models import PRETRAINED, WEIGHTS_DIR, load_model
 
 
 def main() -> None:

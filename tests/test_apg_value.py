@@ -15,9 +15,9 @@ from stable_baselines3.her.her_replay_buffer import HerReplayBuffer
 
 import sb3_crowdnav  # noqa: F401  (registers the envs)
 from sb3_crowdnav.apg_value import APGValue, ValueLookaheadPolicy
-from sb3_crowdnav.sim.actions import N_ACTIONS, wrap_angle
 from sb3_crowdnav.nn.layers import bfloat16_supported
-from sb3_crowdnav.sim.layout import Robot
+from sb3_crowdnav.sim.actions import N_ACTIONS, wrap_angle
+from sb3_crowdnav.sim.observation import Robot
 
 TINY = dict(imitation_episodes=2, imitation_epochs=1, batch_size=16, buffer_size=2_000)
 
@@ -300,6 +300,7 @@ def test_value_targets_learn_and_train_on_stored_target(value_target):
 
 def test_old_dict_buffer_is_wrapped_on_load(tmp_path):
     from stable_baselines3.common.buffers import DictReplayBuffer
+
     from sb3_crowdnav.apg_value.buffers import ValueReplayBuffer
 
     old = APGValue("ApgPolicy", "CrowdNav-v0", imitation_episodes=0, seed=0, replay_buffer_class=DictReplayBuffer,
@@ -396,7 +397,7 @@ def test_overlap_training_acts_with_the_previous_weights(monkeypatch):
 
     def sync(self):
         original(self)
-        seen.append((_params(self).clone(), th.cat([p.detach().flatten() for p in self._acting_net.parameters()])))
+        seen.append((_params(self).clone(), th.cat([p.detach().flatten() for p in self._overlap.acting_net.parameters()])))
 
     monkeypatch.setattr(APGValue, "_sync_acting_net", sync)
     model.learn(40)
@@ -405,7 +406,7 @@ def test_overlap_training_acts_with_the_previous_weights(monkeypatch):
         assert th.equal(v, acting)
     assert not th.equal(seen[1][0], seen[-1][0])  # V did change between hand-overs
     # after learn(): no thread, no copy, predict reads V itself
-    assert model._acting_net is None and model._learner_job is None and model._learner is None
+    assert model._overlap is None
 
 
 def test_overlap_training_two_envs_checkpoint_and_bfloat16(tmp_path):
@@ -437,6 +438,6 @@ def test_overlap_training_errors_reach_the_caller(monkeypatch):
     monkeypatch.setattr(APGValue, "_gradient_steps", boom)
     with pytest.raises(FloatingPointError, match="nan loss"):
         model.learn(40)
-    assert model._learner is None and model._acting_net is None
+    assert model._overlap is None
     with pytest.raises(TypeError, match="overlap_training must be a bool"):
         APGValue("ApgPolicy", "CrowdNav-v0", overlap_training="yes")

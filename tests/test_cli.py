@@ -182,7 +182,7 @@ def test_train_dqfd_keeps_demonstrations_and_saves_a_dqn(tmp_path, capsys):
                  "--imitation-episodes", "2", "--imitation-epochs", "1", *FAST]) == 0
     model = DQN.load(out / "dqfd.zip")
     assert model.num_timesteps == 32 and model.margin == 0.2
-    from sb3_crowdnav.evaluation.training import train
+    from sb3_crowdnav.training import train_from_hyperparams as train
 
     trained, _ = train("dqfd", {"policy": "ApgPolicy", "policy_kwargs": "dict(net_arch=[16])", "buffer_size": 500,
                                 "learning_starts": 0}, tmp_path / "api", timesteps=16, imitation_episodes=2,

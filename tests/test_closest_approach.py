@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from sb3_crowdnav import CrowdNavEnv
-from sb3_crowdnav.sim.layout import Human, Robot
+from sb3_crowdnav.sim.observation import Human, Robot
 
 SCRIPT = Path(__file__).resolve().parents[1] / "examples" / "closest_approach.py"
 NS = runpy.run_path(str(SCRIPT))

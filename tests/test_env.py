@@ -14,7 +14,7 @@ from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import sb3_crowdnav
 from sb3_crowdnav import ENV_IDS, CrowdNavEnv
-from sb3_crowdnav.sim.layout import Human, Robot
+from sb3_crowdnav.sim.observation import Human, Robot
 
 REWARD_KEYS = ("reward_success", "reward_collision", "reward_discomfort", "reward_social", "reward_angular")
 STATS_KEYS = ("outcome", "navigation_time", "path_length", "min_separation", "discomfort_frequency",

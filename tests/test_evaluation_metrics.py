@@ -8,7 +8,7 @@ import pytest
 
 from sb3_crowdnav.evaluation import EpisodeRecord, discounted_return, results_table, summarize, sweep_table, wilson_interval
 from sb3_crowdnav.evaluation.tables import CSV_COLUMNS
-from sb3_crowdnav.evaluation.training import prepare, safe_eval
+from sb3_crowdnav.training.hyperparams import prepare, safe_eval
 
 
 def record(seed, outcome, steps, time, ret, disc, sep, disc_freq, comfort=0.0, heading=0.0, path=0.0, humans=6):

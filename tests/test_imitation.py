@@ -9,7 +9,7 @@ from stable_baselines3 import DQN, PPO
 from stable_baselines3.common.env_util import make_vec_env
 
 import sb3_crowdnav  # noqa: F401
-from sb3_crowdnav.imitation import DQfD, Demonstrations, collect_demonstrations, pretrain_actor_critic, pretrain_dqn
+from sb3_crowdnav.imitation import Demonstrations, DQfD, collect_demonstrations, pretrain_actor_critic, pretrain_dqn
 
 th.set_num_threads(1)
 ENV_KWARGS = dict(num_humans=3)

@@ -22,7 +22,7 @@ from sb3_crowdnav.nn import (
     social_forces,
 )
 from sb3_crowdnav.nn.layers import set_onednn_inference, set_onednn_training
-from sb3_crowdnav.sim.layout import HUMAN_DIM, ROBOT_DIM, Human, Robot
+from sb3_crowdnav.sim.observation import HUMAN_DIM, ROBOT_DIM, Human, Robot
 
 T, N = 5, 10
 

@@ -11,7 +11,7 @@ import pytest
 import sb3_crowdnav  # noqa: F401
 from sb3_crowdnav import OrcaPolicy, SceneConfig
 from sb3_crowdnav.sim.actions import action_table
-from sb3_crowdnav.sim.layout import HUMAN_DIM, Human, Robot
+from sb3_crowdnav.sim.observation import HUMAN_DIM, Human, Robot
 
 
 def _head_on(scene: SceneConfig):

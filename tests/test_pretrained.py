@@ -8,7 +8,7 @@ import pytest
 
 import sb3_crowdnav
 from sb3_crowdnav.evaluation.runner import make_policy, policy_label
-from sb3_crowdnav.pretrained_models import PRETRAINED, pretrained_path
+from sb3_crowdnav.models import PRETRAINED, pretrained_path
 
 
 def test_unknown_or_missing_pretrained_name_raises():

@@ -17,7 +17,7 @@ from sb3_crowdnav.sim import (
     closest_approach,
     walking_direction,
 )
-from sb3_crowdnav.sim.layout import Human, Robot
+from sb3_crowdnav.sim.observation import Human, Robot
 
 
 def make_sim(**scene):
@@ -183,7 +183,7 @@ pkg = types.ModuleType("sb3_crowdnav")
 pkg.__path__ = list(spec.submodule_search_locations)
 sys.modules["sb3_crowdnav"] = pkg
 import sb3_crowdnav.sim
-import sb3_crowdnav.sim.scenarios, sb3_crowdnav.sim.layout
+import sb3_crowdnav.sim.scenarios, sb3_crowdnav.sim.observation
 sb3_crowdnav.sim.CrowdSimulator(sb3_crowdnav.sim.SceneConfig(), sb3_crowdnav.sim.RewardConfig())
 bad = sorted(m for m in sys.modules if m.split(".")[0] in ("torch", "gymnasium", "stable_baselines3"))
 print(bad)

@@ -13,8 +13,9 @@ from stable_baselines3 import DQN, PPO
 
 import sb3_crowdnav  # noqa: F401
 from sb3_crowdnav.apg_value import APGValue
-from sb3_crowdnav.nn import ApgExtractor, ApgActorCriticPolicy, ApgDQNPolicy
-from sb3_crowdnav.zoo import main as zoo_main, register, sample_apg_value_params
+from sb3_crowdnav.nn import ApgActorCriticPolicy, ApgDQNPolicy, ApgExtractor
+from sb3_crowdnav.training.zoo import main as zoo_main
+from sb3_crowdnav.training.zoo import register, sample_apg_value_params
 
 ROOT = Path(__file__).resolve().parents[1]
 HYPER = ROOT / "zoo_hyperparams"
@@ -75,7 +76,7 @@ def test_rl_zoo3_trains_ppo_and_apg_value(tmp_path):
                     "-params", "n_envs:1", "n_steps:64", "batch_size:32", "n_epochs:1"],
                    check=True, capture_output=True, timeout=300)
     assert (tmp_path / "ppo" / "CrowdNav-v0_1" / "CrowdNav-v0.zip").exists()
-    zoo = [sys.executable, "-m", "sb3_crowdnav.zoo"]
+    zoo = [sys.executable, "-m", "sb3_crowdnav.training.zoo"]
     subprocess.run([*zoo, "train", "--algo", "apg_value", "-conf", str(HYPER / "apg_value.yml"), "-n", "40", *common,
                     "-params", "imitation_episodes:2", "imitation_epochs:1", "buffer_size:1000"],
                    check=True, capture_output=True, timeout=300)

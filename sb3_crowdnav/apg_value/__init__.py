@@ -8,7 +8,7 @@ from sb3_crowdnav.apg_value.policies import (
     SfPolicy,
     ValueLookaheadPolicy,
 )
-from sb3_crowdnav.apg_value.propagation import PropagationModel, Propagated
+from sb3_crowdnav.apg_value.propagation import Propagated, PropagationModel
 
 __all__ = [
     "APGValue",

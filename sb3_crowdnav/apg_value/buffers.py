@@ -14,6 +14,7 @@ with no lookahead target.
 
 from __future__ import annotations
 
+import warnings
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -82,3 +83,15 @@ class ValueReplayBuffer(DictReplayBuffer):
             greedy=self.to_torch(self.greedy[column].astype(np.float32)).reshape(-1, 1),
             lookahead_targets=self.to_torch(self.lookahead_target[column]).reshape(-1, 1),
         )
+
+
+def follow_timeout_handling(buffer: DictReplayBuffer | None, bootstrap_timeouts: bool) -> None:
+    """Make ``buffer`` follow APGValue's ``bootstrap_timeouts`` (it may come from a model saved with the other setting)."""
+    if buffer is None or buffer.handle_timeout_termination == bootstrap_timeouts:
+        return
+    if not bootstrap_timeouts:  # stored dones include truncations: forget which ones were timeouts
+        buffer.timeouts[:] = 0
+        buffer.handle_timeout_termination = False
+    else:
+        warnings.warn("the replay buffer did not record timeouts: its old truncations stay terminal")
+        buffer.handle_timeout_termination = True

@@ -14,30 +14,11 @@ from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 from torch import nn
 
 from sb3_crowdnav.apg_value.propagation import Propagated, PropagationModel
-from sb3_crowdnav.nn import EXTRACTORS, ApgExtractor
+from sb3_crowdnav.nn import ApgExtractor, CadrlExtractor, LmExtractor, LstmRlExtractor, SarlExtractor, SfExtractor
 from sb3_crowdnav.nn.layers import bfloat16_supported
 from sb3_crowdnav.sim.actions import N_ACTIONS
 from sb3_crowdnav.sim.config import KINEMATICS, RewardConfig
-from sb3_crowdnav.sim.layout import HUMAN_DIM, ROBOT_DIM
-
-OBS_KEYS = ("robot", "humans", "humans_mask")
-
-
-def check_observation_space(observation_space: spaces.Space) -> tuple[int, int]:
-    """Validate a CrowdNav observation space; return ``(history_length, max_humans)``."""
-    if not isinstance(observation_space, spaces.Dict) or set(OBS_KEYS) - set(observation_space.spaces):
-        raise ValueError(
-            f"ValueLookaheadPolicy needs the Dict observation of CrowdNav-v0 with keys {OBS_KEYS}, got {observation_space}; "
-            "do not flatten, normalise or frame-stack the observation"
-        )
-    robot, humans, mask = (observation_space[k] for k in OBS_KEYS)
-    m = int(np.prod(mask.shape))
-    if robot.shape != (ROBOT_DIM,) or len(humans.shape) != 1 or humans.shape[0] % (m * HUMAN_DIM):
-        raise ValueError(
-            f"observation shapes robot {robot.shape}, humans {humans.shape}, humans_mask {mask.shape} do not match "
-            f"CrowdNav-v0's layout (robot ({ROBOT_DIM},), humans (T*max_humans*{HUMAN_DIM},), humans_mask (max_humans,))"
-        )
-    return humans.shape[0] // (m * HUMAN_DIM), m
+from sb3_crowdnav.sim.observation import OBS_KEYS, ObservationSchema
 
 
 class ValueNetwork(nn.Module):
@@ -71,7 +52,8 @@ class ValueLookaheadPolicy(BasePolicy):
     :param reward: the env's reward setting as a dict of :class:`RewardConfig` fields (``name`` = reward name)
     :param net_arch: hidden sizes of the value head ψ_M
     :param activation_fn: activation of the value head
-    :param features_extractor_class: encoder of the joint state (default: APG + temporal attention + LSTM)
+    :param features_extractor_class: encoder of the joint state (default: the class's ``default_extractor_class``,
+        APG + temporal attention + LSTM here, the baseline's encoder in the aliases ``CadrlPolicy``, ...)
     :param features_extractor_kwargs: its keyword arguments
     :param optimizer_class: RL optimiser (here SGD with momentum 0.9, as the field's reference code; ``APGValue``
         passes Adam unless ``policy_kwargs`` name one)
@@ -85,6 +67,7 @@ class ValueLookaheadPolicy(BasePolicy):
     """
 
     LOOKAHEAD_DTYPES = ("float32", "bfloat16")
+    default_extractor_class: type[BaseFeaturesExtractor] = ApgExtractor  # the policy aliases set their encoder here
 
     def __init__(
         self,
@@ -98,14 +81,15 @@ class ValueLookaheadPolicy(BasePolicy):
         reward: dict[str, Any] | None = None,
         net_arch: list[int] | None = None,
         activation_fn: type[nn.Module] = nn.ReLU,
-        features_extractor_class: type[BaseFeaturesExtractor] = ApgExtractor,
+        features_extractor_class: type[BaseFeaturesExtractor] | None = None,
         features_extractor_kwargs: dict[str, Any] | None = None,
         normalize_images: bool = False,
         optimizer_class: type[th.optim.Optimizer] = th.optim.SGD,
         optimizer_kwargs: dict[str, Any] | None = None,
         lookahead_dtype: str = "float32",
     ) -> None:
-        self.history_length, self.max_humans = check_observation_space(observation_space)
+        schema = ObservationSchema.from_space(observation_space)
+        self.history_length, self.max_humans = schema.history_length, schema.max_humans
         if lookahead_dtype not in self.LOOKAHEAD_DTYPES:
             raise ValueError(f"lookahead_dtype must be one of {self.LOOKAHEAD_DTYPES}, got {lookahead_dtype!r}")
         if not isinstance(action_space, spaces.Discrete) or action_space.n != N_ACTIONS:
@@ -121,7 +105,7 @@ class ValueLookaheadPolicy(BasePolicy):
         super().__init__(
             observation_space,
             action_space,
-            features_extractor_class,
+            features_extractor_class or self.default_extractor_class,
             features_extractor_kwargs or {},
             optimizer_class=optimizer_class,
             optimizer_kwargs=optimizer_kwargs,
@@ -183,11 +167,8 @@ class ValueLookaheadPolicy(BasePolicy):
 
     # ------------------------------------------------------------------ values
     def _as_tensors(self, robot: np.ndarray, humans: np.ndarray, mask: np.ndarray) -> dict[str, th.Tensor]:
-        return {
-            "robot": th.as_tensor(robot, dtype=th.float32, device=self.device),
-            "humans": th.as_tensor(humans, dtype=th.float32, device=self.device),
-            "humans_mask": th.as_tensor(mask, dtype=th.float32, device=self.device),
-        }
+        return {key: th.as_tensor(value, dtype=th.float32, device=self.device)
+                for key, value in zip(OBS_KEYS, (robot, humans, mask), strict=True)}
 
     def values(self, observation: dict[str, th.Tensor], target: bool = False) -> th.Tensor:
         """V(s) of a batch of observations (tensors) with the online or the target network; (batch,)."""
@@ -243,16 +224,43 @@ class ValueLookaheadPolicy(BasePolicy):
         self.training = mode
 
 
-def _alias(name: str, extractor: type[BaseFeaturesExtractor], doc: str) -> type[ValueLookaheadPolicy]:
-    def __init__(self, *args, features_extractor_class=extractor, **kwargs):
-        ValueLookaheadPolicy.__init__(self, *args, features_extractor_class=features_extractor_class, **kwargs)
+class CadrlPolicy(ValueLookaheadPolicy):
+    """:class:`ValueLookaheadPolicy` with the CADRL encoder."""
 
-    return type(name, (ValueLookaheadPolicy,), {"__init__": __init__, "__doc__": doc, "__module__": __name__})
+    default_extractor_class = CadrlExtractor
+
+
+class SfPolicy(ValueLookaheadPolicy):
+    """:class:`ValueLookaheadPolicy` with the social-force (SF_RL) encoder."""
+
+    default_extractor_class = SfExtractor
+
+
+class LmPolicy(ValueLookaheadPolicy):
+    """:class:`ValueLookaheadPolicy` with the local-map (LM_RL) encoder."""
+
+    default_extractor_class = LmExtractor
+
+
+class LstmRlPolicy(ValueLookaheadPolicy):
+    """:class:`ValueLookaheadPolicy` with the LSTM-RL encoder."""
+
+    default_extractor_class = LstmRlExtractor
+
+
+class SarlPolicy(ValueLookaheadPolicy):
+    """:class:`ValueLookaheadPolicy` with the SARL encoder."""
+
+    default_extractor_class = SarlExtractor
 
 
 ApgPolicy = ValueLookaheadPolicy
-CadrlPolicy = _alias("CadrlPolicy", EXTRACTORS["cadrl"], "ValueLookaheadPolicy with the CADRL encoder.")
-SfPolicy = _alias("SfPolicy", EXTRACTORS["sf"], "ValueLookaheadPolicy with the social-force (SF_RL) encoder.")
-LmPolicy = _alias("LmPolicy", EXTRACTORS["lm"], "ValueLookaheadPolicy with the local-map (LM_RL) encoder.")
-LstmRlPolicy = _alias("LstmRlPolicy", EXTRACTORS["lstm_rl"], "ValueLookaheadPolicy with the LSTM-RL encoder.")
-SarlPolicy = _alias("SarlPolicy", EXTRACTORS["sarl"], "ValueLookaheadPolicy with the SARL encoder.")
+POLICY_ALIASES: dict[str, type[ValueLookaheadPolicy]] = {
+    "ApgPolicy": ValueLookaheadPolicy,
+    "ValueLookaheadPolicy": ValueLookaheadPolicy,
+    "CadrlPolicy": CadrlPolicy,
+    "SfPolicy": SfPolicy,
+    "LmPolicy": LmPolicy,
+    "LstmRlPolicy": LstmRlPolicy,
+    "SarlPolicy": SarlPolicy,
+}

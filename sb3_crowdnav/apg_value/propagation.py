@@ -19,7 +19,7 @@ import numpy as np
 
 from sb3_crowdnav.sim.actions import N_ACTIONS, action_table, apply_action
 from sb3_crowdnav.sim.config import RewardConfig
-from sb3_crowdnav.sim.layout import HUMAN_DIM, Human, Robot
+from sb3_crowdnav.sim.observation import HUMAN_DIM, Human, ObservationSchema, Robot
 from sb3_crowdnav.sim.rewards import compute_reward, walking_direction
 
 
@@ -67,7 +67,8 @@ class PropagationModel:
                 f"expected robot (B, 9), humans (B, {self.history_length}*M*{HUMAN_DIM}), mask (B, M); got "
                 f"{robot.shape}, {humans.shape}, {mask.shape}"
             )
-        hist = humans.reshape(b, self.history_length, m, HUMAN_DIM)
+        schema = ObservationSchema(self.history_length, m)
+        hist = schema.humans_view(humans)  # (B, T, M, 5)
         pos0, goal = robot[:, Robot.POS], robot[:, Robot.GOAL]
         heading0, v_pref, radius = robot[:, Robot.HEADING], robot[:, Robot.V_PREF], robot[:, Robot.RADIUS]
 
@@ -102,7 +103,7 @@ class PropagationModel:
         new_robot[:, :, Robot.HEADING] = new_heading
         return Propagated(
             robot=new_robot,
-            humans=new_hist.reshape(b, -1),
+            humans=schema.flatten_humans(new_hist),
             humans_mask=mask.astype(np.float32),
             reward=terms.reward,
             terminal=terms.success | terms.collision,

@@ -12,7 +12,7 @@ from gymnasium import spaces
 
 from sb3_crowdnav.sim.actions import N_ACTIONS, _wrap_scalar
 from sb3_crowdnav.sim.config import REWARDS, RewardConfig, SceneConfig
-from sb3_crowdnav.sim.layout import HUMAN_DIM, Human, Robot
+from sb3_crowdnav.sim.observation import HUMAN_DIM, Human, ObservationSchema, Robot
 from sb3_crowdnav.sim.rewards import is_sharp_turn
 from sb3_crowdnav.sim.simulator import CrowdSimulator
 
@@ -119,21 +119,10 @@ class CrowdNavEnv(gym.Env):
         pos_bound = half + max(s.robot_v_pref, s.human_v_pref) * s.time_limit + 1.0
         vel_bound = max(s.robot_v_pref, s.human_v_pref) * 1.5 + 1.0
         rad_bound = max(s.robot_radius, s.human_radius) + 1.0
-        robot_hi = np.array([pos_bound, pos_bound, vel_bound, vel_bound, rad_bound, pos_bound, pos_bound,
-                             s.robot_v_pref + 1.0, np.pi + 0.01], dtype=np.float32)
-        robot_lo = -robot_hi
-        robot_lo[Robot.RADIUS] = 0.0
-        robot_lo[Robot.V_PREF] = 0.0
-        human_hi = np.array([pos_bound, pos_bound, vel_bound, vel_bound, rad_bound], dtype=np.float32)
-        human_lo = -human_hi
-        human_lo[Human.RADIUS] = 0.0
-        shape = (s.history_length, s.max_humans, HUMAN_DIM)
-        self.observation_space = spaces.Dict({
-            "robot": spaces.Box(robot_lo, robot_hi, dtype=np.float32),
-            "humans": spaces.Box(np.broadcast_to(human_lo, shape).ravel(), np.broadcast_to(human_hi, shape).ravel(),
-                                 dtype=np.float32),
-            "humans_mask": spaces.Box(0.0, 1.0, (s.max_humans,), dtype=np.float32),
-        })
+        self.schema = ObservationSchema(s.history_length, s.max_humans)
+        bounds = self.schema.bounds(pos_bound, vel_bound, rad_bound, s.robot_v_pref + 1.0)
+        self.observation_space = spaces.Dict({key: spaces.Box(low, high, dtype=np.float32)
+                                              for key, (low, high) in bounds.items()})
         self.action_space = spaces.Discrete(N_ACTIONS)
         self._pos_bound = pos_bound
         self._renderer = None
@@ -154,8 +143,8 @@ class CrowdNavEnv(gym.Env):
 
     def _get_obs(self) -> dict[str, np.ndarray]:
         sim = self.sim
-        robot = sim.robot.astype(np.float32)
-        humans = sim.history.astype(np.float32).ravel()
+        obs = self.schema.observation(sim.robot, sim.history, sim.mask)
+        robot, humans = obs["robot"], obs["humans"]
         b = np.float32(self._pos_bound)
         # Agents cannot leave the bounds within the time limit (|start| + v_pref * time_limit < bound), so
         # the clips below are a guard that costs two reductions rather than two clips on every step.
@@ -164,7 +153,7 @@ class CrowdNavEnv(gym.Env):
         if not (-b <= humans.min() and humans.max() <= b):
             flat = humans.reshape(-1, HUMAN_DIM)
             flat[:, Human.POS] = np.clip(flat[:, Human.POS], -b, b)
-        return {"robot": robot, "humans": humans, "humans_mask": sim.mask.astype(np.float32)}
+        return obs
 
     def _record(self) -> None:
         sim = self.sim

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from sb3_crowdnav.sim.config import SceneConfig
-from sb3_crowdnav.sim.layout import Robot
+from sb3_crowdnav.sim.observation import Robot
 
 ROBOT_COLOR = "#d4a017"
 HUMAN_CMAP = "tab10"

@@ -11,7 +11,6 @@ records into rates with Wilson 95 % intervals and means, ``results_table`` into 
 """
 
 from sb3_crowdnav.evaluation.metrics import Summary, discounted_return, summarize, wilson_interval
-from sb3_crowdnav.evaluation.models import algorithms, detect_algorithm, load_model
 from sb3_crowdnav.evaluation.plots import (
     plot_learning_curves,
     plot_trajectories,
@@ -31,6 +30,7 @@ from sb3_crowdnav.evaluation.runner import (
     run_sweep,
 )
 from sb3_crowdnav.evaluation.tables import ResultsTable, results_table, sweep_table, write_records_csv
+from sb3_crowdnav.models import algorithms, detect_algorithm, load_model
 
 __all__ = [
     "TEST_SEED_OFFSET",

@@ -16,7 +16,7 @@ import numpy as np
 from sb3_crowdnav.evaluation.runner import EpisodeRecord, Trajectory
 from sb3_crowdnav.sim.actions import N_DIRECTIONS, N_SPEEDS, action_table
 from sb3_crowdnav.sim.config import SceneConfig
-from sb3_crowdnav.sim.layout import Robot
+from sb3_crowdnav.sim.observation import Robot
 
 ROBOT_COLOR = "#d4a017"
 DEFAULT_CURVE_TAGS = ("rollout/success_rate", "rollout/ep_rew_mean")

@@ -12,7 +12,7 @@ how they are split across worker processes.
 
 Policies are given either as an object with ``predict`` (one process) or as a picklable **spec**
 (any number of processes): ``"orca"``, ``"random"`` / ``"random:SEED"``, or the path of a saved
-model ``.zip`` (APGValue, DQN, PPO, ... detected by :func:`~sb3_crowdnav.evaluation.models.load_model`).
+model ``.zip`` (APGValue, DQN, PPO, ... detected by :func:`~sb3_crowdnav.models.load_model`).
 """
 
 from __future__ import annotations
@@ -173,7 +173,7 @@ def make_policy(spec: Any, env: gym.Env | None = None) -> Any:
     mapping, the paper's ORCA row); ``"orca-constrained"`` → the same with the constrained mapping;
     ``"random"`` or ``"random:SEED"`` → :class:`RandomPolicy`; ``"pretrained:NAME"`` → a model
     shipped with the package (:func:`sb3_crowdnav.pretrained`); any other string → a saved model
-    loaded with :func:`~sb3_crowdnav.evaluation.models.load_model`.
+    loaded with :func:`~sb3_crowdnav.models.load_model`.
     """
     if not isinstance(spec, (str, Path)):
         if not hasattr(spec, "predict"):
@@ -192,10 +192,10 @@ def make_policy(spec: Any, env: gym.Env | None = None) -> Any:
         except ValueError:
             raise ValueError(f"a random policy spec is 'random' or 'random:SEED', got {s!r}") from None
         return RandomPolicy(env.action_space if env is not None else 80, seed=seed)
-    from sb3_crowdnav.evaluation.models import load_model
+    from sb3_crowdnav.models import load_model
 
     if s.lower().startswith("pretrained:"):
-        from sb3_crowdnav.pretrained_models import pretrained_path
+        from sb3_crowdnav.models import pretrained_path
 
         s = str(pretrained_path(s.partition(":")[2]))
     model = load_model(s)

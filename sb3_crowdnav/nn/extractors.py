@@ -35,7 +35,7 @@ from sb3_crowdnav.nn.transforms import (
     robot_centric,
     split_observation,
 )
-from sb3_crowdnav.sim.layout import Human, Robot
+from sb3_crowdnav.sim.observation import Human, Robot
 
 
 class CrowdFeaturesExtractor(BaseFeaturesExtractor):
@@ -330,13 +330,8 @@ class SarlExtractor(CrowdFeaturesExtractor):
 
     extra_dim = 0
 
-    def __init__(
-        self,
-        observation_space: spaces.Dict,
-        embedding_arch: Sequence[int] = (150, 100),
-        interaction_arch: Sequence[int] = (100, 50),
-        attention_arch: Sequence[int] = (100, 100, 1),
-    ) -> None:
+    def __init__(self, observation_space: spaces.Dict, embedding_arch: Sequence[int] = (150, 100),
+                 interaction_arch: Sequence[int] = (100, 50), attention_arch: Sequence[int] = (100, 100, 1)) -> None:
         embedding = check_arch("embedding_arch", embedding_arch)
         interaction = check_arch("interaction_arch", interaction_arch)
         attention = check_arch("attention_arch", attention_arch, last=1)

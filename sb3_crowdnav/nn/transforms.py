@@ -13,7 +13,7 @@ Per (history step, pedestrian) features (``HUMAN_FEATURES``, 7 values):
     px, py, vx, vy (in the frame), radius, dist (centre distance to the robot), radius_sum.
 
 Columns of the outputs are named by ``RobotFeat`` / ``HumanFeat``; columns of the inputs by
-:mod:`sb3_crowdnav.sim.layout`.
+:mod:`sb3_crowdnav.sim.observation`.
 """
 
 from __future__ import annotations
@@ -21,13 +21,12 @@ from __future__ import annotations
 import torch as th
 from gymnasium import spaces
 
-from sb3_crowdnav.sim.layout import HUMAN_DIM, ROBOT_DIM, Human, Robot
+from sb3_crowdnav.sim.observation import OBS_KEYS, ROBOT_DIM, Human, ObservationSchema, Robot
 
 ROBOT_FEATURES = ("dist_goal", "v_pref", "vx", "vy", "radius", "cos_heading", "sin_heading")
 HUMAN_FEATURES = ("px", "py", "vx", "vy", "radius", "dist", "radius_sum")
 ROBOT_FEATURE_DIM = len(ROBOT_FEATURES)
 HUMAN_FEATURE_DIM = len(HUMAN_FEATURES)
-OBS_KEYS = ("robot", "humans", "humans_mask")
 
 
 class RobotFeat:
@@ -50,41 +49,11 @@ class HumanFeat:
     RADIUS_SUM = 6
 
 
-_HOW_TO_FIX = (
-    "Use the observation space of a sb3_crowdnav env (e.g. gym.make('CrowdNav-v0')) without observation "
-    "wrappers that flatten, stack or normalise it (FlattenObservation, VecFrameStack, VecNormalize)."
-)
-
-
 def parse_observation_space(observation_space: spaces.Space) -> tuple[int, int]:
-    """Validate a crowd observation space and return ``(history_length, max_humans)``."""
-    if not isinstance(observation_space, spaces.Dict):
-        raise TypeError(
-            f"expected a gymnasium.spaces.Dict observation space with keys {OBS_KEYS}, got "
-            f"{type(observation_space).__name__}. {_HOW_TO_FIX}"
-        )
-    missing = [k for k in OBS_KEYS if k not in observation_space.spaces]
-    if missing:
-        raise ValueError(
-            f"observation space lacks key(s) {missing}; it has {sorted(observation_space.spaces)}. {_HOW_TO_FIX}"
-        )
-    for key in OBS_KEYS:
-        sub = observation_space.spaces[key]
-        if not isinstance(sub, spaces.Box) or len(sub.shape) != 1:
-            raise ValueError(f"observation_space[{key!r}] must be a 1-D Box, got {sub}. {_HOW_TO_FIX}")
-    if observation_space["robot"].shape != (ROBOT_DIM,):
-        raise ValueError(
-            f"observation_space['robot'] must have shape ({ROBOT_DIM},), got {observation_space['robot'].shape}. "
-            f"{_HOW_TO_FIX}"
-        )
-    max_humans = observation_space["humans_mask"].shape[0]
-    size = observation_space["humans"].shape[0]
-    if max_humans < 1 or size == 0 or size % (max_humans * HUMAN_DIM) != 0:
-        raise ValueError(
-            f"observation_space['humans'] must hold T * max_humans * {HUMAN_DIM} values with max_humans = "
-            f"humans_mask size = {max_humans}; got {size} values. {_HOW_TO_FIX}"
-        )
-    return size // (max_humans * HUMAN_DIM), max_humans
+    """Validate a crowd observation space and return ``(history_length, max_humans)`` (see
+    :meth:`~sb3_crowdnav.sim.observation.ObservationSchema.from_space`)."""
+    schema = ObservationSchema.from_space(observation_space)
+    return schema.history_length, schema.max_humans
 
 
 def split_observation(
@@ -95,21 +64,18 @@ def split_observation(
     With ``zero_padding`` the padded slots of ``humans`` are replaced by zeros (they may hold
     anything, even NaN); without, the caller must never let them through.
     """
+    schema = ObservationSchema(history_length, max_humans)
     robot, humans, mask = (observations[k] for k in OBS_KEYS)
     batch = robot.shape[0] if robot.dim() == 2 else -1
-    if (
-        robot.dim() != 2
-        or robot.shape[1] != ROBOT_DIM
-        or tuple(humans.shape) != (batch, history_length * max_humans * HUMAN_DIM)
-        or tuple(mask.shape) != (batch, max_humans)
-    ):
+    expected = {k: (batch, *shape) for k, shape in schema.shapes.items()}
+    if robot.dim() != 2 or any(tuple(observations[k].shape) != shape for k, shape in expected.items()):
         raise ValueError(
-            f"expected observation tensors robot (B, {ROBOT_DIM}), humans (B, {history_length * max_humans * HUMAN_DIM}) "
+            f"expected observation tensors robot (B, {ROBOT_DIM}), humans (B, {schema.shapes['humans'][0]}) "
             f"and humans_mask (B, {max_humans}); got robot {tuple(robot.shape)}, humans {tuple(humans.shape)}, "
             f"humans_mask {tuple(mask.shape)}"
         )
     present = mask > 0.5  # never detect padding by value: a present human may sit at (0, 0)
-    humans = humans.reshape(batch, history_length, max_humans, HUMAN_DIM)
+    humans = schema.humans_view(humans)
     if zero_padding:  # replace, do not multiply: NaN * 0 is NaN
         humans = th.where(present[:, None, :, None], humans, th.zeros((), dtype=humans.dtype))
     return robot, humans, present

@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, fields
 from numbers import Integral, Real
-from typing import Any
+from typing import Any, Literal
 
 SCENARIOS = ("circle_crossing", "square_crossing")
 KINEMATICS = ("unicycle", "holonomic")
@@ -17,7 +17,8 @@ HUMAN_POLICIES = ("orca", "linear")
 REWARDS = ("crowdnav", "comfort", "comfort_angular")
 
 
-def _check_number(name: str, value: Any, *, positive: bool = True, allow_zero: bool = False) -> None:
+def check_number(name: str, value: Any, *, positive: bool = True, allow_zero: bool = False) -> None:
+    """``TypeError`` unless ``value`` is a real number (not a bool); ``ValueError`` unless finite (and > 0, or >= 0)."""
     if isinstance(value, bool) or not isinstance(value, Real):
         raise TypeError(f"{name} must be a real number, got {value!r} ({type(value).__name__})")
     if not math.isfinite(value):
@@ -27,14 +28,16 @@ def _check_number(name: str, value: Any, *, positive: bool = True, allow_zero: b
         raise ValueError(f"{name} must be {allowed}, got {value!r}")
 
 
-def _check_int(name: str, value: Any, minimum: int) -> None:
+def check_int(name: str, value: Any, minimum: int) -> None:
+    """``TypeError`` unless ``value`` is an integer (not a bool); ``ValueError`` when it is below ``minimum``."""
     if isinstance(value, bool) or not isinstance(value, Integral):
         raise TypeError(f"{name} must be an int, got {value!r} ({type(value).__name__})")
     if value < minimum:
         raise ValueError(f"{name} must be >= {minimum}, got {value!r}")
 
 
-def _check_choice(name: str, value: Any, choices: tuple[str, ...]) -> None:
+def check_choice(name: str, value: Any, choices: tuple[str, ...]) -> None:
+    """``ValueError`` naming the allowed ``choices`` when ``value`` is not one of them."""
     if value not in choices:
         raise ValueError(f"{name} must be one of {choices}, got {value!r}")
 
@@ -74,33 +77,34 @@ class SceneConfig:
     :param orca_time_horizon_obst: [s]
     """
 
+    # (declared in an order of our own; pass them by keyword)
     num_humans: int | tuple[int, int] = 6
     max_humans: int = 10
     time_step: float = 0.25
     time_limit: float = 25.0
-    robot_radius: float = 0.3
-    human_radius: float = 0.3
-    robot_v_pref: float = 1.0
-    human_v_pref: float = 1.0
-    scenario: str = "circle_crossing"
-    circle_radius: float = 4.0
-    square_width: float = 10.0
-    start_noise: float = 0.5
-    robot_visible: bool = False
-    kinematics: str = "unicycle"
-    rotation_range: float = 2 * math.pi
-    human_policy: str = "orca"
     history_length: int = 5
+    kinematics: Literal["unicycle", "holonomic"] = "unicycle"
+    rotation_range: float = 2 * math.pi
+    robot_radius: float = 0.3
+    robot_v_pref: float = 1.0
+    human_radius: float = 0.3
+    human_v_pref: float = 1.0
+    robot_visible: bool = False
+    scenario: Literal["circle_crossing", "square_crossing"] = "circle_crossing"
+    circle_radius: float = 4.0
+    start_noise: float = 0.5
+    human_policy: Literal["orca", "linear"] = "orca"
+    square_width: float = 10.0
     orca_neighbor_dist: float = 10.0
     orca_max_neighbors: int = 10
     orca_time_horizon: float = 5.0
     orca_time_horizon_obst: float = 5.0
 
     def __post_init__(self) -> None:
-        _check_int("max_humans", self.max_humans, 1)
+        check_int("max_humans", self.max_humans, 1)
         lo, hi = self.humans_range
         for name, v in (("num_humans", lo), ("num_humans", hi)):
-            _check_int(name, v, 0)
+            check_int(name, v, 0)
         if lo > hi:
             raise ValueError(f"num_humans range must satisfy min <= max, got {self.num_humans!r}")
         if hi > self.max_humans:
@@ -108,20 +112,20 @@ class SceneConfig:
         for name in ("time_step", "time_limit", "robot_radius", "human_radius", "robot_v_pref", "human_v_pref",
                      "circle_radius", "square_width", "orca_neighbor_dist", "orca_time_horizon",
                      "orca_time_horizon_obst"):
-            _check_number(name, getattr(self, name))
-        _check_number("start_noise", self.start_noise, allow_zero=True)
-        _check_number("rotation_range", self.rotation_range)
+            check_number(name, getattr(self, name))
+        check_number("start_noise", self.start_noise, allow_zero=True)
+        check_number("rotation_range", self.rotation_range)
         if self.rotation_range > 2 * math.pi + 1e-9:
             raise ValueError(f"rotation_range must be in (0, 2π], got {self.rotation_range!r}")
         if self.time_step > self.time_limit:
             raise ValueError(f"time_step ({self.time_step}) must not exceed time_limit ({self.time_limit})")
         if not isinstance(self.robot_visible, bool):
             raise TypeError(f"robot_visible must be a bool, got {self.robot_visible!r}")
-        _check_choice("scenario", self.scenario, SCENARIOS)
-        _check_choice("kinematics", self.kinematics, KINEMATICS)
-        _check_choice("human_policy", self.human_policy, HUMAN_POLICIES)
-        _check_int("history_length", self.history_length, 1)
-        _check_int("orca_max_neighbors", self.orca_max_neighbors, 1)
+        check_choice("scenario", self.scenario, SCENARIOS)
+        check_choice("kinematics", self.kinematics, KINEMATICS)
+        check_choice("human_policy", self.human_policy, HUMAN_POLICIES)
+        check_int("history_length", self.history_length, 1)
+        check_int("orca_max_neighbors", self.orca_max_neighbors, 1)
 
     @property
     def humans_range(self) -> tuple[int, int]:
@@ -167,15 +171,15 @@ class RewardConfig:
     angular_penalty_threshold: float = math.pi / 2
 
     def __post_init__(self) -> None:
-        _check_choice("reward", self.name, REWARDS)
-        _check_number("success_reward", self.success_reward, positive=False)
-        _check_number("collision_penalty", self.collision_penalty, positive=False)
+        check_choice("reward", self.name, REWARDS)
+        check_number("success_reward", self.success_reward, positive=False)
+        check_number("collision_penalty", self.collision_penalty, positive=False)
         if self.collision_penalty > 0:
             raise ValueError(f"collision_penalty must be <= 0, got {self.collision_penalty!r}")
         for name in ("discomfort_dist", "discomfort_factor", "social_penalty", "angular_penalty"):
-            _check_number(name, getattr(self, name), allow_zero=True)
+            check_number(name, getattr(self, name), allow_zero=True)
         for name in ("comfort_person", "comfort_side", "angular_penalty_threshold"):
-            _check_number(name, getattr(self, name))
+            check_number(name, getattr(self, name))
 
     @property
     def uses_social(self) -> bool:

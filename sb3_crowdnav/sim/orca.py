@@ -9,7 +9,7 @@ import pyrvo
 
 from sb3_crowdnav.sim.actions import action_table, nearest_action
 from sb3_crowdnav.sim.config import SceneConfig
-from sb3_crowdnav.sim.layout import HUMAN_DIM, Human, Robot
+from sb3_crowdnav.sim.observation import Human, ObservationSchema, Robot
 
 
 def preferred_velocity(position: np.ndarray, goal: np.ndarray, v_pref: float) -> np.ndarray:
@@ -140,7 +140,7 @@ class OrcaPolicy:
 
     def _act(self, robot: np.ndarray, humans: np.ndarray, mask: np.ndarray) -> int:
         cfg = self.scene
-        latest = humans.reshape(cfg.history_length, -1, HUMAN_DIM)[-1]
+        latest = ObservationSchema(cfg.history_length, len(mask)).humans_view(humans)[-1]
         present = latest[mask.astype(bool)]
         r = robot.tolist()
         (px, py), (gx, gy), (vx, vy) = r[Robot.POS], r[Robot.GOAL], r[Robot.VEL]
@@ -171,7 +171,7 @@ class OrcaPolicy:
         """Actions for one observation or a batch (VecEnv); returns ``(actions, None)`` like SB3."""
         robot = np.asarray(observation["robot"], dtype=np.float64)
         humans = np.asarray(observation["humans"], dtype=np.float64)
-        mask = np.asarray(observation["humans_mask"])
+        mask = np.asarray(observation["humans_mask"])  # keys: sb3_crowdnav.sim.observation.OBS_KEYS
         if robot.ndim == 1:
             return np.array(self._act(robot, humans, mask)), None
         return np.array([self._act(robot[i], humans[i], mask[i]) for i in range(robot.shape[0])]), None

@@ -8,7 +8,7 @@ import numpy as np
 
 from sb3_crowdnav.sim.actions import N_ACTIONS, _apply_action_scalar, action_table, wrap_angle
 from sb3_crowdnav.sim.config import RewardConfig, SceneConfig
-from sb3_crowdnav.sim.layout import HUMAN_DIM, ROBOT_DIM, Human, Robot
+from sb3_crowdnav.sim.observation import HUMAN_DIM, ROBOT_DIM, Human, Robot
 from sb3_crowdnav.sim.orca import OrcaCrowd, preferred_velocity
 from sb3_crowdnav.sim.rewards import STILL_SPEED, RewardTerms, compute_reward
 from sb3_crowdnav.sim.scenarios import generate_scenario

@@ -1,4 +1,11 @@
-"""Load a saved model without being told its algorithm.
+"""Saved models: the algorithms, loading a ``.zip`` without being told its algorithm, the shipped models.
+
+Shipped models: each file in ``sb3_crowdnav/weights/`` is an SB3 ``.zip`` saved without its replay
+buffer (policy weights and optimiser state, about 1 MB), loaded by ``pretrained("apg_rl")``. They are
+produced by ``sb3-crowdnav train --variant NAME`` (see the README for the command, wall time and
+results of each).
+
+Loading without being told the algorithm:
 
 :func:`load_model` reads the ``data`` JSON inside the SB3 ``.zip`` and picks the algorithm from
 the module of the saved ``policy_class`` (``sb3_crowdnav.apg_value...`` → APGValue,
@@ -15,6 +22,20 @@ import zipfile
 from pathlib import Path
 from typing import Any
 
+WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
+
+# name -> algorithm of the file weights/<name>.zip
+PRETRAINED = {
+    "apg_rl": "apg_value",
+    "apg_crl": "apg_value",
+    "apg_carl": "apg_value",
+    "cadrl": "apg_value",
+    "sf_rl": "apg_value",
+    "lm_rl": "apg_value",
+    "ppo_apg": "ppo",
+    "dqn_apg": "dqn",
+}
+
 
 def algorithms() -> dict[str, type]:
     """Algorithm name → class: ``apg_value`` (when available), ``dqn``, ``dqfd`` (DQN + demonstrations), ``ppo``, ``a2c``."""
@@ -27,7 +48,7 @@ def algorithms() -> dict[str, type]:
         algos["apg_value"] = APGValue
     except ImportError:  # APGValue not built (yet)
         pass
-    from sb3_crowdnav.imitation import DQfD
+    from sb3_crowdnav.imitation.dqfd import DQfD
 
     algos.update({"dqn": DQN, "dqfd": DQfD, "ppo": PPO, "a2c": A2C})
     return algos
@@ -96,4 +117,25 @@ def load_model(path: str | Path, env: Any = None, algo: str | None = None, devic
     raise ValueError(f"could not load {str(p)!r} with any of {sorted(algos)}: " + "; ".join(errors))
 
 
-__all__ = ["algorithms", "detect_algorithm", "load_model", "resolve_model_path"]
+def available_pretrained() -> list[str]:
+    """Names of the shipped models present in this installation."""
+    return [name for name in PRETRAINED if (WEIGHTS_DIR / f"{name}.zip").exists()]
+
+
+def pretrained_path(name: str) -> Path:
+    """Path of a shipped model; ``ValueError`` names the available ones."""
+    if name not in PRETRAINED:
+        raise ValueError(f"unknown pretrained model {name!r}; known: {sorted(PRETRAINED)}")
+    path = WEIGHTS_DIR / f"{name}.zip"
+    if not path.exists():
+        raise ValueError(f"pretrained model {name!r} is not shipped in this version; available: {available_pretrained()}")
+    return path
+
+
+def pretrained(name: str, env: Any = None, **kwargs: Any):
+    """Load a shipped model (``APGValue``, ``PPO`` or ``DQN``) by name, e.g. ``pretrained("apg_rl")``."""
+    return load_model(pretrained_path(name), env=env, algo=PRETRAINED[name], **kwargs)
+
+
+__all__ = ["PRETRAINED", "WEIGHTS_DIR", "algorithms", "available_pretrained", "detect_algorithm", "load_model",
+           "pretrained", "pretrained_path", "resolve_model_path"]

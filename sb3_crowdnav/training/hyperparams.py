@@ -1,4 +1,4 @@
-"""Training from an rl-zoo3-format hyperparameter file (``sb3-crowdnav train``).
+"""Training from an rl-zoo3-format hyperparameter file (``sb3-crowdnav train --hyperparams FILE``).
 
 The YAML has one top-level key per env id, as rl-zoo3 writes it::
 
@@ -15,7 +15,13 @@ The YAML has one top-level key per env id, as rl-zoo3 writes it::
 other key goes to the algorithm's constructor. ``policy_kwargs`` may be a dict or a Python-literal
 string; strings are evaluated by :func:`safe_eval`, which knows only ``dict``, literals, ``nn.<Module>``
 and the feature-extractor names of :data:`sb3_crowdnav.nn.EXTRACTORS` (``apg``, ``cadrl``, ... and
-their class names). ``lin_<x>`` for ``learning_rate``/``clip_range`` is rl-zoo3's linear schedule.
+their class names). ``lin_<x>`` for ``learning_rate``/``clip_range`` is rl-zoo3's linear schedule,
+built with SB3's ``LinearSchedule``.
+
+Why not rl-zoo3's own reading (its ``ExperimentManager``): it evaluates ``policy_kwargs`` strings with
+``eval`` (a hyperparameter file could run code), and it brings its wrappers, normalisation and frame
+stacking, which would corrupt the physical observation the lookahead propagates. rl-zoo3 itself
+stays fully usable through ``sb3-crowdnav-zoo`` (:mod:`sb3_crowdnav.training.zoo`).
 """
 
 from __future__ import annotations
@@ -196,7 +202,7 @@ def prepare(algo: str, hyperparams: Mapping[str, Any]) -> dict[str, Any]:
             "n_timesteps": None if n_timesteps is None else int(float(n_timesteps)), "kwargs": hp}
 
 
-def train(algo: str, hyperparams: Mapping[str, Any], out_dir: str | Path, env_id: str = "CrowdNav-v0",
+def train_from_hyperparams(algo: str, hyperparams: Mapping[str, Any], out_dir: str | Path, env_id: str = "CrowdNav-v0",
           timesteps: int | None = None, seed: int = 0, progress_bar: bool = False, verbose: int = 0,
           env_overrides: Mapping[str, Any] | None = None, imitation_episodes: int = 0, imitation_epochs: int = 10,
           imitation_learning_rate: float = 1e-3, checkpoint_freq: int = 0):
@@ -212,7 +218,7 @@ def train(algo: str, hyperparams: Mapping[str, Any], out_dir: str | Path, env_id
     """
     from stable_baselines3.common.env_util import make_vec_env
 
-    from sb3_crowdnav.evaluation.models import algorithms
+    from sb3_crowdnav.models import algorithms
 
     algos = algorithms()
     if algo not in algos:
@@ -265,4 +271,4 @@ def train(algo: str, hyperparams: Mapping[str, Any], out_dir: str | Path, env_id
     return model, model_path
 
 
-__all__ = ["DEFAULT_POLICIES", "load_hyperparams", "policy_kwargs_names", "prepare", "safe_eval", "train"]
+__all__ = ["DEFAULT_POLICIES", "load_hyperparams", "policy_kwargs_names", "prepare", "safe_eval", "train_from_hyperparams"]

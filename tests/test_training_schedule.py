@@ -1,9 +1,8 @@
-"""examples/train_paper.py: checkpoints, validation curve, best-model selection, resume."""
+"""The paper's schedule (``sb3-crowdnav train --variant``): checkpoints, validation curve, best model, resume."""
 
 from __future__ import annotations
 
 import json
-import runpy
 import signal
 import subprocess
 import sys
@@ -13,14 +12,17 @@ from pathlib import Path
 import pytest
 
 from sb3_crowdnav.apg_value import APGValue
+from sb3_crowdnav.cli import main
 from sb3_crowdnav.nn.layers import bfloat16_supported
 
-SCRIPT = Path(__file__).resolve().parents[1] / "examples" / "train_paper.py"
+EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "train_paper.py"
+CLI = [sys.executable, "-u", "-m", "sb3_crowdnav.cli", "train"]
 
 
 def _run(monkeypatch, *argv: str) -> None:
-    monkeypatch.setattr(sys, "argv", [str(SCRIPT), *argv])
-    runpy.run_path(str(SCRIPT), run_name="__main__")
+    """``sb3-crowdnav train ARGV`` (``--variant apg_rl`` unless a variant is given); it must exit 0."""
+    variant = [] if "--variant" in argv else ["--variant", "apg_rl"]
+    assert main(["train", *variant, *argv]) == 0
 
 
 def test_checkpoints_validation_selection_and_resume(tmp_path, monkeypatch, capsys):
@@ -57,7 +59,7 @@ def test_sigterm_writes_a_checkpoint_and_the_run_resumes(tmp_path, monkeypatch, 
     out = tmp_path / "run"
     common = ["--out", str(out), "--il-episodes", "2", "--il-epochs", "1", "--num-humans", "2",
               "--checkpoint-episodes", "2", "--eval-episodes", "0"]
-    proc = subprocess.Popen([sys.executable, "-u", str(SCRIPT), *common, "--rl-episodes", "100000"],
+    proc = subprocess.Popen([*CLI, "--variant", "apg_rl", *common, "--rl-episodes", "100000"],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
         deadline = time.monotonic() + 120
@@ -102,7 +104,55 @@ def test_resume_without_replay_buffer_refills_before_training(tmp_path, monkeypa
         assert after._n_updates > before._n_updates
 
 
-def test_negative_refill_steps_is_rejected(tmp_path, monkeypatch, capsys):
-    with pytest.raises(SystemExit):
-        _run(monkeypatch, "--out", str(tmp_path / "run"), "--refill-steps", "-1")
-    assert "--refill-steps must be >= 0, got -1" in capsys.readouterr().err
+def test_negative_refill_steps_is_rejected(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["train", "--variant", "apg_rl", "--out", str(tmp_path / "run"), "--refill-steps", "-1"])
+    assert exc.value.code == 2
+    assert "--refill-steps: expected an integer >= 0, got '-1'" in capsys.readouterr().err
+    assert not (tmp_path / "run").exists()  # refused before any work
+
+
+@pytest.mark.parametrize(("argv", "message"), [
+    (["--variant", "apg_rl", "--algo", "ppo"], "--algo is not used with --variant"),
+    (["--variant", "apg_rl", "--timesteps", "10"], "--timesteps is not used with --variant"),
+    (["--hyperparams", "zoo_hyperparams/ppo.yml", "--rl-episodes", "3"], "--rl-episodes is not used with --hyperparams"),
+    (["--hyperparams", "zoo_hyperparams/ppo.yml"], "--hyperparams needs --algo"),
+    (["--variant", "apg_crl", "--reward", "crowdnav"], "variant 'apg_crl' trains with reward 'comfort'"),
+    (["--variant", "apg_rl", "--env", "CrowdNavSquare-v0"], "variant apg_rl trains on CrowdNav-v0"),
+    (["--variant", "apg_rl", "--il-learning-rate", "0"], "expected a finite number > 0"),
+    (["--variant", "nope"], "invalid choice: 'nope'"),
+    ([], "one of the arguments --variant --hyperparams is required"),
+])
+def test_train_refuses_flags_of_the_other_mode(tmp_path, capsys, argv, message):
+    out = tmp_path / "run"
+    with pytest.raises(SystemExit) as exc:
+        main(["train", "--out", str(out), *argv])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert message in err and len(err.strip().splitlines()) == 1
+    assert not out.exists()  # nothing written before the arguments are known to be good
+
+
+def test_python_api_and_example(tmp_path, monkeypatch, capsys):
+    """train_schedule() is what the CLI runs; examples/train_paper.py calls it and resumes like the CLI."""
+    from sb3_crowdnav.training import ScheduleConfig, train_schedule
+
+    with pytest.raises(ValueError, match="variant must be one of"):
+        ScheduleConfig(variant="apg")
+    with pytest.raises(ValueError, match="checkpoint_episodes must be >= 1, got 0"):
+        ScheduleConfig(checkpoint_episodes=0)
+    out = tmp_path / "api"
+    config = ScheduleConfig(rl_episodes=2, imitation_episodes=2, imitation_epochs=1, num_humans=2, checkpoint_episodes=2,
+                            eval_episodes=0)
+    result = train_schedule(out, config, log=lambda message: None)
+    assert result.stopped_by is None and result.model._episode_num == 2
+    assert APGValue.load(out / "final.zip")._episode_num == 2
+    example = tmp_path / "example"
+    monkeypatch.setattr(sys, "argv", [str(EXAMPLE), "--out", str(example), "--il-episodes", "2", "--rl-episodes", "2",
+                                      "--checkpoint-episodes", "2", "--eval-episodes", "0"])
+    import runpy
+
+    with pytest.raises(SystemExit) as exc:
+        runpy.run_path(str(EXAMPLE), run_name="__main__")
+    assert exc.value.code == 0
+    assert APGValue.load(example / "final.zip")._episode_num == 2

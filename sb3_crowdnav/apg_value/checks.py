@@ -1,0 +1,109 @@
+"""What APGValue accepts: its constructor arguments, replay buffers and env wrappers, checked before any work."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import numpy as np
+import torch as th
+from stable_baselines3.common.buffers import DictReplayBuffer
+from stable_baselines3.common.vec_env import VecEnv, VecFrameStack, VecNormalize, unwrap_vec_wrapper
+from stable_baselines3.her.her_replay_buffer import HerReplayBuffer
+
+from sb3_crowdnav.apg_value.buffers import ValueReplayBuffer
+
+VALUE_TARGETS = ("td", "greedy_td", "lookahead")
+
+
+def check_env_compatible(env: VecEnv | None) -> None:
+    """Refuse wrappers that corrupt the physical states the lookahead propagates."""
+    if env is None:
+        return
+    for wrapper in (VecNormalize, VecFrameStack):
+        if unwrap_vec_wrapper(env, wrapper) is not None:
+            raise ValueError(
+                f"APGValue cannot use {wrapper.__name__}: the lookahead propagates the raw physical observation "
+                "(positions, velocities) one step ahead; remove the wrapper"
+            )
+
+
+def lookahead_settings(env: VecEnv | None) -> dict[str, Any]:
+    """The env's scene and reward settings that a lookahead policy must share with it ({} when unknown).
+
+    ``time_step``, ``kinematics``, ``rotation_range`` and ``reward`` (a dict of the reward's fields): a model
+    trained with other values would propagate a different world than the one it acts in.
+    """
+    if env is None:
+        return {}
+    try:
+        scene = env.get_attr("scene")[0]
+        reward = env.get_attr("reward_config")[0]
+    except AttributeError:
+        return {}
+    return {
+        "time_step": scene.time_step,
+        "kinematics": scene.kinematics,
+        "rotation_range": scene.rotation_range,
+        "reward": dataclasses.asdict(reward),
+    }
+
+
+def check_args(*, exploration_initial_eps: float, exploration_final_eps: float, gamma: float, tau: float,
+               exploration_episodes: int, imitation_episodes: int, imitation_epochs: int, target_update_interval: int,
+               batch_size: int, bootstrap_timeouts: bool, overlap_training: bool, value_target: str) -> None:
+    """``ValueError``/``TypeError`` naming the first of APGValue's scalar arguments out of its range."""
+    for name, value, lo, hi in (
+        ("exploration_initial_eps", exploration_initial_eps, 0.0, 1.0),
+        ("exploration_final_eps", exploration_final_eps, 0.0, 1.0),
+        ("gamma", gamma, 1e-9, 1.0),
+        ("tau", tau, 1e-9, 1.0),
+    ):
+        if not lo <= value <= hi:
+            raise ValueError(f"{name} must be in [{lo}, {hi}], got {value!r}")
+    for name, value, minimum in (
+        ("exploration_episodes", exploration_episodes, 1),
+        ("imitation_episodes", imitation_episodes, 0),
+        ("imitation_epochs", imitation_epochs, 0),
+        ("target_update_interval", target_update_interval, 1),
+        ("batch_size", batch_size, 1),
+    ):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
+            raise ValueError(f"{name} must be an int >= {minimum}, got {value!r}")
+    for name, flag in (("bootstrap_timeouts", bootstrap_timeouts), ("overlap_training", overlap_training)):
+        if not isinstance(flag, bool):
+            raise TypeError(f"{name} must be a bool, got {flag!r}")
+    if value_target not in VALUE_TARGETS:
+        raise ValueError(f"value_target must be one of {VALUE_TARGETS}, got {value_target!r}")
+
+
+def check_replay_buffer_class(replay_buffer_class: type[DictReplayBuffer] | None,
+                              value_target: str) -> type[DictReplayBuffer]:
+    """The replay buffer class to use (:class:`ValueReplayBuffer` by default); refuses HER and, for the targets that
+    need it, a buffer that does not record how each action was chosen."""
+    if replay_buffer_class is None:
+        return ValueReplayBuffer
+    if issubclass(replay_buffer_class, HerReplayBuffer):
+        raise ValueError("APGValue does not support HerReplayBuffer: CrowdNav has no goal relabelling")
+    if value_target != "td" and not issubclass(replay_buffer_class, ValueReplayBuffer):
+        raise ValueError(
+            f"value_target={value_target!r} needs a ValueReplayBuffer (it stores how each action was chosen); "
+            f"got replay_buffer_class={replay_buffer_class.__name__}"
+        )
+    return replay_buffer_class
+
+
+def check_imitation_args(learning_rate: float, optimizer_class: Any, optimizer_kwargs: dict[str, Any] | None,
+                         safety_space: float, mapping: str, mappings: tuple[str, ...]) -> dict[str, Any]:
+    """Validate APGValue's imitation arguments; return the optimiser's keyword arguments (SGD: momentum 0.9)."""
+    if not (isinstance(optimizer_class, type) and issubclass(optimizer_class, th.optim.Optimizer)):
+        raise TypeError(f"imitation_optimizer_class must be a torch.optim.Optimizer subclass, got {optimizer_class!r}")
+    if not learning_rate > 0:
+        raise ValueError(f"imitation_learning_rate must be > 0, got {learning_rate!r}")
+    if not safety_space >= 0:
+        raise ValueError(f"imitation_safety_space must be >= 0, got {safety_space!r}")
+    if mapping not in mappings:
+        raise ValueError(f"imitation_mapping must be one of {mappings}, got {mapping!r}")
+    if optimizer_kwargs is None:
+        return {"momentum": 0.9} if issubclass(optimizer_class, th.optim.SGD) else {}
+    return dict(optimizer_kwargs)

@@ -1,0 +1,50 @@
+"""The ``sb3-crowdnav`` command line: ``evaluate``, ``benchmark``, ``render`` and ``train``.
+
+Run ``sb3-crowdnav <command> --help`` for the options of each command. Policies are given as
+``orca`` (``orca-constrained``), ``random`` (or ``random:SEED``), ``pretrained:NAME`` or the path
+of a saved model ``.zip`` (APGValue, DQN, PPO; the algorithm is detected). Test episode ``i``
+uses ``env.reset(seed=1_000_000 + i)`` (``--seed-offset``), disjoint from training seeds.
+``train --variant NAME`` runs the paper's schedule of a variant; ``train --hyperparams FILE``
+trains from an rl-zoo3 hyperparameter file. Bad arguments exit with status 2 and a one-line message.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from sb3_crowdnav.cli import evaluate, train
+from sb3_crowdnav.cli.common import Parser, UsageError, common_options, env_options
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``sb3-crowdnav`` argument parser."""
+    from sb3_crowdnav.version import __version__
+
+    parser = Parser(prog="sb3-crowdnav", description=__doc__.split("\n\n")[0].replace("``", ""),
+                    formatter_class=argparse.RawDescriptionHelpFormatter,
+                    epilog="Run 'sb3-crowdnav <command> --help' for the options of a command.")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="command", required=True)
+    parents = [common_options(), env_options()]
+    evaluate.add_parsers(sub, parents)
+    train.add_parser(sub, parents)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``sb3-crowdnav`` console script."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+
+    from sb3_crowdnav.nn import configure_cpu
+
+    configure_cpu(args.threads)  # small networks: one thread is fastest on shared cores; keep freed memory
+    try:
+        return args.func(args)
+    except UsageError as exc:
+        parser.exit(2, f"sb3-crowdnav {args.command}: error: {exc}\n")
+    except KeyboardInterrupt:
+        parser.exit(130, "interrupted\n")
+
+
+__all__ = ["UsageError", "build_parser", "main"]

@@ -1,0 +1,106 @@
+"""Shared pieces of the command line: the one-line-error parser, argument types, env options, usage errors."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Any, NoReturn
+
+from sb3_crowdnav.evaluation.runner import DEFAULT_ENV_ID
+
+
+class Parser(argparse.ArgumentParser):
+    """An ``ArgumentParser`` whose errors are one line (no usage block), exit status 2."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def _int_at_least(minimum: int, allowed: str):
+    """An argparse type: an integer >= ``minimum``, with ``allowed`` in the error message."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            value = None
+        if value is None or value < minimum:
+            raise argparse.ArgumentTypeError(f"expected {allowed}, got {text!r}")
+        return value
+
+    return parse
+
+
+positive_int = _int_at_least(1, "a positive integer")
+nonneg_int = _int_at_least(0, "an integer >= 0")
+
+
+def env_options() -> argparse.ArgumentParser:
+    p = Parser(add_help=False)
+    g = p.add_argument_group("environment")
+    g.add_argument("--env", default=DEFAULT_ENV_ID, help="Gymnasium env id (default: %(default)s)")
+    g.add_argument("--humans", "--num-humans", dest="humans", type=nonneg_int, metavar="N",
+                   help="number of pedestrians (env default: 6)")
+    g.add_argument("--max-humans", type=positive_int, metavar="N",
+                   help="observation capacity; must match a trained model's (env default: 10)")
+    g.add_argument("--reward", choices=("crowdnav", "comfort", "comfort_angular"),
+                   help="reward function (env default: crowdnav)")
+    g.add_argument("--visible", action="store_true", help="pedestrians see and avoid the robot")
+    g.add_argument("--kinematics", choices=("unicycle", "holonomic"), help="robot kinematics (env default: unicycle)")
+    g.add_argument("--human-policy", choices=("orca", "linear"), help="pedestrian motion (env default: orca)")
+    g.add_argument("--env-kwargs", metavar="DICT",
+                   help="more env keyword arguments as a Python literal, e.g. \"dict(time_limit=30)\"")
+    return p
+
+
+def common_options() -> argparse.ArgumentParser:
+    p = Parser(add_help=False)
+    p.add_argument("--threads", type=positive_int, default=1, help="torch threads per process (default: 1)")
+    p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
+                   help="show a progress bar (default: when stderr is a terminal)")
+    return p
+
+
+def progress_enabled(args: argparse.Namespace) -> bool:
+    """``--progress``, or whether stderr is a terminal."""
+    return sys.stderr.isatty() if args.progress is None else bool(args.progress)
+
+
+class UsageError(Exception):
+    """Bad user input found after parsing; reported in one line with exit status 2."""
+
+
+def env_kwargs_from_args(args: argparse.Namespace) -> dict[str, Any]:
+    from sb3_crowdnav.training.hyperparams import safe_eval
+
+    kwargs: dict[str, Any] = {}
+    if args.env_kwargs:
+        try:
+            extra = safe_eval(args.env_kwargs, {"dict": dict})
+        except ValueError as exc:
+            raise UsageError(f"--env-kwargs: {exc}") from None
+        if not isinstance(extra, dict):
+            raise UsageError(f"--env-kwargs must be a dict, got {args.env_kwargs!r}")
+        kwargs.update(extra)
+    for name, key in (("humans", "num_humans"), ("max_humans", "max_humans"), ("reward", "reward"),
+                      ("kinematics", "kinematics"), ("human_policy", "human_policy")):
+        if getattr(args, name) is not None:
+            kwargs[key] = getattr(args, name)
+    if args.visible:
+        kwargs["robot_visible"] = True
+    return kwargs
+
+
+def check_env(env_id: str, kwargs: dict[str, Any]) -> None:
+    import gymnasium as gym
+
+    import sb3_crowdnav  # noqa: F401  (registers the envs)
+
+    try:
+        gym.make(env_id, **kwargs).close()
+    except gym.error.Error as exc:
+        raise UsageError(f"--env: {exc}") from None
+    except (TypeError, ValueError) as exc:
+        raise UsageError(f"bad environment options: {exc}") from None
+
+

@@ -1,0 +1,180 @@
+"""``sb3-crowdnav train``: the paper's schedule (``--variant NAME``) or an rl-zoo3 hyperparameter file (``--hyperparams``).
+
+``examples/train_paper.py`` of earlier versions took the same flags as ``--variant`` runs do here; its
+spellings ``--il-episodes``, ``--il-epochs``, ``--il-learning-rate`` and ``--num-humans`` are kept as
+aliases of ``--imitation-episodes``, ``--imitation-epochs``, ``--imitation-learning-rate`` and ``--humans``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+from sb3_crowdnav.cli.common import UsageError, check_env, env_kwargs_from_args, nonneg_int, positive_int, progress_enabled
+
+ALGOS = ("apg_value", "dqn", "dqfd", "ppo")
+# flags of a --variant run (the paper's schedule) with the ScheduleConfig field each one sets
+SCHEDULE_FLAGS = {
+    "rl_episodes": "--rl-episodes", "n_envs": "--n-envs", "learning_rate": "--learning-rate",
+    "train_freq": "--train-freq", "buffer_size": "--buffer-size", "checkpoint_episodes": "--checkpoint-episodes",
+    "eval_episodes": "--eval-episodes", "bootstrap_timeouts": "--no-bootstrap-timeouts",
+    "exploration_episodes": "--exploration-episodes", "select_by": "--select-by", "optimizer": "--optimizer",
+    "value_target": "--value-target", "from_imitation": "--from-imitation", "overlap": "--overlap",
+    "refill_steps": "--refill-steps", "lookahead_dtype": "--lookahead-dtype",
+}
+HYPERPARAMS_FLAGS = {"algo": "--algo", "timesteps": "--timesteps", "checkpoint_freq": "--checkpoint-freq"}
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = None
+    if value is None or not 0 < value < float("inf"):
+        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}")
+    return value
+
+
+def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
+    """Add ``train`` to the subcommands ``sub``."""
+    from sb3_crowdnav.apg_value.checks import VALUE_TARGETS
+    from sb3_crowdnav.training.callbacks import SELECT_BY
+    from sb3_crowdnav.training.schedule import LOOKAHEAD_DTYPES, OPTIMIZERS, VARIANTS
+
+    p = sub.add_parser(
+        "train", parents=parents, help="train a paper variant (--variant) or from an rl-zoo3 YAML (--hyperparams)",
+        description="Either the paper's schedule of a variant (--variant NAME: ORCA imitation, then RL by episodes, "
+                    "checkpoints, validation, best model; run it again to resume) or an rl-zoo3-format hyperparameter "
+                    "file (--hyperparams FILE --algo ALGO; top-level key = env id; n_timesteps, policy, policy_kwargs, "
+                    "env_kwargs, n_envs, and the algorithm's arguments). Both write DIR/config.json and TensorBoard "
+                    "logs in DIR/tb. Env options given here override the file's env_kwargs.")
+    mode = p.add_mutually_exclusive_group(required=True)
+    mode.add_argument("--variant", choices=sorted(VARIANTS), help="a variant of the paper's tables, trained with its schedule")
+    mode.add_argument("--hyperparams", type=Path, metavar="YAML", help="rl-zoo3 hyperparameter file (give --algo)")
+    p.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder (a --variant run resumes from it)")
+    p.add_argument("--seed", type=nonneg_int, default=0, help="training seed; envs use seed, seed+1, ... (default: 0)")
+    p.add_argument("--verbose", type=int, choices=(0, 1, 2), help="SB3 verbosity (default: 1 with --variant, else 0)")
+    p.add_argument("--imitation-episodes", "--il-episodes", dest="imitation_episodes", type=nonneg_int,
+                   help="ORCA-robot episodes imitated first (default: 3000 with --variant; 0 with --hyperparams, "
+                        "where it is for ppo, a2c, dqn and dqfd)")
+    p.add_argument("--imitation-epochs", "--il-epochs", dest="imitation_epochs", type=nonneg_int,
+                   help="passes over the demonstrations (default: 10)")
+    p.add_argument("--imitation-learning-rate", "--il-learning-rate", dest="imitation_learning_rate", type=_positive_float,
+                   help="learning rate of the imitation (default: 0.01 with --variant, Table 1; 0.001 with --hyperparams)")
+
+    g = p.add_argument_group("the paper's schedule (--variant)")
+    g.add_argument("--rl-episodes", type=positive_int, help="RL episodes in total (default: 10000)")
+    g.add_argument("--n-envs", type=positive_int, help="training envs, one batched lookahead (default: 1)")
+    g.add_argument("--learning-rate", type=_positive_float, help="RL learning rate (default: 0.001, Table 1)")
+    g.add_argument("--train-freq", type=positive_int, help="one gradient step every this many env steps (default: 4)")
+    g.add_argument("--buffer-size", type=positive_int, help="replay capacity [transitions] (default: 100000)")
+    g.add_argument("--checkpoint-episodes", type=positive_int,
+                   help="checkpoint and validate every N RL episodes (default: 500)")
+    g.add_argument("--eval-episodes", type=nonneg_int,
+                   help="greedy validation episodes per checkpoint, 0: none (default: 100)")
+    g.add_argument("--no-bootstrap-timeouts", dest="bootstrap_timeouts", action="store_const", const=False,
+                   help="end timed-out episodes with zero future value (the field's reference code)")
+    g.add_argument("--exploration-episodes", type=positive_int, help="RL episodes of the ε decay 0.5 -> 0.1 (default: 5000)")
+    g.add_argument("--select-by", choices=SELECT_BY,
+                   help="best.zip: highest validation success then shortest time (default), or highest return under "
+                        "the variant's own reward (use for apg_crl / apg_carl)")
+    g.add_argument("--optimizer", choices=sorted(OPTIMIZERS), help="RL optimiser (default: adam; sgd: momentum 0.9)")
+    g.add_argument("--value-target", choices=VALUE_TARGETS, help="what V is regressed on in RL (default: td)")
+    g.add_argument("--from-imitation", type=Path, metavar="ZIP", help="start from a saved post-imitation model")
+    g.add_argument("--overlap", action="store_const", const=True,
+                   help="gradient steps on the second core while acting (APGValue overlap_training)")
+    g.add_argument("--refill-steps", type=nonneg_int,
+                   help="resuming without OUT/replay_buffer.pkl: env steps collected before training again (default: 5000)")
+    g.add_argument("--lookahead-dtype", choices=LOOKAHEAD_DTYPES, help="precision of the acting lookahead (default: float32)")
+
+    g = p.add_argument_group("hyperparameter files (--hyperparams)")
+    g.add_argument("--algo", choices=ALGOS, help="algorithm (required with --hyperparams)")
+    g.add_argument("--timesteps", type=positive_int, help="total timesteps (default: n_timesteps of the file)")
+    g.add_argument("--checkpoint-freq", type=nonneg_int,
+                   help="save DIR/checkpoints/ every this many env steps (default: 0, only the final model)")
+    p.set_defaults(func=cmd_train)
+
+
+def _refuse(args: argparse.Namespace, flags: dict[str, str], mode: str) -> None:
+    given = [flag for name, flag in flags.items() if getattr(args, name) is not None]
+    if given:
+        raise UsageError(f"{given[0]} is not used with {mode}")
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    if args.variant is not None:
+        _refuse(args, HYPERPARAMS_FLAGS, "--variant (it is for --hyperparams runs)")
+        return _train_variant(args)
+    _refuse(args, SCHEDULE_FLAGS, "--hyperparams (it is for --variant runs)")
+    if args.algo is None:
+        raise UsageError(f"--hyperparams needs --algo, one of {', '.join(ALGOS)}")
+    return _train_hyperparams(args)
+
+
+def _train_variant(args: argparse.Namespace) -> int:
+    from sb3_crowdnav.training.schedule import VARIANTS, ScheduleConfig, config_dict, train_schedule
+
+    variant = VARIANTS[args.variant]
+    if args.env != variant.env_id:
+        raise UsageError(f"--env {args.env}: variant {args.variant} trains on {variant.env_id}")
+    env_kwargs = env_kwargs_from_args(args)
+    num_humans = env_kwargs.pop("num_humans", None)
+    given = {name: getattr(args, name) for name in (*SCHEDULE_FLAGS, "imitation_episodes", "imitation_epochs",
+                                                     "imitation_learning_rate", "seed")}
+    given = {k: v for k, v in given.items() if v is not None and k != "from_imitation"}
+    if num_humans is not None:
+        given["num_humans"] = num_humans
+    try:
+        config = ScheduleConfig(variant=args.variant, env_kwargs=env_kwargs, **given)
+    except (TypeError, ValueError) as exc:
+        raise UsageError(str(exc)) from None
+    check_env(variant.env_id, config.training_env_kwargs)
+    if args.from_imitation is not None and not args.from_imitation.is_file():
+        raise UsageError(f"--from-imitation: no saved model at {str(args.from_imitation)!r}")
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "config.json").write_text(json.dumps(config_dict(config), indent=2, default=str) + "\n")
+    result = train_schedule(args.out, config, from_imitation=args.from_imitation)
+    return 0 if result.stopped_by is None else 128 + result.stopped_by
+
+
+def _train_hyperparams(args: argparse.Namespace) -> int:
+    from sb3_crowdnav.models import algorithms
+    from sb3_crowdnav.training.hyperparams import load_hyperparams, prepare, train_from_hyperparams
+
+    if args.algo not in algorithms():
+        raise UsageError(f"--algo {args.algo}: the algorithm cannot be imported in this installation")
+    try:
+        hp = load_hyperparams(args.hyperparams, args.env)
+        cfg = prepare(args.algo, hp)
+    except (FileNotFoundError, ValueError) as exc:
+        raise UsageError(f"--hyperparams: {exc}") from None
+    env_kwargs = {**cfg["env_kwargs"], **env_kwargs_from_args(args)}
+    check_env(args.env, env_kwargs)
+    imitation_episodes = args.imitation_episodes or 0
+    imitation_epochs = 10 if args.imitation_epochs is None else args.imitation_epochs
+    if args.timesteps is None and cfg["n_timesteps"] is None:
+        raise UsageError("give --timesteps or n_timesteps in the hyperparameter file")
+    if imitation_episodes and args.algo not in ("ppo", "a2c", "dqn", "dqfd"):
+        raise UsageError(f"--imitation-episodes is for ppo, a2c, dqn and dqfd; {args.algo} sets imitation_episodes in "
+                         "its hyperparameter file")
+    if args.algo == "dqfd" and not imitation_episodes:
+        raise UsageError("--algo dqfd learns from demonstrations: give --imitation-episodes N")
+    if imitation_episodes and imitation_epochs < 1:
+        raise UsageError(f"--imitation-epochs: expected a positive integer with --imitation-episodes, got {imitation_epochs}")
+    start = time.perf_counter()
+    _, path = train_from_hyperparams(
+        args.algo, hp, args.out, env_id=args.env, timesteps=args.timesteps, seed=args.seed,
+        progress_bar=progress_enabled(args), verbose=args.verbose or 0, env_overrides=env_kwargs_from_args(args),
+        imitation_episodes=imitation_episodes, imitation_epochs=imitation_epochs,
+        imitation_learning_rate=1e-3 if args.imitation_learning_rate is None else args.imitation_learning_rate,
+        checkpoint_freq=args.checkpoint_freq or 0)
+    config = {"algo": args.algo, "env": args.env, "hyperparams": hp, "env_kwargs": env_kwargs, "seed": args.seed,
+              "timesteps": args.timesteps or cfg["n_timesteps"], "imitation_episodes": imitation_episodes,
+              "imitation_epochs": imitation_epochs, "wall_time_s": round(time.perf_counter() - start, 1)}
+    (Path(args.out) / "config.json").write_text(json.dumps(config, indent=2, default=str) + "\n")
+    print(f"trained {args.algo} for {config['timesteps']} steps in {config['wall_time_s']} s -> {path} "
+          f"(TensorBoard logs: {Path(args.out) / 'tb'})")
+    return 0

@@ -1,0 +1,22 @@
+"""Imitation of the ORCA robot for SB3's own algorithms (PPO, A2C, DQN).
+
+``APGValue`` starts from 3,000 episodes of the ORCA robot (paper §3); the SB3 baselines get the
+same start here, so that Table 3 compares learners, not exploration luck: with a success-only
+reward, 80 actions and no lookahead, PPO and DQN from scratch rarely reach the goal at all.
+
+- :func:`collect_demonstrations` runs :class:`~sb3_crowdnav.sim.orca.OrcaPolicy` (the
+  ``"constrained"`` mapping, as ``APGValue``'s demonstrator) in a VecEnv and keeps every transition.
+- :func:`pretrain_actor_critic` (PPO, A2C): behaviour cloning, maximising the log-probability of the
+  demonstrator's action, plus regression of the critic on the discounted returns.
+- :func:`pretrain_dqn`: the demonstrations go into the replay buffer and the Q-network takes
+  gradient steps on them: 1-step Q-learning with the target network plus DQfD's large-margin loss
+  ``max_a [Q(s, a) + m·1(a ≠ a_E)] - Q(s, a_E)`` (Hester et al. 2018), which keeps actions never
+  demonstrated below the demonstrated one.
+- :class:`DQfD`: a DQN that keeps taking gradient steps on the demonstrations during RL.
+"""
+
+from sb3_crowdnav.imitation.demonstrations import Demonstrations, collect_demonstrations
+from sb3_crowdnav.imitation.dqfd import DQfD
+from sb3_crowdnav.imitation.pretrain import pretrain_actor_critic, pretrain_dqn, pretrain_value
+
+__all__ = ["DQfD", "Demonstrations", "collect_demonstrations", "pretrain_actor_critic", "pretrain_dqn", "pretrain_value"]

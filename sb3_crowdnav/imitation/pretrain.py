@@ -1,0 +1,164 @@
+"""Pre-training on ORCA demonstrations: behaviour cloning (PPO, A2C), DQfD-style Q-learning (DQN), value regression."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+import torch as th
+from stable_baselines3 import DQN
+from torch.nn import functional as F
+
+from sb3_crowdnav.imitation.demonstrations import Demonstrations
+
+
+def _check_training_args(epochs: int, learning_rate: float, batch_size: int) -> None:
+    for name, value in (("epochs", epochs), ("batch_size", batch_size)):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+            raise ValueError(f"{name} must be an int >= 1, got {value!r}")
+    if not learning_rate > 0:
+        raise ValueError(f"learning_rate must be > 0, got {learning_rate!r}")
+
+
+def _tensors(obs: dict[str, np.ndarray], idx: np.ndarray, device: th.device) -> dict[str, th.Tensor]:
+    return {k: th.as_tensor(v[idx], dtype=th.float32, device=device) for k, v in obs.items()}
+
+
+def pretrain_actor_critic(model, demos: Demonstrations, epochs: int = 10, learning_rate: float = 1e-3,
+                          batch_size: int = 256, value_coef: float = 0.5) -> list[float]:
+    """Behaviour cloning of a PPO/A2C ``model``: ``-log π(a_E|s) + value_coef · (V(s) - G)²``; loss per epoch.
+
+    Uses its own Adam optimiser (the model's optimiser state is left as it was).
+    """
+    from stable_baselines3.common.policies import ActorCriticPolicy
+
+    if not isinstance(model.policy, ActorCriticPolicy):
+        raise TypeError(f"pretrain_actor_critic needs an actor-critic policy (PPO, A2C), got {type(model.policy).__name__}")
+    _check_training_args(epochs, learning_rate, batch_size)
+    policy = model.policy
+    returns = th.as_tensor(demos.discounted_returns(model.gamma), device=model.device)
+    actions = th.as_tensor(demos.actions, device=model.device)
+    optimizer = th.optim.Adam(policy.parameters(), lr=learning_rate)
+    rng = np.random.default_rng(model.seed)
+    policy.set_training_mode(True)
+    losses = []
+    for _ in range(epochs):
+        perm = rng.permutation(len(demos))
+        epoch = []
+        for begin in range(0, len(demos), batch_size):
+            idx = perm[begin : begin + batch_size]
+            values, log_prob, _ = policy.evaluate_actions(_tensors(demos.observations, idx, model.device), actions[idx])
+            loss = -log_prob.mean() + value_coef * F.mse_loss(values.flatten(), returns[idx])
+            optimizer.zero_grad()
+            loss.backward()
+            th.nn.utils.clip_grad_norm_(policy.parameters(), 10.0)
+            optimizer.step()
+            epoch.append(loss.item())
+        losses.append(float(np.mean(epoch)))
+    policy.set_training_mode(False)
+    return losses
+
+
+def pretrain_dqn(model, demos: Demonstrations, epochs: int = 10, learning_rate: float = 1e-3, batch_size: int = 256,
+                 margin: float = 0.1, margin_coef: float = 1.0, target_update: int = 500,
+                 fill_buffer: bool = True) -> list[float]:
+    """Q-learning + large-margin loss on the demonstrations for a DQN ``model``; loss per epoch.
+
+    With ``fill_buffer`` the demonstrations are also added to the model's replay buffer (single-env
+    DQN only), so that online learning keeps replaying them until they are overwritten.
+    """
+    if not isinstance(model, DQN):
+        raise TypeError(f"pretrain_dqn needs a DQN model, got {type(model).__name__}")
+    _check_training_args(epochs, learning_rate, batch_size)
+    if not margin >= 0:
+        raise ValueError(f"margin must be >= 0, got {margin!r}")
+    if demos.next_observations is None:
+        raise ValueError("pretrain_dqn needs next observations: collect with keep_next_observations=True")
+    if fill_buffer:
+        buffer = model.replay_buffer
+        if buffer.n_envs != 1:
+            raise ValueError(f"fill_buffer needs a single-env DQN (its replay buffer has n_envs={buffer.n_envs})")
+        for i in range(len(demos)):
+            buffer.add({k: v[i : i + 1] for k, v in demos.observations.items()},
+                       {k: v[i : i + 1] for k, v in demos.next_observations.items()},
+                       demos.actions[i : i + 1, None], demos.rewards[i : i + 1], demos.terminated[i : i + 1],
+                       [{}])
+    q_net, q_target = model.q_net, model.q_net_target
+    q_target.load_state_dict(q_net.state_dict())
+    optimizer = th.optim.Adam(q_net.parameters(), lr=learning_rate)
+    tensors = _DemoTensors(demos, model.device)
+    rng = np.random.default_rng(model.seed)
+    q_net.train(True)
+    losses, step = [], 0
+    for _ in range(epochs):
+        perm = rng.permutation(len(demos))
+        epoch = []
+        for begin in range(0, len(demos), batch_size):
+            loss = _dqfd_loss(model, demos, tensors, perm[begin : begin + batch_size], margin, margin_coef)
+            optimizer.zero_grad()
+            loss.backward()
+            th.nn.utils.clip_grad_norm_(q_net.parameters(), 10.0)
+            optimizer.step()
+            epoch.append(loss.item())
+            step += 1
+            if step % target_update == 0:
+                q_target.load_state_dict(q_net.state_dict())
+        losses.append(float(np.mean(epoch)))
+    q_target.load_state_dict(q_net.state_dict())
+    q_net.train(False)
+    return losses
+
+
+class _DemoTensors:
+    """Actions, rewards and continuation flags of the demonstrations as tensors (observations stay numpy)."""
+
+    def __init__(self, demos: Demonstrations, device: th.device) -> None:
+        self.actions = th.as_tensor(demos.actions, device=device)
+        self.rewards = th.as_tensor(demos.rewards, device=device)
+        self.not_done = th.as_tensor(~demos.terminated, dtype=th.float32, device=device)
+
+
+def _dqfd_loss(model, demos: Demonstrations, tensors: _DemoTensors, idx: np.ndarray, margin: float,
+               margin_coef: float) -> th.Tensor:
+    """Huber 1-step TD loss (target network) + ``margin_coef`` x large-margin loss on the demonstrations ``idx``."""
+    q = model.q_net(_tensors(demos.observations, idx, model.device))  # (b, 80)
+    actions = tensors.actions[idx, None]
+    with th.no_grad():
+        q_next = model.q_net_target(_tensors(demos.next_observations, idx, model.device)).max(dim=1).values
+        target = tensors.rewards[idx] + model.gamma * tensors.not_done[idx] * q_next
+    q_demo = q.gather(1, actions).squeeze(1)
+    margins = th.full_like(q, margin).scatter_(1, actions, 0.0)
+    large_margin = ((q + margins).max(dim=1).values - q_demo).mean()
+    return F.smooth_l1_loss(q_demo, target) + margin_coef * large_margin
+
+
+
+
+def pretrain_value(net: th.nn.Module, observations: dict[str, np.ndarray], targets: np.ndarray,
+                   optimizer: th.optim.Optimizer, epochs: int, batch_size: int, generator: th.Generator,
+                   max_grad_norm: float, device: th.device | str = "cpu",
+                   on_epoch: Callable[[int, float], None] | None = None) -> list[float]:
+    """Regress a state-value network ``net`` (observations -> (batch,) values) on ``targets``; the loss of each epoch.
+
+    Minibatches of ``batch_size`` in the order of ``th.randperm(generator)`` each epoch; gradients clipped to
+    ``max_grad_norm``; ``on_epoch(epoch, loss)`` after each epoch (APGValue logs there).
+    """
+    tensors = {k: th.as_tensor(v, dtype=th.float32, device=device) for k, v in observations.items()}
+    target = th.as_tensor(targets, device=device)
+    size = len(targets)
+    epoch_losses = []
+    for epoch in range(epochs):
+        perm = th.randperm(size, generator=generator)
+        losses = []
+        for begin in range(0, size, batch_size):
+            idx = perm[begin : begin + batch_size]
+            loss = F.mse_loss(net({k: v[idx] for k, v in tensors.items()}), target[idx])
+            optimizer.zero_grad()
+            loss.backward()
+            th.nn.utils.clip_grad_norm_(net.parameters(), max_grad_norm)
+            optimizer.step()
+            losses.append(loss.item())
+        epoch_losses.append(float(np.mean(losses)))
+        if on_epoch is not None:
+            on_epoch(epoch, epoch_losses[-1])
+    return epoch_losses

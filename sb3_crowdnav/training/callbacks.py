@@ -1,0 +1,117 @@
+"""The paper schedule's callback: stop after an episode budget, checkpoint, validate and keep the best model."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import time
+from pathlib import Path
+from typing import Any
+
+from stable_baselines3.common.callbacks import BaseCallback
+
+from sb3_crowdnav.evaluation import run_episodes, summarize
+
+VALIDATION_SEED_OFFSET = 2_000_000  # greedy validation episodes: disjoint from training and from the test seeds
+SELECT_BY = ("success", "return")
+
+
+class EpisodeCheckpoint(BaseCallback):
+    """Stop after ``max_episodes`` RL episodes in total; every ``every`` episodes checkpoint and validate.
+
+    Validation: ``eval_episodes`` greedy episodes on fixed seeds (the ε-greedy rollout rates of the
+    training log understate the greedy policy while ε is large), logged as ``eval/*`` and appended
+    to ``OUT/eval_curve.jsonl``; a copy of each checkpoint is kept as ``OUT/checkpoint_<episodes>.zip``
+    and the best one so far as ``OUT/best.zip``: highest success, then shortest navigation time
+    (``select_by="success"``), or highest mean discounted return under the variant's own reward
+    (``select_by="return"``, which counts the comfort and angular penalties of APG_CRL/APG_CARL).
+    Validation episodes run with ``env_kwargs`` (the training reward and crowd).
+
+    SIGTERM and SIGINT stop training at the end of the current step (``stopped_by`` holds the signal);
+    the caller then writes the checkpoint. A second signal acts as usual.
+
+    Why not SB3's ``CheckpointCallback`` and ``EvalCallback``: the paper's schedule counts episodes,
+    not env steps (an episode is 20-100 steps, so a step period drifts through the ε schedule), a
+    checkpoint here is a consistent set (model, replay buffer, progress) written to temporary names
+    first, and validation must run the package's episode runner on fixed seeds so that every
+    checkpoint of every run is scored on the same episodes.
+    """
+
+    def __init__(self, out: Path, max_episodes: int, every: int, eval_episodes: int = 100,
+                 select_by: str = "success", env_kwargs: dict[str, Any] | None = None,
+                 env_id: str = "CrowdNav-v0") -> None:
+        super().__init__()
+        if select_by not in SELECT_BY:
+            raise ValueError(f"select_by must be one of {SELECT_BY}, got {select_by!r}")
+        self.out, self.max_episodes, self.every, self.eval_episodes = Path(out), max_episodes, every, eval_episodes
+        self.select_by, self.env_kwargs, self.env_id = select_by, dict(env_kwargs or {}), env_id
+        self._last = -1
+        self.stopped_by: int | None = None  # the signal that stopped training early, if any
+        self._previous_handlers: dict[int, Any] = {}
+
+    def validate(self) -> None:
+        model = self.model
+        start = time.time()
+        s = summarize(run_episodes(model, self.eval_episodes, self.env_kwargs, env_id=self.env_id,
+                                   seed_offset=VALIDATION_SEED_OFFSET))
+        row = {"episodes": model._episode_num, "timesteps": model.num_timesteps, "wall": time.time(),
+               "eval_seconds": time.time() - start,
+               "success": s.success_rate, "collision": s.collision_rate, "timeout": s.timeout_rate,
+               "time": s.navigation_time, "gap": s.min_separation, "return": s.discounted_return,
+               "comfort_time": s.comfort_zone_time, "heading": s.heading_change, "sharp_turns": s.sharp_turns}
+        for key in ("success", "collision", "timeout", "time", "gap", "return"):
+            model.logger.record(f"eval/{key}", row[key])
+        with open(self.out / "eval_curve.jsonl", "a") as f:
+            f.write(json.dumps(row) + "\n")
+        if self.select_by == "return":
+            score = (s.discounted_return,)
+        else:
+            score = (s.success_rate, -s.navigation_time if s.navigation_time == s.navigation_time else 0.0)
+        best_file = self.out / "best.json"
+        best = json.loads(best_file.read_text()) if best_file.exists() else None
+        if best is None or best.get("select_by", "success") != self.select_by or score > tuple(best["score"]):
+            shutil.copy(self.out / "checkpoint.zip", self.out / "best.zip")
+            best_file.write_text(json.dumps({"score": score, "select_by": self.select_by, **row}))
+        print(f"validation after {row['episodes']} RL episodes: success {s.success_rate:.2f}, "
+              f"collision {s.collision_rate:.2f}, time {s.navigation_time:.2f} s", flush=True)
+
+    def save(self) -> None:
+        """Write ``checkpoint.zip``, ``replay_buffer.pkl`` (temporary names first) and ``progress.json``."""
+        model = self.model
+        tmp = self.out / "checkpoint.tmp.zip"
+        model.save(tmp)
+        model.save_replay_buffer(self.out / "replay_buffer.tmp.pkl")
+        os.replace(tmp, self.out / "checkpoint.zip")
+        os.replace(self.out / "replay_buffer.tmp.pkl", self.out / "replay_buffer.pkl")
+        (self.out / "progress.json").write_text(json.dumps(
+            {"episodes": model._episode_num, "timesteps": model.num_timesteps, "time": time.time()}))
+
+    def _stop(self, signum: int, _frame: Any) -> None:
+        self.stopped_by = signum
+        self._restore_handlers()  # a second signal acts as usual
+
+    def _restore_handlers(self) -> None:
+        for signum, handler in self._previous_handlers.items():
+            signal.signal(signum, handler)
+        self._previous_handlers = {}
+
+    def _on_training_start(self) -> None:
+        self._last = self.model._episode_num  # a resumed run does not checkpoint and validate its first episode count again
+        self._previous_handlers = {s: signal.signal(s, self._stop) for s in (signal.SIGTERM, signal.SIGINT)}
+
+    def _on_training_end(self) -> None:
+        self._restore_handlers()
+
+    def _on_step(self) -> bool:
+        if self.stopped_by is not None:
+            return False
+        episodes = self.model._episode_num
+        if episodes != self._last and episodes > 0 and episodes % self.every == 0:
+            self._last = episodes
+            self.save()
+            shutil.copy(self.out / "checkpoint.zip", self.out / f"checkpoint_{episodes}.zip")
+            if self.eval_episodes:
+                self.validate()
+        return episodes < self.max_episodes
