@@ -185,6 +185,7 @@ class APGValue(OffPolicyAlgorithm):
 
     # ------------------------------------------------------------------ acting
     def _update_exploration(self) -> None:
+        # not SB3's get_linear_fn: that is a function of the remaining step budget; the paper decays ε by episodes
         frac = min(1.0, self._episode_num / self.exploration_episodes)
         start, end = self.exploration_initial_eps, self.exploration_final_eps
         self.exploration_rate = start + frac * (end - start)
