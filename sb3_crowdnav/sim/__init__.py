@@ -1,4 +1,4 @@
-"""The ground floor: numpy + pyrvo only (no torch, no gymnasium)."""
+"""The ground floor: numpy, pyrvo (ORCA), shapely and networkx (warehouse geometry and routes) only; no torch, no gymnasium."""
 
 from sb3_crowdnav.sim.actions import N_ACTIONS, action_table, apply_action, nearest_action, wrap_angle
 from sb3_crowdnav.sim.config import RewardConfig, SceneConfig

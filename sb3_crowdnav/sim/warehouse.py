@@ -1,0 +1,297 @@
+"""Warehouse layouts: a walled hall with rectangular racks in rows, main and cross aisles, validated at construction.
+
+The hall is centred at the origin: x in [-width/2, width/2], y in [-height/2, height/2] [m]. Racks are
+polygons in world metres; a generated layout has ``rows`` rows of racks along x, separated by main aisles
+(along x) and cut by cross aisles (along y) at the same x positions in every row, with end aisles between
+the rack ends and the side walls:
+
+    wall | end aisle | rack | cross aisle | rack | end aisle | wall      (one row; rows stacked in y,
+                                                                         a main aisle between rows and
+                                                                         between the outer rows and the walls)
+
+Every layout, generated or given, is checked by :meth:`WarehouseLayout.validate` before use: polygons
+simple, of positive area and inside the hall; every gap between two racks, or between a rack and a wall,
+either closed (touching) or at least the robot's diameter + ``margin`` wide; and the free space of a
+robot of that radius connected. Any violation is a ``ValueError`` naming the parameter.
+
+Geometry is `shapely`'s; routes are shortest paths on a grid roadmap of the free space (`networkx`).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import networkx as nx
+import numpy as np
+import shapely
+from shapely.geometry import LineString, Point, Polygon, box
+
+from sb3_crowdnav.sim.config import check_int, check_number
+
+
+@dataclass(frozen=True)
+class LayoutRanges:
+    """Ranges from which :func:`generate_layout` draws a layout (uniformly; integers inclusive) [m].
+
+    :param rows: rows of racks
+    :param segments: racks per row (``segments - 1`` cross aisles)
+    :param rack_length: length of one rack along x
+    :param rack_depth: depth of a rack along y (a double-sided rack)
+    :param aisle_width: width of the main aisles (between rows, and between the outer rows and the walls)
+    :param cross_aisle_width: width of the cross aisles and of the end aisles at the side walls
+    """
+
+    rows: tuple[int, int] = (2, 3)
+    segments: tuple[int, int] = (1, 2)
+    rack_length: tuple[float, float] = (4.0, 6.0)
+    rack_depth: tuple[float, float] = (0.8, 1.2)
+    aisle_width: tuple[float, float] = (1.8, 2.4)
+    cross_aisle_width: tuple[float, float] = (1.8, 2.4)
+
+    def __post_init__(self) -> None:
+        for name in ("rows", "segments"):
+            lo, hi = _pair(name, getattr(self, name))
+            check_int(f"{name}[0]", lo, 1)
+            check_int(f"{name}[1]", hi, lo)
+        for name in ("rack_length", "rack_depth", "aisle_width", "cross_aisle_width"):
+            lo, hi = _pair(name, getattr(self, name))
+            check_number(f"{name}[0]", lo)
+            check_number(f"{name}[1]", hi)
+            if hi < lo:
+                raise ValueError(f"{name} must be a (min, max) range with min <= max, got {getattr(self, name)!r}")
+
+
+def _pair(name: str, value: Any) -> tuple[Any, Any]:
+    if not isinstance(value, (tuple, list)) or len(value) != 2:
+        raise ValueError(f"{name} must be a (min, max) pair, got {value!r}")
+    return value[0], value[1]
+
+
+@dataclass(frozen=True)
+class WarehouseLayout:
+    """A walled hall and its racks (static obstacles), in world metres.
+
+    :param width: hall size along x [m]
+    :param height: hall size along y [m]
+    :param racks: rack polygons, each a (k, 2) sequence of vertices (k >= 3), inside the hall
+    """
+
+    width: float
+    height: float
+    racks: tuple[np.ndarray, ...] = field(default_factory=tuple)
+
+    def __post_init__(self) -> None:
+        check_number("width", self.width)
+        check_number("height", self.height)
+        racks = []
+        for i, rack in enumerate(self.racks):
+            vertices = np.asarray(rack, dtype=np.float64)
+            if vertices.ndim != 2 or vertices.shape[1] != 2 or len(vertices) < 3 or not np.isfinite(vertices).all():
+                raise ValueError(f"racks[{i}] must be a (k, 2) array of finite vertices with k >= 3, got shape "
+                                 f"{vertices.shape}")
+            vertices.setflags(write=False)
+            racks.append(vertices)
+        object.__setattr__(self, "racks", tuple(racks))
+
+    # ------------------------------------------------------------------ geometry
+    @property
+    def hall(self) -> Polygon:
+        return box(-self.width / 2, -self.height / 2, self.width / 2, self.height / 2)
+
+    @property
+    def rack_polygons(self) -> list[Polygon]:
+        return [Polygon(r) for r in self.racks]
+
+    @property
+    def wall_polygons(self) -> list[np.ndarray]:
+        """The four outer walls as thin rectangles (0.2 m) outside the hall, (4, 2) vertices each."""
+        w, h, t = self.width / 2, self.height / 2, 0.2
+        rects = ((-w - t, -h - t, w + t, -h), (-w - t, h, w + t, h + t), (-w - t, -h, -w, h), (w, -h, w + t, h))
+        return [np.asarray(box(*r).exterior.coords)[:-1] for r in rects]
+
+    @property
+    def polygons(self) -> list[np.ndarray]:
+        """Every static obstacle (the racks, then the four walls) as a (k, 2) vertex array, counter-clockwise."""
+        return [np.asarray(shapely.geometry.polygon.orient(Polygon(v)).exterior.coords)[:-1]
+                for v in (*self.racks, *self.wall_polygons)]
+
+    def free_space(self, clearance: float = 0.0) -> Any:
+        """The hall minus the racks, shrunk by ``clearance`` [m] (the centres a disc of that radius may take)."""
+        free = self.hall.difference(shapely.union_all(self.rack_polygons)) if self.racks else self.hall
+        return free.buffer(-clearance) if clearance > 0 else free
+
+    # ------------------------------------------------------------------ validation
+    def validate(self, robot_radius: float, margin: float = 0.2, name: str = "layout") -> None:
+        """``ValueError`` naming ``name`` unless the layout is one a robot of ``robot_radius`` can drive in."""
+        check_number("robot_radius", robot_radius)
+        check_number("margin", margin, allow_zero=True)
+        hall = self.hall
+        polys = self.rack_polygons
+        for i, poly in enumerate(polys):
+            if not poly.is_valid or poly.area <= 0:
+                raise ValueError(f"{name}: racks[{i}] is not a simple polygon of positive area")
+            if not hall.contains(poly):
+                raise ValueError(f"{name}: racks[{i}] is not inside the {self.width} x {self.height} m hall")
+        min_gap = 2 * robot_radius + margin
+        corners = np.asarray(hall.exterior.coords)
+        walls = [LineString(corners[k : k + 2]) for k in range(4)]  # each side on its own: touching one is no excuse
+        for i, poly in enumerate(polys):
+            for wall in walls:
+                gap = poly.distance(wall)
+                if 1e-9 < gap < min_gap:
+                    raise ValueError(f"{name}: the gap between racks[{i}] and the wall is {gap:.2f} m, narrower than "
+                                     f"the robot's diameter + margin ({min_gap:.2f} m)")
+            for j in range(i + 1, len(polys)):
+                gap = poly.distance(polys[j])
+                if 1e-9 < gap < min_gap:
+                    raise ValueError(f"{name}: the aisle between racks[{i}] and racks[{j}] is {gap:.2f} m wide, "
+                                     f"narrower than the robot's diameter + margin ({min_gap:.2f} m)")
+        free = self.free_space(robot_radius)
+        parts = len(getattr(free, "geoms", [free])) if not free.is_empty else 0
+        if parts != 1:
+            raise ValueError(f"{name}: the free space of a robot of radius {robot_radius} m is "
+                             f"{'empty' if parts == 0 else f'split into {parts} parts'}; it must be connected")
+
+    # ------------------------------------------------------------------ files
+    def to_dict(self) -> dict[str, Any]:
+        """Plain values: ``{"width": ..., "height": ..., "racks": [[[x, y], ...], ...]}``."""
+        return {"width": float(self.width), "height": float(self.height),
+                "racks": [r.tolist() for r in self.racks]}
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any], name: str = "layout") -> WarehouseLayout:
+        """From :meth:`to_dict`'s format; a rack may also be ``{"rect": [xmin, ymin, xmax, ymax]}``."""
+        if not isinstance(data, Mapping):
+            raise ValueError(f"{name} must be a mapping with keys width, height, racks; got {type(data).__name__}")
+        unknown = sorted(set(data) - {"width", "height", "racks"})
+        missing = sorted({"width", "height"} - set(data))
+        if unknown or missing:
+            raise ValueError(f"{name}: unknown keys {unknown}, missing keys {missing}; allowed: width, height, racks")
+        racks = []
+        for i, rack in enumerate(data.get("racks") or []):
+            if isinstance(rack, Mapping):
+                rect = rack.get("rect")
+                if set(rack) != {"rect"} or not isinstance(rect, Sequence) or len(rect) != 4:
+                    raise ValueError(f"{name}: racks[{i}] must be a vertex list or {{rect: [xmin, ymin, xmax, ymax]}}")
+                rack = np.asarray(box(*rect).exterior.coords)[:-1]
+            racks.append(rack)
+        try:
+            return cls(width=data["width"], height=data["height"], racks=tuple(racks))
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"{name}: {exc}") from None
+
+    @classmethod
+    def from_file(cls, path: str | Path) -> WarehouseLayout:
+        """Read a ``.json`` or ``.yaml``/``.yml`` layout file (YAML read with ``safe_load``)."""
+        path = Path(path)
+        if not path.is_file():
+            raise ValueError(f"layout: no file {str(path)!r}")
+        text = path.read_text()
+        if path.suffix.lower() == ".json":
+            data = json.loads(text)
+        elif path.suffix.lower() in (".yaml", ".yml"):
+            import yaml
+
+            data = yaml.safe_load(text)
+        else:
+            raise ValueError(f"layout: {str(path)!r} must end in .json, .yaml or .yml")
+        return cls.from_dict(data, name=f"layout {path.name}")
+
+
+def generate_layout(rng: np.random.Generator, ranges: LayoutRanges | None = None) -> WarehouseLayout:
+    """Draw a layout of rows of racks from ``ranges`` with ``rng`` (see the module docstring)."""
+    r = LayoutRanges() if ranges is None else ranges
+    rows = int(rng.integers(r.rows[0], r.rows[1] + 1))
+    segments = int(rng.integers(r.segments[0], r.segments[1] + 1))
+    length, depth, aisle, cross = (float(rng.uniform(*getattr(r, k)))
+                                   for k in ("rack_length", "rack_depth", "aisle_width", "cross_aisle_width"))
+    width = 2 * cross + segments * length + (segments - 1) * cross
+    height = (rows + 1) * aisle + rows * depth
+    racks = []
+    for row in range(rows):
+        y0 = -height / 2 + aisle + row * (depth + aisle)
+        for seg in range(segments):
+            x0 = -width / 2 + cross + seg * (length + cross)
+            racks.append(np.asarray(box(x0, y0, x0 + length, y0 + depth).exterior.coords)[:-1])
+    return WarehouseLayout(width=width, height=height, racks=tuple(racks))
+
+
+class Roadmap:
+    """A grid graph over the free space of a disc of radius ``clearance``; shortest routes between free points.
+
+    Nodes are the centres of ``resolution``-sized cells whose centre lies in the free space, joined to their
+    8 neighbours when the segment between them stays in it; edges weigh their length. Routes are A* paths
+    (``networkx``) from the node nearest the start to the node nearest the goal, then shortened by dropping
+    every waypoint the route can skip without leaving the free space.
+    """
+
+    def __init__(self, layout: WarehouseLayout, clearance: float, resolution: float = 0.25) -> None:
+        check_number("clearance", clearance, allow_zero=True)
+        check_number("resolution", resolution)
+        self.layout, self.clearance, self.resolution = layout, float(clearance), float(resolution)
+        self.free = layout.free_space(clearance)
+        nx_cells, ny_cells = (max(1, math.floor(s / resolution)) for s in (layout.width, layout.height))
+        xs = -layout.width / 2 + resolution * (np.arange(nx_cells) + 0.5)
+        ys = -layout.height / 2 + resolution * (np.arange(ny_cells) + 0.5)
+        gx, gy = np.meshgrid(xs, ys, indexing="ij")
+        inside = shapely.contains_xy(self.free, gx, gy)
+        graph = nx.Graph()
+        for i, j in zip(*np.nonzero(inside), strict=True):
+            graph.add_node((int(i), int(j)), pos=(float(xs[i]), float(ys[j])))
+        for (i, j) in list(graph.nodes):
+            for di, dj in ((1, 0), (0, 1), (1, 1), (1, -1)):
+                other = (i + di, j + dj)
+                if other in graph and (di == 0 or dj == 0 or self._segment_free(graph, (i, j), other)):
+                    graph.add_edge((i, j), other, weight=resolution * math.hypot(di, dj))
+        self.graph = graph
+        self._nodes = list(graph.nodes)
+        self._xy = np.array([graph.nodes[n]["pos"] for n in self._nodes]) if self._nodes else np.zeros((0, 2))
+
+    def _segment_free(self, graph: nx.Graph, a: tuple[int, int], b: tuple[int, int]) -> bool:
+        return self.free.contains(LineString([graph.nodes[a]["pos"], graph.nodes[b]["pos"]]))
+
+    def is_free(self, point: Sequence[float]) -> bool:
+        """Whether a disc of radius ``clearance`` centred at ``point`` is in the free space."""
+        return bool(self.free.contains(Point(point)))
+
+    def nearest_node(self, point: Sequence[float]) -> tuple[int, int]:
+        if not self._nodes:
+            raise ValueError("the roadmap is empty: no free cell for this clearance")
+        return self._nodes[int(np.argmin(np.sum((self._xy - np.asarray(point)) ** 2, axis=1)))]
+
+    def route(self, start: Sequence[float], goal: Sequence[float]) -> np.ndarray:
+        """Waypoints (n, 2) from ``start`` to ``goal`` (both included) through the free space; ``ValueError`` when
+        no route exists."""
+        a, b = self.nearest_node(start), self.nearest_node(goal)
+        try:
+            nodes = nx.astar_path(self.graph, a, b, heuristic=self._distance, weight="weight")
+        except nx.NetworkXNoPath:
+            raise ValueError(f"no route from {tuple(start)} to {tuple(goal)} in the free space") from None
+        points = [tuple(start), *(self.graph.nodes[n]["pos"] for n in nodes), tuple(goal)]
+        return self._shortcut(np.asarray(points, dtype=np.float64))
+
+    def _distance(self, a: tuple[int, int], b: tuple[int, int]) -> float:
+        return self.resolution * math.hypot(a[0] - b[0], a[1] - b[1])
+
+    def _shortcut(self, points: np.ndarray) -> np.ndarray:
+        """Keep a waypoint only where the straight segment from the last kept one to the next would leave the free
+        space (greedy, farthest visible first)."""
+        kept, i = [points[0]], 0
+        while i < len(points) - 1:
+            j = len(points) - 1
+            while j > i + 1 and not self.free.contains(LineString([points[i], points[j]])):
+                j -= 1
+            kept.append(points[j])
+            i = j
+        return np.asarray(kept)
+
+    def route_length(self, route: np.ndarray) -> float:
+        return float(np.sum(np.linalg.norm(np.diff(route, axis=0), axis=1)))
+
+
+__all__ = ["LayoutRanges", "Roadmap", "WarehouseLayout", "generate_layout"]
