@@ -1,7 +1,7 @@
 """sb3_crowdnav: crowd navigation with deep RL as a Stable-Baselines3 plugin.
 
 ``import sb3_crowdnav`` registers the Gymnasium envs (``CrowdNav-v0``, ``CrowdNavSquare-v0``,
-``CrowdNavComfort-v0``, ``CrowdNavComfortAngular-v0``).
+``CrowdNavComfort-v0``, ``CrowdNavComfortAngular-v0``, ``CrowdNavWarehouse-v0``).
 """
 
 from __future__ import annotations
@@ -20,11 +20,16 @@ ENV_IDS = {
 }
 
 
+WAREHOUSE_ENV_IDS = {"CrowdNavWarehouse-v0": {}}
+
+
 def _register() -> None:
-    for env_id, kwargs in ENV_IDS.items():
-        if env_id not in gym.registry:  # guarded: importing twice (or via "sb3_crowdnav:") is harmless
-            # no max_episode_steps: the env truncates itself at time_limit / time_step (100 steps by default)
-            gym.register(id=env_id, entry_point="sb3_crowdnav.envs.crowd_nav:CrowdNavEnv", kwargs=kwargs)
+    for ids, entry_point in ((ENV_IDS, "sb3_crowdnav.envs.crowd_nav:CrowdNavEnv"),
+                             (WAREHOUSE_ENV_IDS, "sb3_crowdnav.envs.warehouse:CrowdNavWarehouseEnv")):
+        for env_id, kwargs in ids.items():
+            if env_id not in gym.registry:  # guarded: importing twice (or via "sb3_crowdnav:") is harmless
+                # no max_episode_steps: the env truncates itself (time_limit / time_step; the warehouse by route)
+                gym.register(id=env_id, entry_point=entry_point, kwargs=kwargs)
 
 
 def _register_policy_aliases() -> None:

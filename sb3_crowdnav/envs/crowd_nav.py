@@ -82,7 +82,9 @@ class CrowdNavEnv(gym.Env):
     path length, minimum separation, discomfort frequency, comfort-zone time, the mean separation
     over the discomfort steps and over the comfort-zone steps, the total heading change, the number
     of sharp turns (steps turning by at least ``angular_penalty_threshold``, Eq. 13's trigger, counted
-    under every reward), the discounted return and the number of pedestrians.
+    under every reward), the discounted return and the number of pedestrians. A collision step's
+    ``info`` (and its ``episode_stats``) says ``collision_with="human"`` (the warehouse also has
+    ``"obstacle"``).
 
     ## Arguments
 
@@ -102,6 +104,16 @@ class CrowdNavEnv(gym.Env):
     def __init__(self, render_mode: str | None = None, reward: str = "crowdnav", gamma: float = 0.9,
                  **kwargs: Any) -> None:
         scene_kwargs, reward_kwargs = split_env_kwargs(kwargs)
+        self._configure(render_mode, reward, gamma, scene_kwargs, reward_kwargs)
+        self.sim = CrowdSimulator(self.scene, self.reward_config)
+        s = self.scene
+        half = max(s.circle_radius + s.start_noise, s.square_width / 2)
+        self._build_spaces(ObservationSchema(s.history_length, s.max_humans),
+                           half + max(s.robot_v_pref, s.human_v_pref) * s.time_limit + 1.0)
+
+    def _configure(self, render_mode: str | None, reward: str, gamma: float, scene_kwargs: dict[str, Any],
+                   reward_kwargs: dict[str, Any]) -> None:
+        """Check and store the settings every crowd env has (subclasses call it first)."""
         if reward not in REWARDS:
             raise ValueError(f"reward must be one of {REWARDS}, got {reward!r}")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
@@ -112,15 +124,14 @@ class CrowdNavEnv(gym.Env):
         self.reward_config = RewardConfig(name=reward, **reward_kwargs)
         self.gamma = float(gamma)
         self.render_mode = render_mode
-        self.sim = CrowdSimulator(self.scene, self.reward_config)
 
+    def _build_spaces(self, schema: ObservationSchema, pos_bound: float) -> None:
+        """The Dict observation space of ``schema`` with positions within ±``pos_bound``, and the 80 actions."""
         s = self.scene
-        half = max(s.circle_radius + s.start_noise, s.square_width / 2)
-        pos_bound = half + max(s.robot_v_pref, s.human_v_pref) * s.time_limit + 1.0
         vel_bound = max(s.robot_v_pref, s.human_v_pref) * 1.5 + 1.0
         rad_bound = max(s.robot_radius, s.human_radius) + 1.0
-        self.schema = ObservationSchema(s.history_length, s.max_humans)
-        bounds = self.schema.bounds(pos_bound, vel_bound, rad_bound, s.robot_v_pref + 1.0)
+        self.schema = schema
+        bounds = schema.bounds(pos_bound, vel_bound, rad_bound, s.robot_v_pref + 1.0)
         self.observation_space = spaces.Dict({key: spaces.Box(low, high, dtype=np.float32)
                                               for key, (low, high) in bounds.items()})
         self.action_space = spaces.Discrete(N_ACTIONS)
@@ -141,9 +152,22 @@ class CrowdNavEnv(gym.Env):
         self._discounted_return = 0.0
         self.trajectory: list[tuple[np.ndarray, np.ndarray]] = []
 
+    def _static_obs(self) -> dict[str, np.ndarray]:
+        """Keyword arguments of :meth:`ObservationSchema.observation` beyond the crowd (the warehouse's world)."""
+        return {}
+
+    def _simulate(self, action: int):
+        """One step of the simulator: its reward terms and whether the robot hit a static obstacle."""
+        return self.sim.step(action), False
+
+    @property
+    def max_steps(self) -> int:
+        """Steps after which the episode is truncated."""
+        return self.scene.max_steps
+
     def _get_obs(self) -> dict[str, np.ndarray]:
         sim = self.sim
-        obs = self.schema.observation(sim.robot, sim.history, sim.mask)
+        obs = self.schema.observation(sim.robot, sim.history, sim.mask, **self._static_obs())
         robot, humans = obs["robot"], obs["humans"]
         b = np.float32(self._pos_bound)
         # Agents cannot leave the bounds within the time limit (|start| + v_pref * time_limit < bound), so
@@ -174,12 +198,12 @@ class CrowdNavEnv(gym.Env):
             raise ValueError(f"action must be an int in [0, {N_ACTIONS}), got {action!r}")
         sim = self.sim
         prev = sim.robot.tolist()
-        terms = sim.step(int(action))
+        terms, hit_obstacle = self._simulate(int(action))
         robot = sim.robot.tolist()
         reward = float(terms.reward)
         success, collision = bool(terms.success), bool(terms.collision)
         terminated = success or collision
-        truncated = not terminated and sim.steps >= self.scene.max_steps
+        truncated = not terminated and sim.steps >= self.max_steps
         outcome = "success" if success else "collision" if collision else "timeout" if truncated else "running"
 
         min_dist = float(terms.min_distance)
@@ -210,6 +234,8 @@ class CrowdNavEnv(gym.Env):
             "in_comfort_zone": bool(terms.in_comfort_zone),
             "time": sim.time,
         }
+        if collision:
+            info["collision_with"] = "obstacle" if hit_obstacle else "human"
         if terminated or truncated:
             info["episode_stats"] = {
                 "outcome": outcome,
@@ -227,6 +253,8 @@ class CrowdNavEnv(gym.Env):
                 "discounted_return": self._discounted_return,
                 "num_humans": sim.num_humans,
             }
+            if collision:
+                info["episode_stats"]["collision_with"] = info["collision_with"]
         if self.render_mode == "human":
             self.render()
         return self._get_obs(), reward, terminated, truncated, info

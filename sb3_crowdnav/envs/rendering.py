@@ -67,3 +67,43 @@ class CrowdRenderer:
 
     def close(self) -> None:
         self.plt.close(self.fig)
+
+
+class WarehouseRenderer(CrowdRenderer):
+    """The warehouse: racks and walls, the robot's route, pickers (standing ones hatched), the robot's trace."""
+
+    def draw_warehouse(self, trajectory, sim, time: float) -> np.ndarray:
+        from matplotlib.patches import Circle, Polygon
+
+        ax, layout = self.ax, sim.layout
+        ax.clear()
+        margin = 0.8
+        ax.set_xlim(-layout.width / 2 - margin, layout.width / 2 + margin)
+        ax.set_ylim(-layout.height / 2 - margin, layout.height / 2 + margin)
+        ax.set_aspect("equal")
+        ax.set_xlabel("x [m]")
+        ax.set_ylabel("y [m]")
+        for vertices in layout.polygons:
+            ax.add_patch(Polygon(vertices, closed=True, fc="0.55", ec="0.3", lw=0.8))
+        ax.plot(*sim.route.T, color="tab:red", lw=1.0, ls="--", marker=".", ms=4, label="route")
+        robot_path = np.array([r[Robot.POS] for r, _ in trajectory])
+        ax.plot(robot_path[:, 0], robot_path[:, 1], color=ROBOT_COLOR, lw=1.5, label="robot trace")
+        robot, humans = trajectory[-1]
+        standing = sim.standing
+        cmap = self.plt.get_cmap(HUMAN_CMAP)
+        for i in range(len(humans)):
+            c = cmap(i % 10)
+            ax.add_patch(Circle(humans[i, :2], humans[i, 4], fc=c, ec="k", alpha=0.85,
+                                hatch="////" if i < len(standing) and standing[i] else None))
+        ax.add_patch(Circle(robot[Robot.POS], robot[Robot.RADIUS], fc=ROBOT_COLOR, ec="k"))
+        h = robot[Robot.HEADING]
+        ax.plot([robot[0], robot[0] + robot[Robot.RADIUS] * np.cos(h)],
+                [robot[1], robot[1] + robot[Robot.RADIUS] * np.sin(h)], color="k", lw=1.5)
+        ax.plot(*robot[Robot.GOAL], marker="*", color="red", ms=14, mec="k", ls="none", label="goal")
+        ax.plot([], [], marker="o", color="0.5", ls="none", label="picker (hatched: standing)")
+        ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=4, fontsize=7, frameon=False)
+        ax.set_title(f"t = {time:.2f} s")
+        self.fig.canvas.draw()
+        if self.human:
+            self.plt.pause(0.001)
+        return np.asarray(self.fig.canvas.buffer_rgba())[..., :3].copy()

@@ -18,6 +18,14 @@ The observation is a ``Dict`` in world coordinates (SPEC of ``CrowdNav-v0``):
 ``humans`` is stored flat because SB3's ``check_env`` warns on Box shapes that are neither 1-D nor
 image-like. Never use bare column numbers elsewhere: name them through :class:`Robot` / :class:`Human`.
 
+The warehouse (``CrowdNavWarehouse-v0``) adds, in world coordinates too:
+
+| key | shape | content |
+|-----|-------|---------|
+| ``obstacles`` | (max_obstacles * 4,) | the nearest rack and wall segments [x0, y0, x1, y1], nearest first, zero padded |
+| ``obstacles_mask`` | (max_obstacles,) | 1 for an observed segment, 0 for padding |
+| ``waypoints`` | (num_waypoints * 2,) | the robot's current route waypoint and the next ones; the goal repeats at the end |
+
 This module is on the ground floor (numpy only): it describes spaces without importing Gymnasium;
 :meth:`ObservationSchema.from_space` reads any ``Dict``-like space with ``.spaces`` and ``.shape``.
 """
@@ -34,6 +42,9 @@ HUMAN_FIELDS = ("px", "py", "vx", "vy", "radius")
 ROBOT_DIM = len(ROBOT_FIELDS)
 HUMAN_DIM = len(HUMAN_FIELDS)
 OBS_KEYS = ("robot", "humans", "humans_mask")
+OBSTACLE_KEYS = ("obstacles", "obstacles_mask")  # the warehouse's static world, when max_obstacles > 0
+WAYPOINT_KEY = "waypoints"  # the warehouse robot's route, when num_waypoints > 0
+SEGMENT_DIM = 4  # one obstacle segment: x0, y0, x1, y1
 
 
 class Robot:
@@ -72,6 +83,8 @@ class ObservationSchema:
 
     history_length: int
     max_humans: int
+    max_obstacles: int = 0  # 0: no obstacle keys (CrowdNav-v0)
+    num_waypoints: int = 0  # 0: no waypoint key
 
     @property
     def humans_shape(self) -> tuple[int, int, int]:
@@ -81,7 +94,12 @@ class ObservationSchema:
     @property
     def shapes(self) -> dict[str, tuple[int, ...]]:
         """Stored shape of every key (one observation, no batch dimension)."""
-        return {"robot": (ROBOT_DIM,), "humans": (int(np.prod(self.humans_shape)),), "humans_mask": (self.max_humans,)}
+        shapes = {"robot": (ROBOT_DIM,), "humans": (int(np.prod(self.humans_shape)),), "humans_mask": (self.max_humans,)}
+        if self.max_obstacles:
+            shapes.update(obstacles=(self.max_obstacles * SEGMENT_DIM,), obstacles_mask=(self.max_obstacles,))
+        if self.num_waypoints:
+            shapes[WAYPOINT_KEY] = (self.num_waypoints * 2,)
+        return shapes
 
     def humans_view(self, humans: Any) -> Any:
         """View flat ``humans`` (..., T*M*5) as (..., T, M, 5); numpy arrays and torch tensors alike."""
@@ -92,10 +110,18 @@ class ObservationSchema:
         """The inverse of :meth:`humans_view`: (..., T, M, 5) to (..., T*M*5)."""
         return history.reshape(*history.shape[:-3], -1)
 
-    def observation(self, robot: np.ndarray, history: np.ndarray, mask: np.ndarray) -> dict[str, np.ndarray]:
-        """One observation (float32) from the robot state (9,), the history (T, M, 5) and the presence mask (M,)."""
-        return {"robot": robot.astype(np.float32), "humans": history.astype(np.float32).ravel(),
-                "humans_mask": mask.astype(np.float32)}
+    def observation(self, robot: np.ndarray, history: np.ndarray, mask: np.ndarray, obstacles: np.ndarray | None = None,
+                    obstacles_mask: np.ndarray | None = None,
+                    waypoints: np.ndarray | None = None) -> dict[str, np.ndarray]:
+        """One observation (float32) from the robot state (9,), the history (T, M, 5) and the presence mask (M,);
+        in the warehouse also the segments (max_obstacles, 4) with their mask and the waypoints (K, 2)."""
+        obs = {"robot": robot.astype(np.float32), "humans": history.astype(np.float32).ravel(),
+               "humans_mask": mask.astype(np.float32)}
+        if self.max_obstacles:
+            obs.update(obstacles=obstacles.astype(np.float32).ravel(), obstacles_mask=obstacles_mask.astype(np.float32))
+        if self.num_waypoints:
+            obs[WAYPOINT_KEY] = waypoints.astype(np.float32).ravel()
+        return obs
 
     def bounds(self, pos_bound: float, vel_bound: float, radius_bound: float,
                v_pref_bound: float) -> dict[str, tuple[np.ndarray, np.ndarray]]:
@@ -114,7 +140,16 @@ class ObservationSchema:
             "humans": (np.broadcast_to(human_lo, self.humans_shape).ravel(),
                        np.broadcast_to(human_hi, self.humans_shape).ravel()),
             "humans_mask": (np.zeros(self.max_humans, dtype=np.float32), np.ones(self.max_humans, dtype=np.float32)),
+            **self._static_bounds(pos_bound),
         }
+
+    def _static_bounds(self, pos_bound: float) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        out = {}
+        for key, shape in self.shapes.items():
+            if key in (*OBSTACLE_KEYS, WAYPOINT_KEY):
+                high = np.full(shape, 1.0 if key == "obstacles_mask" else pos_bound, dtype=np.float32)
+                out[key] = (np.zeros(shape, dtype=np.float32) if key == "obstacles_mask" else -high, high)
+        return out
 
     @classmethod
     def from_space(cls, observation_space: Any) -> ObservationSchema:
@@ -142,4 +177,11 @@ class ObservationSchema:
         if max_humans < 1 or size == 0 or size % (max_humans * HUMAN_DIM) != 0:
             raise ValueError(f"observation_space['humans'] must hold T * max_humans * {HUMAN_DIM} values with "
                              f"max_humans = humans_mask size = {max_humans}; got {size} values. {HOW_TO_FIX}")
-        return cls(size // (max_humans * HUMAN_DIM), max_humans)
+        max_obstacles = subspaces["obstacles_mask"].shape[0] if "obstacles_mask" in subspaces else 0
+        num_waypoints = subspaces[WAYPOINT_KEY].shape[0] // 2 if WAYPOINT_KEY in subspaces else 0
+        schema = cls(size // (max_humans * HUMAN_DIM), max_humans, max_obstacles, num_waypoints)
+        for key, shape in schema.shapes.items():
+            if key in subspaces and subspaces[key].shape != shape:
+                raise ValueError(f"observation_space[{key!r}] must have shape {shape}, got {subspaces[key].shape}. "
+                                 f"{HOW_TO_FIX}")
+        return schema

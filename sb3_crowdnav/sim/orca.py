@@ -36,8 +36,14 @@ class OrcaCrowd:
     """Pedestrians driven by ORCA; optionally the robot as an agent they avoid."""
 
     def __init__(self, cfg: SceneConfig, positions: np.ndarray, radii: np.ndarray, v_prefs: np.ndarray,
-                 robot: tuple[np.ndarray, np.ndarray, float] | None) -> None:
+                 robot: tuple[np.ndarray, np.ndarray, float] | None,
+                 obstacles: list[np.ndarray] | None = None) -> None:
+        """:param obstacles: static obstacles as counter-clockwise (k, 2) vertex arrays, seen by every agent"""
         self.sim = make_simulator(cfg, float(np.max(v_prefs, initial=cfg.human_v_pref)))
+        for polygon in obstacles or ():
+            self.sim.add_obstacle([(float(x), float(y)) for x, y in polygon])
+        if obstacles:
+            self.sim.process_obstacles()
         self.n = len(positions)
         for p, r, v in zip(positions, radii, v_prefs, strict=True):
             self.sim.add_agent(
@@ -71,9 +77,18 @@ class OrcaCrowd:
             sim.set_agent_velocity(self.robot_id, vel)
             sim.set_agent_pref_velocity(self.robot_id, vel)
         sim.do_step()
+        return self.states()
+
+    def states(self) -> tuple[np.ndarray, np.ndarray]:
+        """The pedestrians' positions and velocities, each (N, 2)."""
+        sim = self.sim
         get_pos, get_vel = sim.get_agent_position, sim.get_agent_velocity
         state = np.array([get_pos(i).to_tuple() + get_vel(i).to_tuple() for i in range(self.n)]).reshape(self.n, 4)
         return state[:, :2], state[:, 2:]
+
+    def move_agent(self, i: int, position: np.ndarray) -> None:
+        """Put pedestrian ``i`` at ``position`` (2,) (the warehouse pushes a picker out of a rack it was pressed into)."""
+        self.sim.set_agent_position(i, (float(position[0]), float(position[1])))
 
 
 class OrcaPolicy:

@@ -273,3 +273,29 @@ def _compute_reward_single(cfg, time_step, robot_pos0, robot_pos1, heading0, hea
         min_distance=f64(min_distance),
         in_comfort_zone=b_(inside_any),
     )
+
+
+def with_obstacle_collision(terms: RewardTerms, hit: np.ndarray, penalty: float) -> RewardTerms:
+    """``terms`` of transitions in which the robot also hit a static obstacle where ``hit`` (...) is True.
+
+    A hit is a collision: it ends the episode and takes precedence over reaching the goal; its reward is
+    ``penalty`` alone (no shaping terms), unless the same step already collided with a pedestrian, whose
+    penalty then stands. Broadcasts like :func:`compute_reward`; the env and the lookahead both use it.
+    """
+    hit = np.asarray(hit, dtype=bool) & ~np.asarray(terms.collision, dtype=bool)
+    if not hit.any():
+        return terms
+    keep = ~hit
+    zero = np.zeros(hit.shape)
+    return RewardTerms(
+        reward=np.where(keep, terms.reward, penalty),
+        success=np.asarray(terms.success) & keep,
+        collision=np.asarray(terms.collision) | hit,
+        success_term=np.where(keep, terms.success_term, zero),
+        collision_term=np.where(keep, terms.collision_term, penalty),
+        discomfort_term=np.where(keep, terms.discomfort_term, zero),
+        social_term=np.where(keep, terms.social_term, zero),
+        angular_term=np.where(keep, terms.angular_term, zero),
+        min_distance=terms.min_distance,
+        in_comfort_zone=terms.in_comfort_zone,
+    )

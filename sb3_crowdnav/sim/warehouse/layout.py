@@ -210,14 +210,20 @@ def generate_layout(rng: np.random.Generator, ranges: LayoutRanges | None = None
     segments = int(rng.integers(r.segments[0], r.segments[1] + 1))
     length, depth, aisle, cross = (float(rng.uniform(*getattr(r, k)))
                                    for k in ("rack_length", "rack_depth", "aisle_width", "cross_aisle_width"))
-    width = 2 * cross + segments * length + (segments - 1) * cross
-    height = (rows + 1) * aisle + rows * depth
+    return layout_from_sizes(rows, segments, length, depth, aisle, cross)
+
+
+def layout_from_sizes(rows: int, segments: int, rack_length: float, rack_depth: float, aisle_width: float,
+                      cross_aisle_width: float) -> WarehouseLayout:
+    """The regular layout of ``rows`` x ``segments`` racks with these sizes [m] (the hall fits around them)."""
+    width = 2 * cross_aisle_width + segments * rack_length + (segments - 1) * cross_aisle_width
+    height = (rows + 1) * aisle_width + rows * rack_depth
     racks = []
     for row in range(rows):
-        y0 = -height / 2 + aisle + row * (depth + aisle)
+        y0 = -height / 2 + aisle_width + row * (rack_depth + aisle_width)
         for seg in range(segments):
-            x0 = -width / 2 + cross + seg * (length + cross)
-            racks.append(np.asarray(box(x0, y0, x0 + length, y0 + depth).exterior.coords)[:-1])
+            x0 = -width / 2 + cross_aisle_width + seg * (rack_length + cross_aisle_width)
+            racks.append(np.asarray(box(x0, y0, x0 + rack_length, y0 + rack_depth).exterior.coords)[:-1])
     return WarehouseLayout(width=width, height=height, racks=tuple(racks))
 
 
@@ -294,4 +300,4 @@ class Roadmap:
         return float(np.sum(np.linalg.norm(np.diff(route, axis=0), axis=1)))
 
 
-__all__ = ["LayoutRanges", "Roadmap", "WarehouseLayout", "generate_layout"]
+__all__ = ["LayoutRanges", "Roadmap", "WarehouseLayout", "generate_layout", "layout_from_sizes"]

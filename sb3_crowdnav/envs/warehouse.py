@@ -1,0 +1,160 @@
+"""The ``CrowdNavWarehouse-v0`` Gymnasium environment."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import numpy as np
+
+from sb3_crowdnav.envs.crowd_nav import CrowdNavEnv, split_env_kwargs
+from sb3_crowdnav.sim.observation import ObservationSchema
+from sb3_crowdnav.sim.warehouse import LayoutRanges, WarehouseLayout
+from sb3_crowdnav.sim.warehouse.config import WarehouseConfig
+from sb3_crowdnav.sim.warehouse.simulator import WarehouseSimulator
+
+WAREHOUSE_KEYS = {f.name for f in dataclasses.fields(WarehouseConfig)}
+
+
+class CrowdNavWarehouseEnv(CrowdNavEnv):
+    """
+    ## Description
+
+    A robot drives from a start to a goal through a warehouse: a walled hall with rows of racks,
+    main aisles between the rows and cross aisles between the racks of a row. Pickers (the
+    pedestrians, ORCA agents that see the racks through ``pyrvo``'s obstacles) walk routes between
+    pick faces along the aisles and stand at each for a dwell time, so some stand still at any moment.
+    The robot gets a global route from a planner on the static map (A* on a grid roadmap of the free
+    space, ``networkx``); the observation carries its next waypoints and the nearest rack and wall
+    segments, in world coordinates like the pedestrians, so that a lookahead can propagate them.
+
+    A layout is drawn per episode from ``layout_ranges`` (rows of racks, racks per row, rack length and
+    depth, aisle widths; see :class:`~sb3_crowdnav.sim.warehouse.LayoutRanges`), or fixed by ``layout``
+    (a :class:`~sb3_crowdnav.sim.warehouse.WarehouseLayout`, a mapping, or the path of a YAML/JSON layout
+    file). Every setting is checked at construction: an infeasible layout or value (aisles narrower
+    than the robot's diameter + 0.2 m, free space split, more pickers than pick faces, a start-goal
+    distance the hall cannot hold) raises ``ValueError`` naming the parameter.
+
+    ## Action Space
+
+    ``Discrete(80)``, as ``CrowdNav-v0``.
+
+    ## Observation Space
+
+    ``CrowdNav-v0``'s keys, unchanged in meaning, plus the static world (float32, world coordinates):
+
+    | key | shape | content |
+    |-----|-------|---------|
+    | ``robot`` | (9,) | px, py, vx, vy, radius, gx, gy (the final goal), v_pref, heading |
+    | ``humans`` | (T * max_humans * 5,) | the pickers' px, py, vx, vy, radius for the last T = 5 steps |
+    | ``humans_mask`` | (max_humans,) | 1 for a present picker |
+    | ``obstacles`` | (max_obstacles * 4,) | the nearest rack and wall segments (1), [x0, y0, x1, y1] |
+    | ``obstacles_mask`` | (max_obstacles,) | 1 for an observed segment, 0 for padding (zeros) |
+    | ``waypoints`` | (num_waypoints * 2,) | the current route waypoint and the next ones (3), the goal repeated at the end |
+
+    (1) the ``max_obstacles`` (16) segments nearest the robot within ``sensor_range`` (4 m), nearest first.
+    Positions are bounded by ± (the largest hall's half diagonal + 1 m).
+
+    ## Rewards
+
+    As ``CrowdNav-v0`` (``reward="crowdnav"``, ``"comfort"``, ``"comfort_angular"``), plus
+    ``obstacle_collision_penalty`` (-0.25) when the robot's swept disc touches a rack or a wall
+    during the step. ``info`` reports every term.
+
+    ## Starting State
+
+    The robot at rest at a free roadmap point, facing its first waypoint; its goal another free point at
+    least ``min_route_distance`` (6 m) away. About half of the pickers stand at pick faces, the others
+    walk to their first; none starts or picks within 1 m of the robot's start or goal.
+
+    ## Episode End
+
+    Terminated on success (the robot's centre within its radius of the goal) or collision:
+    ``info["outcome"] == "collision"`` with ``info["collision_with"]`` ``"human"`` (a picker) or
+    ``"obstacle"`` (a rack or a wall). Truncated ("timeout") after
+    ``time_limit_slack + time_limit_factor x`` (route length / v_pref) seconds (10 s + twice the route time).
+    ``info["episode_stats"]`` as ``CrowdNav-v0``'s, plus ``route_length`` [m] and ``replans``.
+
+    ## Arguments
+
+    ``gym.make("CrowdNavWarehouse-v0", num_humans=6, layout=None, ...)``: every field of
+    :class:`~sb3_crowdnav.sim.config.SceneConfig` that concerns the agents (radii, speeds, ``num_humans``,
+    ``max_humans``, ``time_step``, kinematics, ORCA), of :class:`~sb3_crowdnav.sim.config.RewardConfig`, and of
+    :class:`~sb3_crowdnav.sim.warehouse.config.WarehouseConfig` (``layout``, ``layout_ranges``,
+    ``max_obstacles``, ``sensor_range``, ``num_waypoints``, ``waypoint_radius``, ``replan_distance``,
+    ``dwell_time``, ``min_route_distance``, ``obstacle_collision_penalty``, ``time_limit_factor``,
+    ``time_limit_slack``).
+
+    ## Version History
+
+    * v0: initial version.
+    """
+
+    def __init__(self, render_mode: str | None = None, reward: str = "crowdnav", gamma: float = 0.9,
+                 **kwargs: Any) -> None:
+        warehouse = {k: kwargs.pop(k) for k in list(kwargs) if k in WAREHOUSE_KEYS}
+        scene_kwargs, reward_kwargs = split_env_kwargs(kwargs)
+        self._configure(render_mode, reward, gamma, scene_kwargs, reward_kwargs)
+        layout = warehouse.get("layout")
+        if isinstance(layout, str) or hasattr(layout, "__fspath__"):
+            warehouse["layout"] = WarehouseLayout.from_file(layout)
+        elif isinstance(layout, dict):
+            warehouse["layout"] = WarehouseLayout.from_dict(layout)
+        if isinstance(warehouse.get("layout_ranges"), dict):
+            warehouse["layout_ranges"] = LayoutRanges(**warehouse["layout_ranges"])
+        self.warehouse = WarehouseConfig(**warehouse)
+        self.sim = WarehouseSimulator(self.scene, self.reward_config, self.warehouse)
+        s, w = self.scene, self.warehouse
+        largest = max(math.hypot(layout.width, layout.height) / 2 for layout in self._largest_layouts())
+        self._build_spaces(ObservationSchema(s.history_length, s.max_humans, w.max_obstacles, w.num_waypoints),
+                           largest + 1.0)
+
+    def _largest_layouts(self) -> list[WarehouseLayout]:
+        if self.warehouse.layout is not None:
+            return [self.warehouse.layout]
+        from sb3_crowdnav.sim.warehouse.layout import layout_from_sizes
+
+        r = self.warehouse.layout_ranges
+        return [layout_from_sizes(r.rows[1], r.segments[1], r.rack_length[1], r.rack_depth[1], r.aisle_width[1],
+                                  r.cross_aisle_width[1])]
+
+    @property
+    def layout(self) -> WarehouseLayout | None:
+        """The current episode's layout (its obstacles: ``layout.polygons``)."""
+        return self.sim.layout
+
+    @property
+    def max_steps(self) -> int:
+        return self.sim.max_steps
+
+    def _static_obs(self) -> dict[str, np.ndarray]:
+        segments, mask = self.sim.observed_obstacles()
+        return {"obstacles": segments, "obstacles_mask": mask, "waypoints": self.sim.observed_waypoints()}
+
+    def _simulate(self, action: int):
+        return self.sim.step(action)
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        obs, info = super().reset(seed=seed, options=options)
+        info.update(route_length=self.sim.route_length, time_limit=self.max_steps * self.scene.time_step)
+        return obs, info
+
+    def step(self, action):
+        obs, reward, terminated, truncated, info = super().step(action)
+        if "episode_stats" in info:
+            info["episode_stats"].update(route_length=self.sim.route_length, replans=self.sim.replans)
+        return obs, reward, terminated, truncated, info
+
+    def render(self):
+        if self.render_mode is None:
+            return super().render()
+        from sb3_crowdnav.envs.rendering import WarehouseRenderer  # lazy: matplotlib only when rendering
+
+        if self._renderer is None:
+            self._renderer = WarehouseRenderer(self.scene, human=self.render_mode == "human")
+        frame = self._renderer.draw_warehouse(self.trajectory, self.sim, self.sim.time)
+        return None if self.render_mode == "human" else frame
+
+
+__all__ = ["CrowdNavWarehouseEnv"]

@@ -1,0 +1,76 @@
+"""Segment geometry for static obstacles, one implementation for the env and the lookahead (numpy, broadcasting).
+
+Obstacles are line segments ``[x0, y0, x1, y1]`` (the edges of racks and the inner faces of the walls). The
+robot collides with an obstacle when the straight path of its centre during a step passes closer than its
+radius to any segment (the swept disc touches it), checked with :func:`segment_distance`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+SEGMENT_DIM = 4  # x0, y0, x1, y1
+
+
+def point_segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Distance from points ``p`` to segments ``a``-``b``; all (..., 2), broadcast; returns (...)."""
+    ab = b - a
+    length2 = np.sum(ab * ab, axis=-1)
+    t = np.clip(np.sum((p - a) * ab, axis=-1) / np.where(length2 > 1e-18, length2, 1.0), 0.0, 1.0)
+    closest = a + t[..., None] * ab
+    return np.linalg.norm(p - closest, axis=-1)
+
+
+def _cross(o: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return (a[..., 0] - o[..., 0]) * (b[..., 1] - o[..., 1]) - (a[..., 1] - o[..., 1]) * (b[..., 0] - o[..., 0])
+
+
+def segment_distance(p0: np.ndarray, p1: np.ndarray, q0: np.ndarray, q1: np.ndarray) -> np.ndarray:
+    """Minimum distance between segments ``p0``-``p1`` and ``q0``-``q1``; all (..., 2), broadcast; returns (...).
+
+    Zero when they cross; otherwise the smallest of the four endpoint-to-segment distances.
+    """
+    d1, d2 = _cross(q0, q1, p0), _cross(q0, q1, p1)
+    d3, d4 = _cross(p0, p1, q0), _cross(p0, p1, q1)
+    crossing = (d1 * d2 < 0) & (d3 * d4 < 0)
+    ends = np.minimum(
+        np.minimum(point_segment_distance(p0, q0, q1), point_segment_distance(p1, q0, q1)),
+        np.minimum(point_segment_distance(q0, p0, p1), point_segment_distance(q1, p0, p1)),
+    )
+    return np.where(crossing, 0.0, ends)
+
+
+def swept_clearance(pos0: np.ndarray, pos1: np.ndarray, segments: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Smallest distance between the path ``pos0``-``pos1`` (..., 2) of the robot's centre and the present segments.
+
+    :param segments: (..., M, 4); :param mask: (..., M) (True/1: a segment, 0: padding)
+    :return: (...) [m], ``inf`` without any segment; the robot hits an obstacle where it is below its radius
+    """
+    a, b = segments[..., :2], segments[..., 2:]
+    d = segment_distance(pos0[..., None, :], pos1[..., None, :], a, b)
+    d = np.where(np.asarray(mask) > 0.5, d, np.inf)
+    return d.min(axis=-1) if d.shape[-1] else np.full(d.shape[:-1], np.inf)
+
+
+def polygon_segments(polygons: list[np.ndarray]) -> np.ndarray:
+    """The edges of closed polygons ((k, 2) vertex arrays) as (total, 4) segments."""
+    if not polygons:
+        return np.zeros((0, SEGMENT_DIM))
+    return np.concatenate([np.concatenate([p, np.roll(p, -1, axis=0)], axis=1) for p in polygons])
+
+
+def nearest_segments(position: np.ndarray, segments: np.ndarray, max_count: int,
+                     sensor_range: float) -> tuple[np.ndarray, np.ndarray]:
+    """The ``max_count`` segments nearest ``position`` (2,) within ``sensor_range``, nearest first, padded with zeros.
+
+    :return: segments (max_count, 4) and mask (max_count,) bool
+    """
+    out = np.zeros((max_count, SEGMENT_DIM))
+    mask = np.zeros(max_count, dtype=bool)
+    if len(segments):
+        d = point_segment_distance(position, segments[:, :2], segments[:, 2:])
+        order = np.argsort(d, kind="stable")
+        order = order[d[order] <= sensor_range][:max_count]
+        out[: len(order)] = segments[order]
+        mask[: len(order)] = True
+    return out, mask
