@@ -20,7 +20,6 @@ Geometry is `shapely`'s; routes are shortest paths on a grid roadmap of the free
 from __future__ import annotations
 
 import json
-import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -228,75 +227,79 @@ def layout_from_sizes(rows: int, segments: int, rack_length: float, rack_depth: 
 
 
 class Roadmap:
-    """A grid graph over the free space of a disc of radius ``clearance``; shortest routes between free points.
+    """Shortest routes through the free space of a disc of radius ``clearance``: a visibility graph (``networkx``).
 
-    Nodes are the centres of ``resolution``-sized cells whose centre lies in the free space, joined to their
-    8 neighbours when the segment between them stays in it; edges weigh their length. Routes are A* paths
-    (``networkx``) from the node nearest the start to the node nearest the goal, then shortened by dropping
-    every waypoint the route can skip without leaving the free space.
+    The nodes are the corners of the free space shrunk by ``clearance`` (racks grown with square, mitred
+    corners, so every corner is a point the disc can reach); two corners are joined when the straight segment
+    between them stays in that free space (checked with ``shapely``, all pairs at once), weighted by its length.
+    A route adds the start and the goal to the graph, joined to the corners they see, and takes the A* path:
+    the shortest polygonal path around the obstacles. A start or goal outside the shrunk free space (a picker
+    pressed against a rack) is joined to its nearest corner.
     """
 
-    def __init__(self, layout: WarehouseLayout, clearance: float, resolution: float = 0.25) -> None:
+    def __init__(self, layout: WarehouseLayout, clearance: float) -> None:
         check_number("clearance", clearance, allow_zero=True)
-        check_number("resolution", resolution)
-        self.layout, self.clearance, self.resolution = layout, float(clearance), float(resolution)
-        self.free = layout.free_space(clearance)
-        nx_cells, ny_cells = (max(1, math.floor(s / resolution)) for s in (layout.width, layout.height))
-        xs = -layout.width / 2 + resolution * (np.arange(nx_cells) + 0.5)
-        ys = -layout.height / 2 + resolution * (np.arange(ny_cells) + 0.5)
-        gx, gy = np.meshgrid(xs, ys, indexing="ij")
-        inside = shapely.contains_xy(self.free, gx, gy)
-        graph = nx.Graph()
-        for i, j in zip(*np.nonzero(inside), strict=True):
-            graph.add_node((int(i), int(j)), pos=(float(xs[i]), float(ys[j])))
-        for (i, j) in list(graph.nodes):
-            for di, dj in ((1, 0), (0, 1), (1, 1), (1, -1)):
-                other = (i + di, j + dj)
-                if other in graph and (di == 0 or dj == 0 or self._segment_free(graph, (i, j), other)):
-                    graph.add_edge((i, j), other, weight=resolution * math.hypot(di, dj))
-        self.graph = graph
-        self._nodes = list(graph.nodes)
-        self._xy = np.array([graph.nodes[n]["pos"] for n in self._nodes]) if self._nodes else np.zeros((0, 2))
+        self.layout, self.clearance = layout, float(clearance)
+        free = layout.hall.difference(shapely.union_all(layout.rack_polygons)) if layout.racks else layout.hall
+        self.free = free.buffer(-clearance, join_style="mitre") if clearance > 0 else free
+        self._cover = self.free.buffer(1e-6)  # segments along the boundary count as inside
+        shapely.prepare(self.free)
+        shapely.prepare(self._cover)
+        rings = [ring for poly in getattr(self.free, "geoms", [self.free]) if not poly.is_empty
+                 for ring in (poly.exterior, *poly.interiors)]
+        self.corners = np.concatenate([np.asarray(r.coords)[:-1] for r in rings]) if rings else np.zeros((0, 2))
+        self.graph = nx.Graph()
+        self.graph.add_nodes_from(range(len(self.corners)))
+        i, j = np.triu_indices(len(self.corners), k=1)
+        visible = self._visible(self.corners[i], self.corners[j])
+        lengths = np.linalg.norm(self.corners[i] - self.corners[j], axis=1)
+        self.graph.add_weighted_edges_from(zip(i[visible].tolist(), j[visible].tolist(), lengths[visible].tolist(),
+                                               strict=True))
 
-    def _segment_free(self, graph: nx.Graph, a: tuple[int, int], b: tuple[int, int]) -> bool:
-        return self.free.contains(LineString([graph.nodes[a]["pos"], graph.nodes[b]["pos"]]))
+    def _visible(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """(n,) bool: the segments a[k]-b[k] lie in the free space."""
+        if not len(a):
+            return np.zeros(0, dtype=bool)
+        return shapely.covers(self._cover, shapely.linestrings(np.stack([a, b], axis=1)))
 
     def is_free(self, point: Sequence[float]) -> bool:
         """Whether a disc of radius ``clearance`` centred at ``point`` is in the free space."""
         return bool(self.free.contains(Point(point)))
 
-    def nearest_node(self, point: Sequence[float]) -> tuple[int, int]:
-        if not self._nodes:
-            raise ValueError("the roadmap is empty: no free cell for this clearance")
-        return self._nodes[int(np.argmin(np.sum((self._xy - np.asarray(point)) ** 2, axis=1)))]
+    def sample_free(self, rng: np.random.Generator) -> np.ndarray:
+        """A point drawn uniformly from the free space (rejection sampling in the hall)."""
+        w, h = self.layout.width / 2, self.layout.height / 2
+        for _ in range(10_000):
+            point = rng.uniform((-w, -h), (w, h))
+            if self.free.contains(Point(point)):
+                return point
+        raise ValueError("the free space is empty for this clearance")
 
     def route(self, start: Sequence[float], goal: Sequence[float]) -> np.ndarray:
         """Waypoints (n, 2) from ``start`` to ``goal`` (both included) through the free space; ``ValueError`` when
         no route exists."""
-        a, b = self.nearest_node(start), self.nearest_node(goal)
+        start, goal = np.asarray(start, dtype=np.float64), np.asarray(goal, dtype=np.float64)
+        if self._visible(start[None], goal[None])[0]:
+            return np.stack([start, goal])
+        graph, n = self.graph, len(self.corners)
         try:
-            nodes = nx.astar_path(self.graph, a, b, heuristic=self._distance, weight="weight")
-        except nx.NetworkXNoPath:
+            for node, point in ((n, start), (n + 1, goal)):
+                seen = self._visible(np.broadcast_to(point, self.corners.shape), self.corners)
+                targets = np.flatnonzero(seen)
+                if not len(targets) and n:
+                    targets = [int(np.argmin(np.linalg.norm(self.corners - point, axis=1)))]
+                graph.add_weighted_edges_from((node, int(t), float(np.linalg.norm(self.corners[t] - point)))
+                                              for t in targets)
+            points = {**dict(enumerate(self.corners)), n: start, n + 1: goal}
+            path = nx.astar_path(graph, n, n + 1, heuristic=lambda u, v: float(np.linalg.norm(points[u] - points[v])))
+        except (nx.NetworkXNoPath, nx.NodeNotFound):
             raise ValueError(f"no route from {tuple(start)} to {tuple(goal)} in the free space") from None
-        points = [tuple(start), *(self.graph.nodes[n]["pos"] for n in nodes), tuple(goal)]
-        return self._shortcut(np.asarray(points, dtype=np.float64))
+        finally:
+            graph.remove_nodes_from((n, n + 1))
+        return np.asarray([points[k] for k in path])
 
-    def _distance(self, a: tuple[int, int], b: tuple[int, int]) -> float:
-        return self.resolution * math.hypot(a[0] - b[0], a[1] - b[1])
-
-    def _shortcut(self, points: np.ndarray) -> np.ndarray:
-        """Keep a waypoint only where the straight segment from the last kept one to the next would leave the free
-        space (greedy, farthest visible first)."""
-        kept, i = [points[0]], 0
-        while i < len(points) - 1:
-            j = len(points) - 1
-            while j > i + 1 and not self.free.contains(LineString([points[i], points[j]])):
-                j -= 1
-            kept.append(points[j])
-            i = j
-        return np.asarray(kept)
-
-    def route_length(self, route: np.ndarray) -> float:
+    @staticmethod
+    def route_length(route: np.ndarray) -> float:
         return float(np.sum(np.linalg.norm(np.diff(route, axis=0), axis=1)))
 
 

@@ -109,20 +109,20 @@ class WarehouseSimulator:
         self.steps = 0
 
     def _stations(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-        """Start and goal: free roadmap points at least ``min_route_distance`` apart."""
-        nodes = self.robot_map._xy
+        """Start and goal: free points (uniform) at least ``min_route_distance`` apart."""
         for _ in range(MAX_TRIES):
-            start = nodes[rng.integers(len(nodes))]
-            far = nodes[np.linalg.norm(nodes - start, axis=1) >= self.config.min_route_distance]
-            if len(far):
-                return start.copy(), far[rng.integers(len(far))].copy()
+            start = self.robot_map.sample_free(rng)
+            for _ in range(MAX_TRIES):
+                goal = self.robot_map.sample_free(rng)
+                if np.linalg.norm(goal - start) >= self.config.min_route_distance:
+                    return start, goal
         raise RuntimeError("no start and goal min_route_distance apart (check_feasible should have refused this)")
 
     @staticmethod
     def _spread(rng: np.random.Generator, slots: np.ndarray, n: int, spacing: float) -> np.ndarray:
         """``n`` slot indices, pairwise at least ``spacing`` apart, in random order."""
         chosen: list[int] = []
-        for i in rng.permutation(len(slots)):
+        for i in rng.permutation(len(slots)) if n else ():
             if all(np.hypot(*(slots[i] - slots[j])) >= spacing for j in chosen):
                 chosen.append(int(i))
                 if len(chosen) == n:

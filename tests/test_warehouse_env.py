@@ -1,0 +1,162 @@
+"""CrowdNavWarehouse-v0: registration, checkers, seeding, obstacles that hold, pickers outside racks, refusals."""
+
+from __future__ import annotations
+
+import itertools
+import subprocess
+import sys
+import warnings
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from shapely.geometry import Point, Polygon
+
+import sb3_crowdnav  # noqa: F401
+from sb3_crowdnav.sim.geometry import segment_distance, swept_clearance
+from sb3_crowdnav.sim.observation import ObservationSchema, Robot
+from sb3_crowdnav.sim.warehouse.simulator import next_waypoints
+
+EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "warehouse_layout.yaml"
+
+
+def _episode(env, seed, policy=None):
+    obs, _ = env.reset(seed=seed)
+    frames = [obs]
+    while True:
+        action = env.action_space.sample() if policy is None else policy(obs)
+        obs, _, terminated, truncated, info = env.step(action)
+        frames.append(obs)
+        if terminated or truncated:
+            return frames, info
+
+
+def test_make_without_prior_import():
+    code = "import gymnasium as gym; env = gym.make('sb3_crowdnav:CrowdNavWarehouse-v0'); print(env.reset(seed=0)[1])"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert "route_length" in out
+
+
+def test_both_checkers_pass_without_warnings():
+    from gymnasium.utils.env_checker import check_env as gym_check
+    from stable_baselines3.common.env_checker import check_env as sb3_check
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        gym_check(gym.make("CrowdNavWarehouse-v0").unwrapped)
+        sb3_check(gym.make("CrowdNavWarehouse-v0").unwrapped)
+    assert [str(w.message) for w in caught] == []
+
+
+def test_observation_schema_and_bounds():
+    env = gym.make("CrowdNavWarehouse-v0")
+    schema = ObservationSchema.from_space(env.observation_space)
+    assert (schema.max_obstacles, schema.num_waypoints) == (16, 3)
+    for seed in range(3):
+        frames, _ = _episode(env, seed)
+        for obs in frames:
+            assert env.observation_space.contains(obs)
+            segments = obs["obstacles"].reshape(16, 4)[obs["obstacles_mask"] > 0.5]
+            pos = obs["robot"][Robot.POS]
+            distances = segment_distance(pos, pos, segments[:, :2], segments[:, 2:])
+            assert np.all(distances <= 4.0 + 1e-5) and np.all(np.diff(distances) >= -1e-5)  # in range, nearest first
+            np.testing.assert_allclose(obs["waypoints"][-2:], obs["robot"][Robot.GOAL])  # the goal repeats at the end
+
+
+def test_same_seed_same_episode_other_seeds_differ():
+    env = gym.make("CrowdNavWarehouse-v0")
+    env.action_space.seed(0)
+    a, _ = _episode(env, 5, policy=lambda obs: 0)
+    layout_a = env.unwrapped.layout.to_dict()
+    b, _ = _episode(env, 5, policy=lambda obs: 0)
+    assert layout_a == env.unwrapped.layout.to_dict()
+    assert len(a) == len(b)
+    for x, y in zip(a, b, strict=True):
+        for key in x:
+            np.testing.assert_array_equal(x[key], y[key])
+    starts = {env.reset(seed=s)[0]["robot"].tobytes() for s in range(8)}
+    assert len(starts) == 8
+
+
+def test_no_picker_ever_inside_a_rack_or_wall():
+    """200 random-action episodes: every picker keeps its body out of the layout's polygons (1 cm tolerance)."""
+    env = gym.make("CrowdNavWarehouse-v0", num_humans=8)
+    env.action_space.seed(1)
+    worst = -np.inf
+    for seed in range(200):
+        frames, _ = _episode(env, seed)
+        obstacles = [Polygon(p) for p in env.unwrapped.layout.polygons]
+        for obs in frames[::2]:
+            humans = obs["humans"].reshape(5, -1, 5)[-1][obs["humans_mask"] > 0.5]
+            for x, y, _, _, r in humans:
+                depth = max(r - o.exterior.distance(Point(x, y)) if not o.contains(Point(x, y)) else
+                            r + o.exterior.distance(Point(x, y)) for o in obstacles)
+                worst = max(worst, depth)
+    assert worst <= 0.01, f"a picker reached {worst:.3f} m into an obstacle"
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_driving_straight_at_full_speed_ends_on_the_obstacle(seed):
+    env = gym.make("CrowdNavWarehouse-v0", num_humans=0)
+    env.reset(seed=seed)
+    sim = env.unwrapped.sim
+    pos = sim.robot[Robot.POS]
+    target = min((rack.mean(axis=0) for rack in sim.layout.racks), key=lambda c: np.linalg.norm(c - pos))
+    sim.robot[Robot.HEADING] = np.arctan2(*(target - pos)[::-1])  # face the nearest rack
+    full_straight = 4 * 16  # the fastest speed, direction 0 (keep the heading)
+    path = [pos.copy()]
+    while True:
+        _, reward, terminated, truncated, info = env.step(full_straight)
+        path.append(env.unwrapped.sim.robot[Robot.POS].copy())
+        if terminated or truncated:
+            break
+    assert info["outcome"] == "collision" and info["collision_with"] == "obstacle"
+    assert reward == pytest.approx(-0.25)
+    segments = env.unwrapped.sim.segments
+    for p0, p1 in itertools.pairwise(path[:-1]):  # every step before the last kept clear
+        assert swept_clearance(p0, p1, segments, np.ones(len(segments))) >= 0.3
+    hall = env.unwrapped.layout.hall
+    assert all(hall.contains(Point(p)) for p in path)  # never through a wall
+
+
+def test_next_waypoints_drops_reached_ones_and_keeps_the_goal():
+    wps = np.array([[1.0, 0.0], [2.0, 0.0], [3.0, 0.0]])
+    np.testing.assert_array_equal(next_waypoints(wps, np.array([0.0, 0.0]), 0.5), wps)
+    np.testing.assert_array_equal(next_waypoints(wps, np.array([1.2, 0.0]), 0.5), [[2, 0], [3, 0], [3, 0]])
+    np.testing.assert_array_equal(next_waypoints(wps, np.array([3.0, 0.0]), 5.0), [[3, 0], [3, 0], [3, 0]])
+    batch = next_waypoints(np.stack([wps, wps]), np.array([[1.2, 0.0], [0.0, 0.0]]), 0.5)
+    np.testing.assert_array_equal(batch[0], [[2, 0], [3, 0], [3, 0]])
+    np.testing.assert_array_equal(batch[1], wps)
+
+
+def test_the_example_layout_file_drives():
+    env = gym.make("CrowdNavWarehouse-v0", layout=str(EXAMPLE))
+    _, info = _episode(env, 0)
+    assert env.unwrapped.layout.width == 16.0 and "route_length" in info["episode_stats"]
+
+
+@pytest.mark.parametrize(("kwargs", "message"), [
+    ({"num_humans": 200, "max_humans": 200}, "num_humans: at most"),
+    ({"layout_ranges": {"aisle_width": (0.5, 0.6)}}, "narrower than the robot's diameter"),
+    ({"layout": {"width": 8, "height": 8, "racks": [{"rect": [-4, -0.5, 4, 0.5]}]}}, "split into 2 parts"),
+    ({"min_route_distance": 100.0}, "min_route_distance: 100.0 m does not fit"),
+    ({"dwell_time": (5.0, 1.0)}, "dwell_time must satisfy min <= max"),
+    ({"max_obstacles": 0}, "max_obstacles must be >= 1"),
+    ({"layout": "missing.yaml"}, "no file"),
+    ({"shelves": 3}, "unknown keyword argument"),
+])
+def test_infeasible_settings_are_refused_at_construction(kwargs, message):
+    with pytest.raises((ValueError, TypeError), match=message):
+        gym.make("CrowdNavWarehouse-v0", **kwargs)
+
+
+def test_rendering_draws_the_layout():
+    env = gym.make("CrowdNavWarehouse-v0", render_mode="rgb_array")
+    env.reset(seed=0)
+    env.step(0)
+    frame = env.render()
+    assert frame.ndim == 3 and frame.shape[2] == 3
+    grey = np.all(np.abs(frame.astype(int) - 140) < 6, axis=2).mean()  # the racks' and walls' fill
+    assert grey > 0.02
+    env.close()
