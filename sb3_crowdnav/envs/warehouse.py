@@ -133,7 +133,8 @@ class CrowdNavWarehouseEnv(CrowdNavEnv):
         return {"obstacles": segments, "obstacles_mask": mask, "waypoints": self.sim.observed_waypoints()}
 
     def _simulate(self, action: int):
-        return self.sim.step(action)
+        terms = self.sim.step(action)
+        return terms, self.sim.hit_obstacle
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         obs, info = super().reset(seed=seed, options=options)

@@ -112,6 +112,10 @@ class OrcaPolicy:
     Because the action table has no zero speed, a wish to stop becomes the slowest action
     closest in direction.
 
+    In ``CrowdNavWarehouse-v0`` the robot also sees the observed rack and wall segments as RVO2 obstacles and
+    heads for its current route waypoint instead of the goal: obstacle-aware, route-following, from the
+    observation alone.
+
     :param scene: the env's :class:`SceneConfig` (kinematics, action table, ORCA parameters)
     :param safety_space: extra radius [m] the robot keeps from pedestrians
     :param mapping: ``"nearest"`` or ``"constrained"`` (see above)
@@ -153,7 +157,10 @@ class OrcaPolicy:
             ok &= dx * (py - vy) - dy * (px - vx) <= 1e-6
         return ok
 
-    def _act(self, robot: np.ndarray, humans: np.ndarray, mask: np.ndarray) -> int:
+    def _act(self, robot: np.ndarray, humans: np.ndarray, mask: np.ndarray, segments: np.ndarray | None = None,
+             waypoint: np.ndarray | None = None) -> int:
+        """One decision; in the warehouse ``segments`` (S, 4) are RVO2 obstacles and ``waypoint`` (2,) replaces the
+        goal as the target of the preferred velocity (the action table stays relative to the goal axis)."""
         cfg = self.scene
         latest = ObservationSchema(cfg.history_length, len(mask)).humans_view(humans)[-1]
         present = latest[mask.astype(bool)]
@@ -161,6 +168,10 @@ class OrcaPolicy:
         (px, py), (gx, gy), (vx, vy) = r[Robot.POS], r[Robot.GOAL], r[Robot.VEL]
         heading, v_pref = r[Robot.HEADING], r[Robot.V_PREF]
         sim = make_simulator(cfg, v_pref)
+        if segments is not None and len(segments):
+            for x0, y0, x1, y1 in segments.tolist():
+                sim.add_obstacle([(x0, y0), (x1, y1)])
+            sim.process_obstacles()
         args = (cfg.orca_neighbor_dist, cfg.orca_max_neighbors, cfg.orca_time_horizon, cfg.orca_time_horizon_obst)
         for (hx, hy), (hvx, hvy), radius in zip(
             present[:, Human.POS].tolist(), present[:, Human.VEL].tolist(), present[:, Human.RADIUS].tolist(),
@@ -170,7 +181,8 @@ class OrcaPolicy:
             sim.set_agent_pref_velocity(i, (hvx, hvy))
         rid = sim.add_agent((px, py), *args, r[Robot.RADIUS] + 0.01 + self.safety_space, v_pref, (vx, vy))
         # preferred_velocity() of one agent, in floats
-        dx, dy = gx - px, gy - py
+        tx, ty = (gx, gy) if waypoint is None else waypoint.tolist()
+        dx, dy = tx - px, ty - py
         norm = math.sqrt(dx * dx + dy * dy)
         if norm > v_pref:
             dx, dy = dx / max(norm, 1e-12) * v_pref, dy / max(norm, 1e-12) * v_pref
@@ -188,5 +200,16 @@ class OrcaPolicy:
         humans = np.asarray(observation["humans"], dtype=np.float64)
         mask = np.asarray(observation["humans_mask"])  # keys: sb3_crowdnav.sim.observation.OBS_KEYS
         if robot.ndim == 1:
-            return np.array(self._act(robot, humans, mask)), None
-        return np.array([self._act(robot[i], humans[i], mask[i]) for i in range(robot.shape[0])]), None
+            return np.array(self._act(robot, humans, mask, *self._static(observation, None))), None
+        return np.array([self._act(robot[i], humans[i], mask[i], *self._static(observation, i))
+                         for i in range(robot.shape[0])]), None
+
+    @staticmethod
+    def _static(observation: dict[str, np.ndarray], i: int | None) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """The observed obstacle segments (S, 4) and the current waypoint (2,) of a warehouse observation."""
+        if "obstacles_mask" not in observation:
+            return None, None
+        pick = (lambda key: np.asarray(observation[key], dtype=np.float64)) if i is None else \
+            (lambda key: np.asarray(observation[key][i], dtype=np.float64))
+        segments = pick("obstacles").reshape(-1, 4)[pick("obstacles_mask") > 0.5]
+        return segments, pick("waypoints")[:2]

@@ -6,13 +6,13 @@ import math
 
 import numpy as np
 import shapely
-from shapely.geometry import LineString, Point
+from shapely.geometry import LineString
 
-from sb3_crowdnav.sim.actions import N_ACTIONS, _apply_action_scalar, action_table
 from sb3_crowdnav.sim.config import RewardConfig, SceneConfig
-from sb3_crowdnav.sim.geometry import nearest_segments, polygon_segments, swept_clearance
+from sb3_crowdnav.sim.geometry import SEGMENT_DIM, polygon_segments, segment_distance
 from sb3_crowdnav.sim.observation import HUMAN_DIM, ROBOT_DIM, Human, Robot
-from sb3_crowdnav.sim.rewards import RewardTerms, compute_reward, walking_direction, with_obstacle_collision
+from sb3_crowdnav.sim.rewards import RewardTerms, with_obstacle_collision
+from sb3_crowdnav.sim.simulator import CrowdSimulator
 from sb3_crowdnav.sim.warehouse.config import WarehouseConfig, check_feasible
 from sb3_crowdnav.sim.warehouse.layout import Roadmap, WarehouseLayout, generate_layout
 from sb3_crowdnav.sim.warehouse.pickers import PickerCrowd, pick_slots
@@ -37,21 +37,23 @@ def next_waypoints(waypoints: np.ndarray, position: np.ndarray, radius: float) -
     return out
 
 
-class WarehouseSimulator:
+class WarehouseSimulator(CrowdSimulator):
     """State of one warehouse episode and its dynamics (see ``CrowdNavWarehouse-v0``).
 
-    Observation-form state as :class:`~sb3_crowdnav.sim.simulator.CrowdSimulator` (``robot``, ``history``,
-    ``mask``), plus the layout, the robot's route and the observed obstacle segments and waypoints.
+    A :class:`~sb3_crowdnav.sim.simulator.CrowdSimulator` (the same robot kinematics, reward, history and walking
+    directions) whose pedestrians are :class:`PickerCrowd` pickers, plus the layout, the robot's route, the
+    obstacle segments and the swept-disc collision with them.
     """
 
     def __init__(self, scene: SceneConfig, reward: RewardConfig, config: WarehouseConfig) -> None:
         check_feasible(scene, config, pick_slots)
-        self.scene, self.reward_cfg, self.config = scene, reward, config
-        self.speeds, self.directions = action_table(scene.robot_v_pref, scene.rotation_range)
-        self.robot = np.zeros(ROBOT_DIM)
-        self.history = np.zeros((scene.history_length, scene.max_humans, HUMAN_DIM))
-        self.mask = np.zeros(scene.max_humans, dtype=bool)
-        self.num_humans, self.steps, self.max_steps = 0, 0, 1
+        super().__init__(scene, reward)
+        self.config = config
+        self.max_steps = 1
+        self.pickers: PickerCrowd | None = None
+        self.segments = np.zeros((0, 4))
+        self._seg_dist = np.zeros(0)  # distance from the robot's centre to every segment, kept current
+        self.hit_obstacle = False
         self.layout: WarehouseLayout | None = config.layout
         self._fixed: tuple[Roadmap, Roadmap, np.ndarray] | None = None
         self.route = np.zeros((1, 2))
@@ -78,8 +80,10 @@ class WarehouseSimulator:
         self.robot_map, picker_map, slots = self._maps(self.layout)
         self.segments = np.concatenate([polygon_segments(list(self.layout.racks)),
                                         polygon_segments([np.asarray(self.layout.hall.exterior.coords)[:-1]])])
-        self._free = self.robot_map.free
-        shapely.prepare(self._free)
+        self._sight = self.layout.free_space(self.scene.robot_radius).buffer(1e-6)  # where the robot's centre may go
+        shapely.prepare(self._sight)
+        self._seg_a, self._seg_ab = self.segments[:, :2], self.segments[:, 2:] - self.segments[:, :2]
+        self._seg_len2 = np.maximum(np.sum(self._seg_ab**2, axis=1), 1e-18)
         start, goal = self._stations(rng)
         self.route = self.robot_map.route(start, goal)
         self.route_index, self.replans = 1, 0
@@ -106,7 +110,11 @@ class WarehouseSimulator:
         self.history = np.repeat(current[None], s.history_length, axis=0)
         self.mask = np.zeros(s.max_humans, dtype=bool)
         self.mask[: self.num_humans] = True
+        self.human_goals = np.zeros((self.num_humans, 2))  # pickers have no fixed goal (the renderer draws none)
+        self._walk_dir = [(1.0, 0.0)] * self.num_humans
+        self._walk_age = [s.history_length] * self.num_humans
         self.steps = 0
+        self._seg_dist = self._distances(self.robot[Robot.POS])
 
     def _stations(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         """Start and goal: free points (uniform) at least ``min_route_distance`` apart."""
@@ -132,10 +140,20 @@ class WarehouseSimulator:
         return np.asarray(chosen, dtype=np.int64)
 
     # ------------------------------------------------------------------ observation
+    def _distances(self, point: np.ndarray) -> np.ndarray:
+        """Distance from ``point`` (2,) to every segment (S,) (:func:`point_segment_distance` on cached arrays)."""
+        t = np.clip(((point - self._seg_a) * self._seg_ab).sum(axis=1) / self._seg_len2, 0.0, 1.0)
+        return np.hypot(*(point - self._seg_a - t[:, None] * self._seg_ab).T)
+
     def observed_obstacles(self) -> tuple[np.ndarray, np.ndarray]:
-        """The ``max_obstacles`` segments nearest the robot within ``sensor_range``: (M, 4), mask (M,)."""
-        return nearest_segments(self.robot[Robot.POS], self.segments, self.config.max_obstacles,
-                                self.config.sensor_range)
+        """The ``max_obstacles`` segments nearest the robot within ``sensor_range``: (M, 4), mask (M,)
+        (:func:`~sb3_crowdnav.sim.geometry.nearest_segments`' rule on the cached distances)."""
+        m = self.config.max_obstacles
+        order = np.argsort(self._seg_dist, kind="stable")
+        order = order[self._seg_dist[order] <= self.config.sensor_range][:m]
+        out, mask = np.zeros((m, SEGMENT_DIM)), np.zeros(m, dtype=bool)
+        out[: len(order)], mask[: len(order)] = self.segments[order], True
+        return out, mask
 
     def observed_waypoints(self) -> np.ndarray:
         """The current waypoint and the next ones, (K, 2), the goal repeated at the end."""
@@ -144,52 +162,51 @@ class WarehouseSimulator:
         return np.concatenate([ahead, np.repeat(self.route[-1:], k - len(ahead), axis=0)])
 
     # ------------------------------------------------------------------ step
+    def _blocked(self, a: np.ndarray, b: np.ndarray, candidates: np.ndarray) -> bool:
+        """Whether the robot's disc moving straight from ``a`` to ``b`` touches one of the ``candidates`` segments."""
+        if not candidates.any():
+            return False
+        seg = self.segments[candidates]
+        return bool(segment_distance(a, b, seg[:, :2], seg[:, 2:]).min() < self.scene.robot_radius)
+
     def _advance_route(self) -> None:
-        """Pass reached waypoints (:func:`next_waypoints`' rule); plan again when the route was lost."""
+        """Pass reached waypoints (:func:`next_waypoints`' rule); plan again when the route is lost: the robot
+        strayed more than ``replan_distance`` from it, or the way to the current waypoint is blocked."""
         pos = self.robot[Robot.POS]
-        radius, last = self.config.waypoint_radius, len(self.route) - 1
-        while self.route_index < last and np.linalg.norm(self.route[self.route_index] - pos) < radius:
+        (x, y), radius, last = pos.tolist(), self.config.waypoint_radius, len(self.route) - 1
+        while self.route_index < last and math.dist((x, y), self.route[self.route_index]) < radius:
             self.route_index += 1
+        (ax, ay), (bx, by) = self.route[self.route_index - 1].tolist(), self.route[self.route_index].tolist()
         current = self.route[self.route_index]
-        off_route = LineString(self.route[self.route_index - 1 : self.route_index + 1]).distance(Point(pos)) \
-            > self.config.replan_distance
-        if off_route or not self._free.contains(LineString([pos, current])):
-            if self._free.contains(Point(pos)):
+        dx, dy = bx - ax, by - ay  # point_segment_distance in floats
+        t = min(1.0, max(0.0, ((x - ax) * dx + (y - ay) * dy) / max(dx * dx + dy * dy, 1e-18)))
+        off = math.hypot(x - ax - t * dx, y - ay - t * dy) > self.config.replan_distance
+        if off or not self._sight.covers(LineString([pos, current])):
+            try:
                 self.route = self.robot_map.route(pos, self.route[-1])
                 self.route_index, self.replans = 1, self.replans + 1
+            except ValueError:  # the robot is cornered: keep the old route
+                pass
 
-    def step(self, action: int) -> tuple[RewardTerms, bool]:
-        """Apply ``action`` (0..79), move the pickers; the reward terms and whether the robot hit an obstacle."""
-        s, n = self.scene, self.num_humans
-        if not (0 <= action < N_ACTIONS):
-            raise ValueError(f"action must be in [0, {N_ACTIONS}), got {action!r}")
-        robot, hist = self.robot, self.history
-        r = robot.tolist()
-        (px, py), (gx, gy), heading0 = r[Robot.POS], r[Robot.GOAL], r[Robot.HEADING]
-        x, y, heading, vx, vy = _apply_action_scalar(px, py, heading0, gx, gy, float(self.speeds[action]),
-                                                     float(self.directions[action]), s.kinematics, s.time_step)
-        human_pos0 = hist[-1, :n, Human.POS].copy()
-        if n:
-            new_pos, new_vel = self.pickers.step(human_pos0)
-        hist[:-1] = hist[1:]
-        if n:
-            hist[-1, :n, Human.POS], hist[-1, :n, Human.VEL] = new_pos, new_vel
-        robot[Robot.POS], robot[Robot.VEL], robot[Robot.HEADING] = (x, y), (vx, vy), heading
-        self.steps += 1
-        pos0, pos1 = np.array([px, py]), robot[Robot.POS].copy()
-        directions = walking_direction(hist[:, :n, Human.VEL], hist[-1, :n, Human.POS], pos1)
-        terms = compute_reward(self.reward_cfg, s.time_step, pos0, pos1, np.float64(heading0), np.float64(heading),
-                               robot[Robot.GOAL], np.float64(s.robot_radius), human_pos0, hist[-1, :n, Human.POS],
-                               directions, hist[-1, :n, Human.RADIUS], self.mask[:n])
-        hit = bool(swept_clearance(pos0, pos1, self.segments, np.ones(len(self.segments))) < s.robot_radius)
+    def _move_humans(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.pickers.step(self.history[-1, : self.num_humans, Human.POS])
+
+    def step(self, action: int) -> RewardTerms:  # type: ignore[override]
+        """Apply ``action`` (0..79), move the pickers; the reward terms (a rack or wall hit is a collision).
+
+        :attr:`hit_obstacle` tells whether this step's collision was with a rack or a wall.
+        """
+        pos0 = self.robot[Robot.POS].copy()
+        terms = super().step(action)
+        pos1 = self.robot[Robot.POS]
+        self._seg_dist = self._distances(pos1)
+        step_length = math.dist(pos0, pos1)
+        hit = self._blocked(pos0, pos1, self._seg_dist < self.scene.robot_radius + step_length)
         terms = with_obstacle_collision(terms, np.bool_(hit), self.config.obstacle_collision_penalty)
+        self.hit_obstacle = hit and not bool(terms.min_distance < 0)
         if not (terms.collision or terms.success):
             self._advance_route()
-        return terms, hit and not (terms.min_distance < 0)
-
-    @property
-    def time(self) -> float:
-        return self.steps * self.scene.time_step
+        return terms
 
     @property
     def standing(self) -> np.ndarray:
