@@ -160,3 +160,16 @@ def test_rendering_draws_the_layout():
     grey = np.all(np.abs(frame.astype(int) - 140) < 6, axis=2).mean()  # the racks' and walls' fill
     assert grey > 0.02
     env.close()
+
+
+def test_pickers_move_continuously_from_where_the_observation_shows_them():
+    """Each picker's first step starts where the reset observation put it (no jump of more than v_pref·Δt)."""
+    env = gym.make("CrowdNavWarehouse-v0", num_humans=8)
+    for seed in range(10):
+        obs, _ = env.reset(seed=seed)
+        before = obs["humans"].reshape(5, -1, 5)[-1, :, :2]
+        for _ in range(3):
+            obs, *_ = env.step(0)
+            after = obs["humans"].reshape(5, -1, 5)[-1, :, :2]
+            assert np.linalg.norm(after - before, axis=1).max() <= 1.0 * 0.25 + 1e-6
+            before = after

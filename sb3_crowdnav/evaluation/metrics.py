@@ -95,6 +95,17 @@ class Summary:
     discomfort_separation: float = math.nan  # [m], mean over all steps closer than 0.2 m
     comfort_zone_separation: float = math.nan  # [m], mean over all steps inside a comfort ellipse
     sharp_turns: float = math.nan  # per episode: steps turning by >= the angular-penalty threshold (Eq. 13)
+    # the warehouse: collisions by what was hit, and the path of successful episodes over their planned route
+    human_collision_rate: float = math.nan
+    human_collision_ci: tuple[float, float] = (math.nan, math.nan)
+    obstacle_collision_rate: float = math.nan
+    obstacle_collision_ci: tuple[float, float] = (math.nan, math.nan)
+    route_ratio: float = math.nan  # mean path length / route length, successful episodes
+
+    @property
+    def has_obstacles(self) -> bool:
+        """The episodes ran in a world with static obstacles (the warehouse)."""
+        return not math.isnan(self.obstacle_collision_rate)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -143,7 +154,22 @@ def summarize(records: Sequence[Any], confidence: float = 0.95) -> Summary:
         comfort_zone_separation=_pooled([r.comfort_zone_separation for r in records],
                                         [r.comfort_zone_time for r in records]),
         sharp_turns=_mean([r.sharp_turns for r in records]),
+        **_obstacle_metrics(records, confidence),
     )
+
+
+def _obstacle_metrics(records: Sequence[Any], confidence: float) -> dict[str, Any]:
+    """Human and obstacle collision rates and the route ratio, for episodes with a planned route (the warehouse)."""
+    if not any(math.isfinite(getattr(r, "route_length", math.nan)) for r in records):
+        return {}
+    n = len(records)
+    hits = {kind: sum(r.outcome == "collision" and r.collision_with == kind for r in records)
+            for kind in ("human", "obstacle")}
+    ratios = [r.path_length / r.route_length for r in records
+              if r.outcome == "success" and math.isfinite(r.route_length) and r.route_length > 0]
+    return {"human_collision_rate": hits["human"] / n, "human_collision_ci": wilson_interval(hits["human"], n, confidence),
+            "obstacle_collision_rate": hits["obstacle"] / n,
+            "obstacle_collision_ci": wilson_interval(hits["obstacle"], n, confidence), "route_ratio": _mean(ratios)}
 
 
 __all__ = ["OUTCOMES", "Summary", "discounted_return", "summarize", "wilson_interval", "z_value"]

@@ -105,9 +105,18 @@ def plot_trajectories(episodes: Mapping[str, EpisodeRecord | Trajectory], path: 
     for ax, (label, traj, subtitle) in zip(axes.flat, items, strict=False):
         stamp_every = max(1, round(stamp_interval / traj.scene.time_step))
         _draw_trajectory(ax, traj, stamp_every, cmap)
-        half = _extent(traj.scene)
-        ax.set_xlim(-half, half)
-        ax.set_ylim(-half, half)
+        if traj.obstacles:  # the warehouse: racks and walls, and the view of the hall
+            from matplotlib.patches import Polygon
+
+            for vertices in traj.obstacles:
+                ax.add_patch(Polygon(vertices, closed=True, fc="0.6", ec="0.35", lw=0.6, zorder=0))
+            corners = np.concatenate(traj.obstacles)
+            ax.set_xlim(corners[:, 0].min() - 0.3, corners[:, 0].max() + 0.3)
+            ax.set_ylim(corners[:, 1].min() - 0.3, corners[:, 1].max() + 0.3)
+        else:
+            half = _extent(traj.scene)
+            ax.set_xlim(-half, half)
+            ax.set_ylim(-half, half)
         ax.set_aspect("equal")
         ax.set_xlabel("x [m]")
         ax.set_ylabel("y [m]")

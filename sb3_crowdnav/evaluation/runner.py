@@ -46,12 +46,14 @@ class Trajectory:
     :param humans: (steps + 1, n_humans, 5) pedestrian states [px, py, vx, vy, radius]
     :param human_goals: (n_humans, 2) [m]
     :param scene: the env's scene configuration (time step, geometry)
+    :param obstacles: the static obstacles (racks, walls) as (k, 2) vertex arrays; empty on the open floor
     """
 
     robot: np.ndarray
     humans: np.ndarray
     human_goals: np.ndarray
     scene: SceneConfig
+    obstacles: tuple[np.ndarray, ...] = ()
 
     @property
     def times(self) -> np.ndarray:
@@ -62,7 +64,10 @@ class Trajectory:
         if not isinstance(other, Trajectory):
             return NotImplemented
         return (self.scene == other.scene and np.array_equal(self.robot, other.robot)
-                and np.array_equal(self.humans, other.humans) and np.array_equal(self.human_goals, other.human_goals))
+                and np.array_equal(self.humans, other.humans)
+                and np.array_equal(self.human_goals, other.human_goals, equal_nan=True)
+                and len(self.obstacles) == len(other.obstacles)
+                and all(np.array_equal(a, b) for a, b in zip(self.obstacles, other.obstacles, strict=True)))
 
     __hash__ = None  # type: ignore[assignment]
 
@@ -99,6 +104,8 @@ class EpisodeRecord:
     discomfort_separation: float = math.nan
     comfort_zone_separation: float = math.nan
     sharp_turns: int = 0
+    collision_with: str = ""  # "human" or "obstacle" (a rack or wall, in the warehouse) after a collision
+    route_length: float = math.nan  # [m] the warehouse robot's planned route from start to goal
     trajectory: Trajectory | None = field(default=None, repr=False)
 
     def to_dict(self) -> dict[str, Any]:
@@ -225,8 +232,9 @@ def _trajectory(env: gym.Env) -> Trajectory:
     base = env.unwrapped
     robot = np.stack([r for r, _ in base.trajectory])
     humans = np.stack([h for _, h in base.trajectory])
+    layout = getattr(base, "layout", None)
     return Trajectory(robot=robot, humans=humans, human_goals=np.array(base.sim.human_goals, dtype=float),
-                      scene=base.scene)
+                      scene=base.scene, obstacles=tuple(layout.polygons) if layout is not None else ())
 
 
 def run_episode(env: gym.Env, policy: Any, seed: int, deterministic: bool = True,
@@ -262,6 +270,8 @@ def run_episode(env: gym.Env, policy: Any, seed: int, deterministic: bool = True
         discomfort_separation=float(stats["discomfort_separation"]),
         comfort_zone_separation=float(stats["comfort_zone_separation"]),
         sharp_turns=int(stats["sharp_turns"]),
+        collision_with=str(stats.get("collision_with", "")),
+        route_length=float(stats.get("route_length", math.nan)),
         trajectory=_trajectory(env) if keep_trajectory else None,
     )
 

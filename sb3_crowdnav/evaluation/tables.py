@@ -27,10 +27,13 @@ CSV_COLUMNS = (
     "timeout", "timeout_ci_low", "timeout_ci_high",
     "gap", "discomfort", "comfort_time", "heading_change", "path_length", "reward_sum", "episodes",
     "discomfort_gap", "comfort_gap", "sharp_turns",
+    "human_collision", "human_collision_ci_low", "human_collision_ci_high",
+    "obstacle_collision", "obstacle_collision_ci_low", "obstacle_collision_ci_high", "route_ratio",
 )
 MARKDOWN_HEADERS = ("success", "collision", "time (s)", "return", "timeout", "gap (m)", "discomfort",
                     "comfort (s)", "heading (rad)", "path (m)", "episodes", "gap in discomfort (m)",
                     "gap in comfort zones (m)", "sharp turns")
+OBSTACLE_HEADERS = ("human collision", "obstacle collision", "path / route")  # tables of warehouse episodes
 
 
 def summary_row(summary: Summary) -> dict[str, Any]:
@@ -46,6 +49,10 @@ def summary_row(summary: Summary) -> dict[str, Any]:
         "episodes": s.episodes,
         "discomfort_gap": s.discomfort_separation, "comfort_gap": s.comfort_zone_separation,
         "sharp_turns": s.sharp_turns,
+        "human_collision": s.human_collision_rate, "human_collision_ci_low": s.human_collision_ci[0],
+        "human_collision_ci_high": s.human_collision_ci[1],
+        "obstacle_collision": s.obstacle_collision_rate, "obstacle_collision_ci_low": s.obstacle_collision_ci[0],
+        "obstacle_collision_ci_high": s.obstacle_collision_ci[1], "route_ratio": s.route_ratio,
     }
 
 
@@ -54,7 +61,7 @@ def _num(x: float, digits: int) -> str:
 
 
 def _rate(rate: float, ci: tuple[float, float]) -> str:
-    return f"{rate:.3f} [{ci[0]:.3f}, {ci[1]:.3f}]"
+    return "-" if math.isnan(rate) else f"{rate:.3f} [{ci[0]:.3f}, {ci[1]:.3f}]"
 
 
 def _markdown_cells(s: Summary) -> list[str]:
@@ -65,6 +72,11 @@ def _markdown_cells(s: Summary) -> list[str]:
         _num(s.heading_change, 2), _num(s.path_length, 2), str(s.episodes),
         _num(s.discomfort_separation, 3), _num(s.comfort_zone_separation, 3), _num(s.sharp_turns, 2),
     ]
+
+
+def _obstacle_cells(s: Summary) -> list[str]:
+    return [_rate(s.human_collision_rate, s.human_collision_ci), _rate(s.obstacle_collision_rate, s.obstacle_collision_ci),
+            _num(s.route_ratio, 3)]
 
 
 class ResultsTable:
@@ -82,10 +94,13 @@ class ResultsTable:
         return [{self.key_name: key, **summary_row(s)} for key, s in self.summaries.items()]
 
     def to_markdown(self) -> str:
-        headers = (self.key_name, *MARKDOWN_HEADERS)
+        """The Markdown table; with warehouse episodes also the human/obstacle collisions and path/route columns."""
+        obstacles = any(s.has_obstacles for s in self.summaries.values())
+        headers = (self.key_name, *MARKDOWN_HEADERS, *(OBSTACLE_HEADERS if obstacles else ()))
         lines = ["| " + " | ".join(headers) + " |", "|" + "|".join("---" for _ in headers) + "|"]
         for key, s in self.summaries.items():
-            lines.append("| " + " | ".join([str(key), *_markdown_cells(s)]) + " |")
+            cells = [str(key), *_markdown_cells(s), *(_obstacle_cells(s) if obstacles else ())]
+            lines.append("| " + " | ".join(cells) + " |")
         return "\n".join(lines) + "\n"
 
     def to_csv(self, path: str | Path | None = None) -> str:

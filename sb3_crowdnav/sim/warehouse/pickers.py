@@ -76,7 +76,7 @@ class PickerCrowd:
         shapely.prepare(self._reach)
         self.orca = OrcaCrowd(scene, slots[starts], np.full(n, scene.human_radius), np.full(n, scene.human_v_pref),
                               None, obstacles=layout.polygons)
-        self.slot = np.asarray(starts, dtype=np.int64)
+        self.slot = np.array(starts, dtype=np.int64)  # a copy: the caller keeps the start slots
         self.routes: list[np.ndarray] = [slots[s][None] for s in starts]
         self.waypoint = np.zeros(n, dtype=np.int64)
         self.dwell = np.zeros(n)

@@ -110,7 +110,7 @@ class WarehouseSimulator(CrowdSimulator):
         self.history = np.repeat(current[None], s.history_length, axis=0)
         self.mask = np.zeros(s.max_humans, dtype=bool)
         self.mask[: self.num_humans] = True
-        self.human_goals = np.zeros((self.num_humans, 2))  # pickers have no fixed goal (the renderer draws none)
+        self.human_goals = np.full((self.num_humans, 2), np.nan)  # pickers have no fixed goal (figures draw none)
         self._walk_dir = [(1.0, 0.0)] * self.num_humans
         self._walk_age = [s.history_length] * self.num_humans
         self.steps = 0
