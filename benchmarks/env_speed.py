@@ -1,8 +1,11 @@
-"""Env steps per second of ``CrowdNav-v0`` (6 pedestrians, observation building included, one process).
+"""Env steps per second of ``CrowdNav-v0`` and ``CrowdNavWarehouse-v0`` (6 pedestrians/pickers, observation
+building included, one process), measured in the same run, and their ratio.
 
-Two robots: a fixed action (straight on at full speed; the simulator, rewards and observation
-alone) and the ORCA robot policy deciding every step. Episodes are reset as they end, and the
-reset time is included. Usage::
+Robots: a fixed action (straight on at full speed; the simulator, rewards and observation alone), random
+actions held for 8 steps (drives into the warehouse's aisles and racks like an untrained policy), and the
+ORCA robot policy deciding every step (in the warehouse: obstacle-aware, following the route). Episodes
+are reset as they end, and the reset time is included (a warehouse reset draws a layout, plans routes and
+places the pickers). Usage::
 
     python benchmarks/env_speed.py [--steps 20000] [--repeats 3] [--reward crowdnav] [--profile]
 """
@@ -13,6 +16,7 @@ import argparse
 import time
 
 import gymnasium as gym
+import numpy as np
 
 import sb3_crowdnav  # noqa: F401  (registers the envs)
 from sb3_crowdnav import OrcaPolicy
@@ -20,22 +24,29 @@ from sb3_crowdnav import OrcaPolicy
 FIXED_ACTION = 4 * 16  # full speed, straight on
 
 
-def run(env: gym.Env, steps: int, policy: OrcaPolicy | None, seed: int = 0) -> tuple[float, float]:
+RANDOM = "random"
+
+
+def run(env: gym.Env, steps: int, policy: OrcaPolicy | str | None, seed: int = 0) -> tuple[float, float]:
     """Steps per wall-clock second and per CPU second of this process over ``steps`` env steps (resets included)."""
     obs, _ = env.reset(seed=seed)
+    rng = np.random.default_rng(seed)
+    action = FIXED_ACTION
     start, start_cpu = time.perf_counter(), time.process_time()
-    for _ in range(steps):
-        action = FIXED_ACTION if policy is None else int(policy.predict(obs)[0])
+    for step in range(steps):
+        if policy == RANDOM:
+            action = int(rng.integers(80)) if step % 8 == 0 else action
+        elif policy is not None:
+            action = int(policy.predict(obs)[0])
         obs, _, terminated, truncated, _ = env.step(action)
         if terminated or truncated:
             obs, _ = env.reset()
     return steps / (time.perf_counter() - start), steps / max(time.process_time() - start_cpu, 1e-9)
 
 
-def best(env: gym.Env, steps: int, policy: OrcaPolicy | None, repeats: int) -> str:
-    rates = [run(env, steps, policy, seed=i) for i in range(repeats)]
-    wall, cpu = max(r[0] for r in rates), max(r[1] for r in rates)
-    return f"{wall:9,.0f} steps/s  ({cpu:9,.0f} per CPU-second)"
+def best(env: gym.Env, steps: int, policy: OrcaPolicy | str | None, repeats: int) -> float:
+    """The best wall-clock steps/s of ``repeats`` runs."""
+    return max(run(env, steps, policy, seed=i)[0] for i in range(repeats))
 
 
 def main() -> None:
@@ -56,10 +67,15 @@ def main() -> None:
         prof.runcall(run, env, args.steps, None)
         pstats.Stats(prof).sort_stats("tottime").print_stats(25)
         return
-    policy = OrcaPolicy.from_env(env)
-    print(f"CrowdNav-v0, {args.num_humans} pedestrians, reward={args.reward!r}, best of {args.repeats} x {args.steps} steps")
-    print(f"  fixed action : {best(env, args.steps, None, args.repeats)}")
-    print(f"  ORCA robot   : {best(env, args.steps // 4, policy, args.repeats)}")
+    warehouse = gym.make("CrowdNavWarehouse-v0", num_humans=args.num_humans, reward=args.reward).unwrapped
+    print(f"{args.num_humans} pedestrians/pickers, reward={args.reward!r}, best of {args.repeats} runs, resets included")
+    print(f"{'robot':<14}{'CrowdNav-v0':>16}{'CrowdNavWarehouse-v0':>24}{'ratio':>8}")
+    for label, steps, make in (("fixed action", args.steps, lambda e: None),
+                               ("random x 8", args.steps, lambda e: RANDOM),
+                               ("ORCA robot", args.steps // 4, lambda e: OrcaPolicy.from_env(e, mapping="constrained"))):
+        open_floor = best(env, steps, make(env), args.repeats)
+        hall = best(warehouse, steps, make(warehouse), args.repeats)
+        print(f"{label:<14}{open_floor:>12,.0f} /s{hall:>20,.0f} /s{hall / open_floor:>8.2f}")
 
 
 if __name__ == "__main__":

@@ -156,7 +156,9 @@ def test_info_has_every_term_and_stats_only_at_the_end():
             assert key in info
         assert reward == pytest.approx(sum(info[k] for k in REWARD_KEYS))
         assert ("episode_stats" in info) == done
-    assert set(info["episode_stats"]) == set(STATS_KEYS)
+    collided = info["outcome"] == "collision"
+    assert set(info["episode_stats"]) == set(STATS_KEYS) | ({"collision_with"} if collided else set())
+    assert info.get("collision_with") == info["episode_stats"].get("collision_with") == ("human" if collided else None)
     assert info["outcome"] == info["episode_stats"]["outcome"] in ("success", "collision", "timeout")
     assert info["is_success"] == (info["outcome"] == "success")
 

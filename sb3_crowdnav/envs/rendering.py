@@ -101,8 +101,8 @@ class WarehouseRenderer(CrowdRenderer):
                 [robot[1], robot[1] + robot[Robot.RADIUS] * np.sin(h)], color="k", lw=1.5)
         ax.plot(*robot[Robot.GOAL], marker="*", color="red", ms=14, mec="k", ls="none", label="goal")
         ax.plot([], [], marker="o", color="0.5", ls="none", label="picker (hatched: standing)")
-        ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=4, fontsize=7, frameon=False)
-        ax.set_title(f"t = {time:.2f} s")
+        ax.legend(loc="lower center", bbox_to_anchor=(0.5, 1.0), ncol=4, fontsize=7, frameon=False)
+        ax.set_title(f"t = {time:.2f} s", pad=22)
         self.fig.canvas.draw()
         if self.human:
             self.plt.pause(0.001)

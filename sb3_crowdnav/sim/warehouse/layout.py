@@ -19,6 +19,7 @@ Geometry is `shapely`'s; routes are shortest paths on a grid roadmap of the free
 
 from __future__ import annotations
 
+import functools
 import json
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -113,7 +114,7 @@ class WarehouseLayout:
         rects = ((-w - t, -h - t, w + t, -h), (-w - t, h, w + t, h + t), (-w - t, -h, -w, h), (w, -h, w + t, h))
         return [np.asarray(box(*r).exterior.coords)[:-1] for r in rects]
 
-    @property
+    @functools.cached_property
     def polygons(self) -> list[np.ndarray]:
         """Every static obstacle (the racks, then the four walls) as a (k, 2) vertex array, counter-clockwise."""
         return [np.asarray(shapely.geometry.polygon.orient(Polygon(v)).exterior.coords)[:-1]
