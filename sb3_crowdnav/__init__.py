@@ -52,17 +52,20 @@ _register_policy_aliases()
 
 from sb3_crowdnav.apg_value import APGValue, ValueLookaheadPolicy  # noqa: E402
 from sb3_crowdnav.envs.crowd_nav import CrowdNavEnv  # noqa: E402
+from sb3_crowdnav.envs.warehouse import CrowdNavWarehouseEnv  # noqa: E402
 from sb3_crowdnav.models import available_pretrained, pretrained  # noqa: E402
 from sb3_crowdnav.nn import EXTRACTORS, ApgActorCriticPolicy, ApgDQNPolicy, ApgExtractor  # noqa: E402
 
 __all__ = [
     "ENV_IDS",
     "EXTRACTORS",
+    "WAREHOUSE_ENV_IDS",
     "APGValue",
     "ApgActorCriticPolicy",
     "ApgDQNPolicy",
     "ApgExtractor",
     "CrowdNavEnv",
+    "CrowdNavWarehouseEnv",
     "OrcaPolicy",
     "RewardConfig",
     "SceneConfig",
