@@ -200,3 +200,17 @@ def test_evaluation_separates_human_and_obstacle_collisions(tmp_path):
                  "--episodes", "4", "--out", str(out), "--no-gif", "--no-progress"]) == 0
     assert "obstacle_collision" in (out / "results.csv").read_text().splitlines()[0]
     assert (out / "trajectories.png").stat().st_size > 10_000
+
+
+def test_cli_renders_a_warehouse_episode(tmp_path):
+    from sb3_crowdnav.cli import main
+
+    out = tmp_path / "episode.gif"
+    assert main(["render", "--env", "CrowdNavWarehouse-v0", "--policy", "orca-constrained", "--seed", "1000003",
+                 "--out", str(out)]) == 0
+    import imageio.v2 as imageio
+
+    frames = imageio.mimread(out)
+    assert len(frames) > 10
+    grey = np.all(np.abs(frames[-1][..., :3].astype(int) - 140) < 6, axis=2).mean()  # racks and walls are drawn
+    assert grey > 0.02

@@ -160,6 +160,10 @@ class CrowdNavEnv(gym.Env):
         """One step of the simulator: its reward terms and whether the robot hit a static obstacle."""
         return self.sim.step(action), False
 
+    def _render_extras(self) -> dict[str, Any]:
+        """More to draw than the crowd (the warehouse's racks, route and standing pickers)."""
+        return {}
+
     @property
     def max_steps(self) -> int:
         """Steps after which the episode is truncated."""
@@ -267,7 +271,8 @@ class CrowdNavEnv(gym.Env):
 
         if self._renderer is None:
             self._renderer = CrowdRenderer(self.scene, human=self.render_mode == "human")
-        frame = self._renderer.draw(self.trajectory, self.sim.human_goals, self.sim.robot[Robot.GOAL], self.sim.time)
+        frame = self._renderer.draw(self.trajectory, self.sim.human_goals, self.sim.robot[Robot.GOAL], self.sim.time,
+                                    **self._render_extras())
         return None if self.render_mode == "human" else frame  # Gymnasium: "human" draws on screen, returns None
 
     def close(self) -> None:

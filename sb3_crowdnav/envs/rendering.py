@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from sb3_crowdnav.sim.config import SceneConfig
@@ -31,20 +33,35 @@ class CrowdRenderer:
             plt.ion()
             plt.show(block=False)
 
-    def draw(self, trajectory, human_goals: np.ndarray, robot_goal: np.ndarray, time: float) -> np.ndarray:
-        from matplotlib.patches import Circle
+    def draw(self, trajectory, human_goals: np.ndarray, robot_goal: np.ndarray, time: float,
+             obstacles: Sequence[np.ndarray] = (), route: np.ndarray | None = None,
+             standing: np.ndarray | None = None) -> np.ndarray:
+        """One frame. The warehouse adds its ``obstacles`` ((k, 2) polygons, which also set the view), the robot's
+        ``route`` (n, 2) and which pickers are ``standing`` (hatched)."""
+        from matplotlib.patches import Circle, Polygon
 
         ax, s = self.ax, self.scene
         ax.clear()
-        half = max(s.circle_radius + 1.5, s.square_width / 2 + 1) if s.scenario == "square_crossing" else s.circle_radius + 1.5
-        ax.set_xlim(-half, half)
-        ax.set_ylim(-half, half)
+        if len(obstacles):
+            corners = np.concatenate(obstacles)
+            ax.set_xlim(corners[:, 0].min() - 0.3, corners[:, 0].max() + 0.3)
+            ax.set_ylim(corners[:, 1].min() - 0.3, corners[:, 1].max() + 0.3)
+            for vertices in obstacles:
+                ax.add_patch(Polygon(vertices, closed=True, fc="0.55", ec="0.3", lw=0.8))
+            ax.plot([], [], marker="s", color="0.55", ls="none", label="rack / wall")
+        else:
+            half = (max(s.circle_radius + 1.5, s.square_width / 2 + 1) if s.scenario == "square_crossing"
+                    else s.circle_radius + 1.5)
+            ax.set_xlim(-half, half)
+            ax.set_ylim(-half, half)
+        if route is not None:
+            ax.plot(*np.asarray(route).T, color="tab:red", lw=1.0, ls="--", marker=".", ms=4, label="route")
         ax.set_aspect("equal")
         ax.set_xlabel("x [m]")
         ax.set_ylabel("y [m]")
         cmap = self.plt.get_cmap(HUMAN_CMAP)
         robot_path = np.array([r[Robot.POS] for r, _ in trajectory])
-        ax.plot(robot_path[:, 0], robot_path[:, 1], color=ROBOT_COLOR, lw=1.5)
+        ax.plot(robot_path[:, 0], robot_path[:, 1], color=ROBOT_COLOR, lw=1.5, label="robot trace")
         robot, humans = trajectory[-1]
         n = len(humans)
         if n:
@@ -52,14 +69,19 @@ class CrowdRenderer:
             for i in range(n):
                 c = cmap(i % 10)
                 ax.plot(paths[:, i, 0], paths[:, i, 1], color=c, lw=0.8, alpha=0.6)
-                ax.add_patch(Circle(humans[i, :2], humans[i, 4], fc=c, ec="k", alpha=0.8))
+                hatch = "////" if standing is not None and i < len(standing) and standing[i] else None
+                ax.add_patch(Circle(humans[i, :2], humans[i, 4], fc=c, ec="k", alpha=0.8, hatch=hatch))
                 ax.plot(*human_goals[i], marker="x", color=c, ms=5)
         ax.add_patch(Circle(robot[Robot.POS], robot[Robot.RADIUS], fc=ROBOT_COLOR, ec="k"))
         h = robot[Robot.HEADING]
         ax.plot([robot[0], robot[0] + robot[Robot.RADIUS] * np.cos(h)], [robot[1], robot[1] + robot[Robot.RADIUS] * np.sin(h)],
                 color="k", lw=1.5)
-        ax.plot(*robot_goal, marker="*", color="red", ms=14, mec="k")
-        ax.set_title(f"t = {time:.2f} s")
+        ax.plot(*robot_goal, marker="*", color="red", ms=14, mec="k", ls="none", label="goal")
+        if len(obstacles):  # the warehouse has more to tell apart
+            ax.plot([], [], marker="o", color="0.5", ls="none", label="picker (hatched: standing)")
+            ax.legend(loc="lower center", bbox_to_anchor=(0.5, 1.0), ncol=5, fontsize=6, frameon=False,
+                      handlelength=1.5, columnspacing=1.0)
+        ax.set_title(f"t = {time:.2f} s", pad=22 if len(obstacles) else 6)
         self.fig.canvas.draw()
         if self.human:
             self.plt.pause(0.001)
@@ -67,43 +89,3 @@ class CrowdRenderer:
 
     def close(self) -> None:
         self.plt.close(self.fig)
-
-
-class WarehouseRenderer(CrowdRenderer):
-    """The warehouse: racks and walls, the robot's route, pickers (standing ones hatched), the robot's trace."""
-
-    def draw_warehouse(self, trajectory, sim, time: float) -> np.ndarray:
-        from matplotlib.patches import Circle, Polygon
-
-        ax, layout = self.ax, sim.layout
-        ax.clear()
-        margin = 0.8
-        ax.set_xlim(-layout.width / 2 - margin, layout.width / 2 + margin)
-        ax.set_ylim(-layout.height / 2 - margin, layout.height / 2 + margin)
-        ax.set_aspect("equal")
-        ax.set_xlabel("x [m]")
-        ax.set_ylabel("y [m]")
-        for vertices in layout.polygons:
-            ax.add_patch(Polygon(vertices, closed=True, fc="0.55", ec="0.3", lw=0.8))
-        ax.plot(*sim.route.T, color="tab:red", lw=1.0, ls="--", marker=".", ms=4, label="route")
-        robot_path = np.array([r[Robot.POS] for r, _ in trajectory])
-        ax.plot(robot_path[:, 0], robot_path[:, 1], color=ROBOT_COLOR, lw=1.5, label="robot trace")
-        robot, humans = trajectory[-1]
-        standing = sim.standing
-        cmap = self.plt.get_cmap(HUMAN_CMAP)
-        for i in range(len(humans)):
-            c = cmap(i % 10)
-            ax.add_patch(Circle(humans[i, :2], humans[i, 4], fc=c, ec="k", alpha=0.85,
-                                hatch="////" if i < len(standing) and standing[i] else None))
-        ax.add_patch(Circle(robot[Robot.POS], robot[Robot.RADIUS], fc=ROBOT_COLOR, ec="k"))
-        h = robot[Robot.HEADING]
-        ax.plot([robot[0], robot[0] + robot[Robot.RADIUS] * np.cos(h)],
-                [robot[1], robot[1] + robot[Robot.RADIUS] * np.sin(h)], color="k", lw=1.5)
-        ax.plot(*robot[Robot.GOAL], marker="*", color="red", ms=14, mec="k", ls="none", label="goal")
-        ax.plot([], [], marker="o", color="0.5", ls="none", label="picker (hatched: standing)")
-        ax.legend(loc="lower center", bbox_to_anchor=(0.5, 1.0), ncol=4, fontsize=7, frameon=False)
-        ax.set_title(f"t = {time:.2f} s", pad=22)
-        self.fig.canvas.draw()
-        if self.human:
-            self.plt.pause(0.001)
-        return np.asarray(self.fig.canvas.buffer_rgba())[..., :3].copy()

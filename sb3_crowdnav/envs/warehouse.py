@@ -147,15 +147,8 @@ class CrowdNavWarehouseEnv(CrowdNavEnv):
             info["episode_stats"].update(route_length=self.sim.route_length, replans=self.sim.replans)
         return obs, reward, terminated, truncated, info
 
-    def render(self):
-        if self.render_mode is None:
-            return super().render()
-        from sb3_crowdnav.envs.rendering import WarehouseRenderer  # lazy: matplotlib only when rendering
-
-        if self._renderer is None:
-            self._renderer = WarehouseRenderer(self.scene, human=self.render_mode == "human")
-        frame = self._renderer.draw_warehouse(self.trajectory, self.sim, self.sim.time)
-        return None if self.render_mode == "human" else frame
+    def _render_extras(self) -> dict[str, Any]:
+        return {"obstacles": self.sim.layout.polygons, "route": self.sim.route, "standing": self.sim.standing}
 
 
 __all__ = ["CrowdNavWarehouseEnv"]

@@ -281,7 +281,8 @@ def render_frames(traj: Trajectory) -> list[np.ndarray]:
     try:
         pairs = list(zip(traj.robot, traj.humans, strict=True))
         goal = traj.robot[0, Robot.GOAL]
-        return [renderer.draw(pairs[: k + 1], traj.human_goals, goal, float(t)) for k, t in enumerate(traj.times)]
+        return [renderer.draw(pairs[: k + 1], traj.human_goals, goal, float(t), obstacles=traj.obstacles)
+                for k, t in enumerate(traj.times)]
     finally:
         renderer.close()
 
