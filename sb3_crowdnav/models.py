@@ -17,6 +17,7 @@ the module of the saved ``policy_class`` (``sb3_crowdnav.apg_value...`` → APGV
 
 from __future__ import annotations
 
+import hashlib
 import json
 import zipfile
 from pathlib import Path
@@ -34,6 +35,17 @@ PRETRAINED = {
     "lm_rl": "apg_value",
     "ppo_apg": "ppo",
     "dqn_apg": "dqn",
+}
+# name -> SHA-256 of weights/<name>.zip, checked before every load (examples/ship_model.py prints it)
+PRETRAINED_SHA256 = {
+    "apg_rl": "d747a15de9b4354ffd41c032889e955333d2153387d60e750719e83d3289ab8a",
+    "apg_crl": "ddb7e8887a2fec8eaf80af4b6fe545d8586860d0419f04cec80d92d24b781b61",
+    "apg_carl": "3cf8f8fc571012f701acf592a588e91929181924096b1de18899ae55f29a9ac2",
+    "cadrl": "d1134885815d7411408b0db0286ff508a97a7681b0144a41d803c3f781fe82e1",
+    "sf_rl": "47abefd9a25b01b18a52638d130b66c5228e6516457be5768a88823cd6ec03e6",
+    "lm_rl": "bb3b01d8d88c503423562d865c2e807def4f314a635fd2f1ea0866d336ed1cab",
+    "ppo_apg": "e2ca62c482ec8754c7c38e7e18b7cef2322cfed0698d42eee06a84d1d950fb04",
+    "dqn_apg": "8d2b5367bcf4fb46be12507b724afad181606ddec84c49fb08cf6ed2d1462aaa",
 }
 
 
@@ -90,28 +102,53 @@ def detect_algorithm(path: str | Path) -> str | None:
     return None
 
 
-def load_model(path: str | Path, env: Any = None, algo: str | None = None, device: str = "cpu", **kwargs: Any):
+def _load(cls: type, path: Path, env: Any, device: str, trusted: bool, spaces_from: Any = None, **kwargs: Any):
+    """``cls.load`` without unpickling (:mod:`sb3_crowdnav.serialization`) unless ``trusted``."""
+    if not trusted:
+        from sb3_crowdnav.serialization import safe_custom_objects
+
+        objects = safe_custom_objects(path, env if env is not None else spaces_from)
+        kwargs["custom_objects"] = {**objects, **(kwargs.get("custom_objects") or {})}
+    from sb3_crowdnav.apg_value import APGValue
+
+    if issubclass(cls, APGValue):  # its load would build the same objects again
+        kwargs["trusted"] = True
+    return cls.load(path, env=env, device=device, **kwargs)
+
+
+def load_model(path: str | Path, env: Any = None, algo: str | None = None, device: str = "cpu", trusted: bool = False,
+               spaces_from: Any = None, **kwargs: Any):
     """Load a saved APGValue / DQN / PPO / A2C model, detecting the algorithm unless ``algo`` is given.
 
+    Nothing in the file is unpickled (:mod:`sb3_crowdnav.serialization`): a file whose entries need it is refused
+    with :class:`~sb3_crowdnav.serialization.UnsafeModelFileError` naming the entry.
+
     :param path: the ``.zip`` (the suffix may be omitted)
-    :param env: passed to ``Algorithm.load`` (``None`` is enough to ``predict``)
+    :param env: passed to ``Algorithm.load`` (``None`` is enough to ``predict`` a model this package saved; a
+        plain SB3 file needs the env, whose spaces replace the file's pickled ones after a shape check)
     :param algo: ``"apg_value"``, ``"dqn"``, ``"ppo"`` or ``"a2c"`` to skip detection
+    :param trusted: use SB3's own load, which unpickles; only for files you made yourself
+    :param spaces_from: an env (not attached to the model) whose spaces stand in for a plain SB3 file's pickled ones
     """
     p = resolve_model_path(path)
     algos = algorithms()
     if algo is not None:
         if algo not in algos:
             raise ValueError(f"algo must be one of {sorted(algos)}, got {algo!r}")
-        return algos[algo].load(p, env=env, device=device, **kwargs)
+        return _load(algos[algo], p, env, device, trusted, spaces_from, **kwargs)
     name = detect_algorithm(p)
     if name == "apg_value" and name not in algos:
         raise ImportError(f"{str(p)!r} was saved by APGValue, but sb3_crowdnav.apg_value cannot be imported")
     if name is not None and name in algos:
-        return algos[name].load(p, env=env, device=device, **kwargs)
+        return _load(algos[name], p, env, device, trusted, spaces_from, **kwargs)
+    from sb3_crowdnav.serialization import UnsafeModelFileError
+
     errors = []
     for cls_name, cls in algos.items():
         try:
-            return cls.load(p, env=env, device=device, **kwargs)
+            return _load(cls, p, env, device, trusted, spaces_from, **kwargs)
+        except UnsafeModelFileError:
+            raise
         except Exception as exc:  # try the next algorithm; report all failures below
             errors.append(f"{cls_name}: {type(exc).__name__}: {exc}")
     raise ValueError(f"could not load {str(p)!r} with any of {sorted(algos)}: " + "; ".join(errors))
@@ -132,10 +169,32 @@ def pretrained_path(name: str) -> Path:
     return path
 
 
+def check_pretrained(name: str) -> Path:
+    """The path of a shipped model after checking its SHA-256 against the pinned one; ``ValueError`` naming the file."""
+    path = pretrained_path(name)
+    digest = hashlib.sha256(path.read_bytes()).hexdigest()
+    if digest != PRETRAINED_SHA256[name]:
+        raise ValueError(f"{path} does not match the SHA-256 pinned for {name!r} (has {digest[:16]}..., expected "
+                         f"{PRETRAINED_SHA256[name][:16]}...): the file was changed; reinstall sb3_crowdnav")
+    return path
+
+
 def pretrained(name: str, env: Any = None, **kwargs: Any):
-    """Load a shipped model (``APGValue``, ``PPO`` or ``DQN``) by name, e.g. ``pretrained("apg_rl")``."""
-    return load_model(pretrained_path(name), env=env, algo=PRETRAINED[name], **kwargs)
+    """Load a shipped model (``APGValue``, ``PPO`` or ``DQN``) by name, e.g. ``pretrained("apg_rl")``; its file is
+    checked against the SHA-256 pinned in the package first."""
+    return load_model(check_pretrained(name), env=env, algo=PRETRAINED[name], **kwargs)
 
 
-__all__ = ["PRETRAINED", "WEIGHTS_DIR", "algorithms", "available_pretrained", "detect_algorithm", "load_model",
-           "pretrained", "pretrained_path", "resolve_model_path"]
+__all__ = [
+    "PRETRAINED",
+    "PRETRAINED_SHA256",
+    "WEIGHTS_DIR",
+    "algorithms",
+    "available_pretrained",
+    "check_pretrained",
+    "detect_algorithm",
+    "load_model",
+    "pretrained",
+    "pretrained_path",
+    "resolve_model_path",
+]

@@ -366,7 +366,11 @@ def test_default_optimisers_adam_for_rl_sgd_for_imitation(tmp_path):
     assert built == [{"lr": 0.01, "momentum": 0.9}]  # the imitation regression ran on it, at Table 1's rate
     assert isinstance(model.policy.optimizer, th.optim.Adam)
     model.save(tmp_path / "m")
-    loaded = APGValue.load(tmp_path / "m", env=model.env)
+    from sb3_crowdnav.serialization import UnsafeModelFileError
+
+    with pytest.raises(UnsafeModelFileError, match="entry 'imitation_optimizer_class'"):  # a class defined in a test
+        APGValue.load(tmp_path / "m", env=model.env)
+    loaded = APGValue.load(tmp_path / "m", env=model.env, trusted=True)  # the user's own file: they may trust it
     assert isinstance(loaded.policy.optimizer, th.optim.Adam)
     loaded.learn(10, reset_num_timesteps=False)  # the saved Adam state loads and steps
     sgd = APGValue("ApgPolicy", "CrowdNav-v0", imitation_episodes=0, policy_kwargs=dict(optimizer_class=th.optim.SGD))

@@ -21,6 +21,7 @@ from sb3_crowdnav.evaluation import (
     save_animation,
 )
 from sb3_crowdnav.evaluation.plots import action_value_grid
+from sb3_crowdnav.serialization import UnsafeModelFileError
 
 torch.set_num_threads(1)
 FAST = {"human_policy": "linear", "num_humans": 4}
@@ -100,7 +101,9 @@ def test_load_model_detects_the_algorithm(tmp_path):
         model = cls("MultiInputPolicy", env, seed=0, policy_kwargs={"net_arch": [16]}, **kw)
         model.save(tmp_path / name)
         assert detect_algorithm(tmp_path / f"{name}.zip") == name
-        loaded = load_model(tmp_path / name)  # suffix optional
+        with pytest.raises(UnsafeModelFileError, match="entry 'observation_space'"):  # SB3 pickled the spaces
+            load_model(tmp_path / name)
+        loaded = load_model(tmp_path / name, spaces_from=env)  # suffix optional; the env's spaces, shapes checked
         assert type(loaded) is cls
         assert loaded.predict(obs, deterministic=True)[0] == model.predict(obs, deterministic=True)[0]
     (tmp_path / "junk.zip").write_bytes(b"not a zip")

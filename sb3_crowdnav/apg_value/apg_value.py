@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any, ClassVar, TypeVar
 
 import numpy as np
@@ -25,6 +26,7 @@ from sb3_crowdnav.apg_value.overlap import Batch, OverlappingLearner
 from sb3_crowdnav.apg_value.policies import POLICY_ALIASES, ValueLookaheadPolicy
 from sb3_crowdnav.apg_value.pretraining import pretrain_from_orca
 from sb3_crowdnav.apg_value.rollout_stats import RolloutStats
+from sb3_crowdnav.serialization import safe_custom_objects, write_spaces
 from sb3_crowdnav.sim.observation import ObservationSchema, Robot
 from sb3_crowdnav.sim.orca import OrcaPolicy
 
@@ -373,6 +375,20 @@ class APGValue(OffPolicyAlgorithm):
         if self.policy is not None and self.policy_kwargs.get("lookahead_dtype", "float32") != self.policy.lookahead_dtype:
             self.policy_kwargs["lookahead_dtype"] = self.policy.lookahead_dtype
         super().save(path, exclude, include)
+        if isinstance(path, (str, Path)):  # the spaces as plain JSON, so that loading never unpickles them
+            write_spaces(path if str(path).endswith(".zip") else f"{path}.zip", self.observation_space, self.action_space)
+
+    @classmethod
+    def load(cls: type[SelfAPGValue], path, env: GymEnv | None = None, device: th.device | str = "auto",
+             custom_objects: dict[str, Any] | None = None, print_system_info: bool = False, force_reset: bool = True,
+             trusted: bool = False, **kwargs: Any) -> SelfAPGValue:
+        """SB3's ``load``, without unpickling anything from the file (:mod:`sb3_crowdnav.serialization`).
+
+        :param trusted: load a file whose entries need unpickling (SB3's own load); only for files you made
+        """
+        if not trusted:
+            custom_objects = {**safe_custom_objects(path, env), **(custom_objects or {})}
+        return super().load(path, env, device, custom_objects, print_system_info, force_reset, **kwargs)
 
     def _excluded_save_params(self) -> list[str]:
         return [*super()._excluded_save_params(), "_explore_rng", "_rollout_stats", "_staged", "_overlap"]

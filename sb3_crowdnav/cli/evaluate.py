@@ -68,15 +68,17 @@ def add_parsers(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
 
 
 # ------------------------------------------------------------------ helpers
-def _check_policy(spec: str) -> str:
+def _check_policy(spec: str, env_id: str = "CrowdNav-v0", env_kwargs: dict[str, Any] | None = None) -> str:
+    """The policy spec, checked before any episode runs: a shipped model's hash, a file's loadability without
+    unpickling (with the env's spaces for a plain SB3 file)."""
     s = spec.strip()
     if s.lower() in ("orca", "orca-constrained"):
         return s.lower()
     if s.lower().startswith("pretrained:"):
-        from sb3_crowdnav.models import pretrained_path
+        from sb3_crowdnav.models import check_pretrained
 
         try:
-            pretrained_path(s.partition(":")[2])
+            check_pretrained(s.partition(":")[2])
         except ValueError as exc:
             raise UsageError(f"--policy: {exc}") from None
         return s
@@ -86,6 +88,7 @@ def _check_policy(spec: str) -> str:
             raise UsageError(f"--policy: a random policy is 'random' or 'random:SEED', got {spec!r}")
         return s.lower()
     from sb3_crowdnav.models import detect_algorithm, resolve_model_path
+    from sb3_crowdnav.serialization import UnsafeModelFileError, safe_custom_objects
 
     try:
         path = resolve_model_path(s)
@@ -94,6 +97,15 @@ def _check_policy(spec: str) -> str:
         raise UsageError(
             f"--policy {spec!r}: expected orca, orca-constrained, random[:SEED], pretrained:NAME or a saved model .zip ({exc})"
         ) from None
+    import gymnasium as gym
+
+    env = gym.make(env_id, **(env_kwargs or {}))
+    try:
+        safe_custom_objects(path, env)
+    except UnsafeModelFileError as exc:
+        raise UsageError(f"--policy: {exc}") from None
+    finally:
+        env.close()
     return str(path)
 
 
@@ -141,7 +153,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
 
     env_kwargs = env_kwargs_from_args(args)
     check_env(args.env, env_kwargs)
-    spec = _check_policy(args.policy)
+    spec = _check_policy(args.policy, args.env, env_kwargs)
     label = _labels([spec])[0]
     start = time.perf_counter()
     records = _run(args, spec, env_kwargs)
@@ -199,7 +211,7 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
 
     env_kwargs = env_kwargs_from_args(args)
     check_env(args.env, env_kwargs)
-    specs = [_check_policy(p) for p in args.policy]
+    specs = [_check_policy(p, args.env, env_kwargs) for p in args.policy]
     labels = _labels(specs)
     if args.sweep and max(args.sweep) > 0 and "num_humans" in env_kwargs:
         print("note: --sweep sets the number of pedestrians; --humans applies to the main table only", file=sys.stderr)
@@ -258,7 +270,7 @@ def _cmd_render(args: argparse.Namespace) -> int:
         raise UsageError(f"--fps must be > 0, got {args.fps}")
     env_kwargs = env_kwargs_from_args(args)
     check_env(args.env, env_kwargs)
-    spec = _check_policy(args.policy)
+    spec = _check_policy(args.policy, args.env, env_kwargs)
     label = _labels([spec])[0]
     record = run_episodes(spec, seeds=[args.seed], env_kwargs=env_kwargs, env_id=args.env,
                           deterministic=not args.stochastic, keep_trajectories=True, torch_threads=args.threads)[0]

@@ -202,10 +202,10 @@ def make_policy(spec: Any, env: gym.Env | None = None) -> Any:
     from sb3_crowdnav.models import load_model
 
     if s.lower().startswith("pretrained:"):
-        from sb3_crowdnav.models import pretrained_path
+        from sb3_crowdnav.models import check_pretrained
 
-        s = str(pretrained_path(s.partition(":")[2]))
-    model = load_model(s)
+        s = str(check_pretrained(s.partition(":")[2]))
+    model = load_model(s, spaces_from=env)
     if env is not None:
         check_spaces(model, env, s)
     return model

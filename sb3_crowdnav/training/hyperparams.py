@@ -267,6 +267,9 @@ def train_from_hyperparams(algo: str, hyperparams: Mapping[str, Any], out_dir: s
     model.learn(total_timesteps=int(n_timesteps), progress_bar=progress_bar, callback=callback)
     model_path = out / f"{algo}.zip"
     model.save(model_path)
+    from sb3_crowdnav.serialization import write_spaces
+
+    write_spaces(model_path, model.observation_space, model.action_space)  # loads later without unpickling
     env.close()
     return model, model_path
 
