@@ -397,13 +397,15 @@ def test_overlap_training_acts_with_the_previous_weights(monkeypatch):
     """Each training call hands the acting copy the weights of the completed previous call, not the ones in flight."""
     model = APGValue("ApgPolicy", "CrowdNav-v0", seed=2, overlap_training=True, **TINY)
     seen = []
-    original = APGValue._sync_acting_net
+    from sb3_crowdnav.apg_value.overlap import OverlappingLearner
 
-    def sync(self):
-        original(self)
-        seen.append((_params(self).clone(), th.cat([p.detach().flatten() for p in self._overlap.acting_net.parameters()])))
+    original = OverlappingLearner.sync
 
-    monkeypatch.setattr(APGValue, "_sync_acting_net", sync)
+    def sync(self, value_net):
+        original(self, value_net)
+        seen.append((_params(model).clone(), th.cat([p.detach().flatten() for p in self.acting_net.parameters()])))
+
+    monkeypatch.setattr(OverlappingLearner, "sync", sync)
     model.learn(40)
     assert len(seen) >= 5
     for v, acting in seen:

@@ -37,10 +37,11 @@ def test_checkpoints_validation_selection_and_resume(tmp_path, monkeypatch, caps
     best = json.loads((out / "best.json").read_text())
     assert best["select_by"] == "return"
     assert best["score"] == [max(r["return"] for r in rows)]
-    for name in ("imitation.zip", "checkpoint_2.zip", "checkpoint_4.zip", "best.zip", "final.zip", "replay_buffer.pkl"):
+    for name in ("imitation.zip", "checkpoint_2.zip", "checkpoint_4.zip", "best.zip", "final.zip", "replay_buffer_4.npz"):
         assert (out / name).is_file(), name
     capsys.readouterr()
-    _run(monkeypatch, *common, "--rl-episodes", "6", "--overlap")  # resumes from checkpoint.zip, now overlapping
+    assert not (out / "replay_buffer_2.npz").exists()  # only the newest buffer is kept
+    _run(monkeypatch, *common, "--rl-episodes", "6", "--overlap")  # resumes from checkpoint_4.zip, now overlapping
     assert "resuming from" in capsys.readouterr().out
     rows = [json.loads(line) for line in (out / "eval_curve.jsonl").read_text().splitlines()]
     assert [r["episodes"] for r in rows] == [2, 4, 6]
@@ -74,25 +75,26 @@ def test_sigterm_writes_a_checkpoint_and_the_run_resumes(tmp_path, monkeypatch, 
     assert "stopped by signal" in output
     assert not (out / "final.zip").exists()
     progress = json.loads((out / "progress.json").read_text())
-    saved = APGValue.load(out / "checkpoint.zip")
+    saved = APGValue.load(out / progress["checkpoint"])
     assert progress["episodes"] == saved._episode_num >= 2
     assert progress["timesteps"] == saved.num_timesteps
     capsys.readouterr()
     _run(monkeypatch, *common, "--rl-episodes", str(progress["episodes"] + 2))
-    assert f"resuming from {out / 'checkpoint.zip'} at episode {progress['episodes']}," in capsys.readouterr().out
+    checkpoint = out / progress["checkpoint"]
+    assert f"resuming from {checkpoint} at episode {progress['episodes']}," in capsys.readouterr().out
     assert APGValue.load(out / "final.zip")._episode_num == progress["episodes"] + 2
     assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL  # handlers restored after training
 
 
 @pytest.mark.parametrize("refill", [0, 100_000])
 def test_resume_without_replay_buffer_refills_before_training(tmp_path, monkeypatch, capsys, refill):
-    """A run carried to another machine without replay_buffer.pkl: no gradient step until the buffer is refilled."""
+    """A run carried to another machine without its replay buffer: no gradient step until the buffer is refilled."""
     out = tmp_path / "run"
     common = ["--out", str(out), "--il-episodes", "2", "--il-epochs", "1", "--num-humans", "2",
               "--checkpoint-episodes", "2", "--eval-episodes", "0"]
     _run(monkeypatch, *common, "--rl-episodes", "2")
-    before = APGValue.load(out / "checkpoint.zip")
-    (out / "replay_buffer.pkl").unlink()
+    before = APGValue.load(out / "checkpoint_2.zip")
+    (out / "replay_buffer_2.npz").unlink()
     capsys.readouterr()
     _run(monkeypatch, *common, "--rl-episodes", "4", "--refill-steps", str(refill))
     assert f"no replay buffer in {out}: collecting {refill} transitions" in capsys.readouterr().out
@@ -156,3 +158,80 @@ def test_python_api_and_example(tmp_path, monkeypatch, capsys):
         runpy.run_path(str(EXAMPLE), run_name="__main__")
     assert exc.value.code == 0
     assert APGValue.load(example / "final.zip")._episode_num == 2
+
+
+TINY_RUN = ["--il-episodes", "2", "--il-epochs", "1", "--num-humans", "2", "--checkpoint-episodes", "2"]
+
+
+def test_one_run_per_folder_and_a_stale_lock_is_taken_over(tmp_path, capsys):
+    import os
+
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "run.lock").write_text(json.dumps({"pid": os.getpid(), "host": __import__("socket").gethostname()}))
+    with pytest.raises(SystemExit) as exc:  # this very process holds it: alive
+        main(["train", "--variant", "apg_rl", "--out", str(out), *TINY_RUN, "--rl-episodes", "2"])
+    assert exc.value.code == 2 and f"is in use by process {os.getpid()}" in capsys.readouterr().err
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    (out / "run.lock").write_text(json.dumps({"pid": int(dead.stdout), "host": __import__("socket").gethostname()}))
+    assert main(["train", "--variant", "apg_rl", "--out", str(out), *TINY_RUN, "--eval-episodes", "0",
+                 "--rl-episodes", "2"]) == 0
+    assert not (out / "run.lock").exists()  # released
+
+
+def test_a_finished_run_run_again_changes_nothing(tmp_path, monkeypatch, capsys):
+    out = tmp_path / "run"
+    argv = ["--out", str(out), *TINY_RUN, "--eval-episodes", "1", "--rl-episodes", "2"]
+    _run(monkeypatch, *argv)
+    files = {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()}
+    capsys.readouterr()
+    _run(monkeypatch, *argv)
+    assert "nothing to do" in capsys.readouterr().out
+    assert {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()} == files
+
+
+def test_resume_validates_an_unvalidated_checkpoint_and_repairs_best(tmp_path, monkeypatch):
+    out = tmp_path / "run"
+    argv = ["--out", str(out), *TINY_RUN, "--eval-episodes", "2"]
+    _run(monkeypatch, *argv, "--rl-episodes", "2")
+    progress = json.loads((out / "progress.json").read_text())
+    progress["validated"], progress["finished"] = [], False  # as if killed after saving, before validating
+    (out / "progress.json").write_text(json.dumps(progress))
+    (out / "eval_curve.jsonl").unlink()
+    (out / "best.zip").write_bytes(b"damaged")
+    _run(monkeypatch, *argv, "--rl-episodes", "4")
+    rows = [json.loads(line)["episodes"] for line in (out / "eval_curve.jsonl").read_text().splitlines()]
+    assert rows == [2, 4]
+    best = json.loads((out / "best.json").read_text())
+    from sb3_crowdnav.training.run_folder import sha256
+
+    assert best["sha256"] == sha256(out / "best.zip") and APGValue.load(out / "best.zip") is not None
+
+
+SAVE_POINTS = ["imitation:1", "buffer:1", "checkpoint:1", "progress:1", "eval:1", "best_zip:1", "best_json:1",
+               "buffer:2", "checkpoint:2", "eval:2", "final:1"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("kill_at", SAVE_POINTS)
+def test_a_kill_at_any_save_point_resumes_into_a_consistent_run(tmp_path, kill_at):
+    """SIGKILL at each save point in turn, resume with the same command: a complete, consistent run."""
+    import os
+
+    from sb3_crowdnav.training.run_folder import checkpoints, sha256
+
+    out = tmp_path / "run"
+    argv = [*CLI, "--variant", "apg_rl", "--out", str(out), *TINY_RUN, "--eval-episodes", "2", "--rl-episodes", "4"]
+    killed = subprocess.run(argv, env={**os.environ, "SB3_CROWDNAV_KILL_AT": kill_at}, capture_output=True, text=True)
+    assert killed.returncode == -signal.SIGKILL, killed.stdout[-2000:] + killed.stderr[-2000:]
+    resumed = subprocess.run(argv, capture_output=True, text=True)
+    assert resumed.returncode == 0, resumed.stdout[-2000:] + resumed.stderr[-2000:]
+    assert checkpoints(out)[-1] == 4 and APGValue.load(out / "final.zip")._episode_num == 4
+    rows = [json.loads(line)["episodes"] for line in (out / "eval_curve.jsonl").read_text().splitlines()]
+    assert rows == [2, 4]  # every checkpoint validated exactly once
+    best = json.loads((out / "best.json").read_text())
+    assert best["sha256"] == sha256(out / "best.zip")
+    progress = json.loads((out / "progress.json").read_text())
+    assert progress["finished"] and progress["episodes"] == 4 and progress["validated"] == [2, 4]
+    assert sorted(p.name for p in out.glob("replay_buffer_*.npz")) == ["replay_buffer_4.npz"]
+    assert not list(out.glob(".*.tmp*")) and not (out / "run.lock").exists()

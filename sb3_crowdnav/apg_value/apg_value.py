@@ -14,7 +14,7 @@ from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 from stable_baselines3.common.utils import polyak_update
 
-from sb3_crowdnav.apg_value.buffers import ValueReplayBuffer, follow_timeout_handling
+from sb3_crowdnav.apg_value.buffers import ValueReplayBuffer, follow_timeout_handling, load_buffer, save_buffer
 from sb3_crowdnav.apg_value.checks import (
     check_args,
     check_env_compatible,
@@ -26,7 +26,7 @@ from sb3_crowdnav.apg_value.overlap import Batch, OverlappingLearner
 from sb3_crowdnav.apg_value.policies import POLICY_ALIASES, ValueLookaheadPolicy
 from sb3_crowdnav.apg_value.pretraining import pretrain_from_orca
 from sb3_crowdnav.apg_value.rollout_stats import RolloutStats
-from sb3_crowdnav.serialization import safe_custom_objects, write_spaces
+from sb3_crowdnav.serialization import UnsafeModelFileError, safe_custom_objects, write_spaces
 from sb3_crowdnav.sim.observation import ObservationSchema, Robot
 from sb3_crowdnav.sim.orca import OrcaPolicy
 
@@ -223,11 +223,21 @@ class APGValue(OffPolicyAlgorithm):
         self._staged = None
         super()._store_transition(replay_buffer, buffer_action, new_obs, reward, dones, infos)
 
-    def load_replay_buffer(self, path, truncate_last_traj: bool = True) -> None:
-        """SB3's ``load_replay_buffer``; a plain ``DictReplayBuffer`` (older saves) is wrapped as a ``ValueReplayBuffer``."""
-        super().load_replay_buffer(path, truncate_last_traj)
-        if not isinstance(self.replay_buffer, ValueReplayBuffer) and isinstance(self.replay_buffer, DictReplayBuffer):
-            self.replay_buffer = ValueReplayBuffer.from_dict_buffer(self.replay_buffer)
+    def save_replay_buffer(self, path) -> None:
+        """The replay buffer as an ``.npz`` of plain arrays (:func:`~.buffers.save_buffer`), not SB3's pickle."""
+        save_buffer(self.replay_buffer, path)  # type: ignore[arg-type]
+
+    def load_replay_buffer(self, path, truncate_last_traj: bool = True, trusted: bool = False) -> None:
+        """Fill the replay buffer from :meth:`save_replay_buffer`'s ``.npz``. A pickled buffer (``.pkl``, saved by
+        SB3 or older versions) loads only with ``trusted=True``; a plain ``DictReplayBuffer`` is wrapped."""
+        if str(path).endswith(".pkl"):
+            if not trusted:
+                raise UnsafeModelFileError(f"{path} is a pickle: load it with trusted=True only if you made it")
+            super().load_replay_buffer(path, truncate_last_traj)
+            if not isinstance(self.replay_buffer, ValueReplayBuffer) and isinstance(self.replay_buffer, DictReplayBuffer):
+                self.replay_buffer = ValueReplayBuffer.from_dict_buffer(self.replay_buffer)
+        else:
+            load_buffer(self.replay_buffer, path)  # type: ignore[arg-type]
         follow_timeout_handling(self.replay_buffer, self.bootstrap_timeouts)
 
     # ------------------------------------------------------------------ learning
@@ -261,7 +271,7 @@ class APGValue(OffPolicyAlgorithm):
         if self._overlap.busy:  # the learner was slower: this thread computes the targets
             batches = [Batch(b.data, *self._batch_target(b.data)) for b in batches]
         self._join_learner()
-        self._sync_acting_net()
+        self._overlap.sync(self.policy.value_net)
         self._update_learning_rate(self.policy.optimizer)
         self._overlap.submit(self._gradient_steps, batches)
 
@@ -298,10 +308,6 @@ class APGValue(OffPolicyAlgorithm):
         if losses is not None:
             self._record_losses(losses)
 
-    def _sync_acting_net(self) -> None:
-        assert self._overlap is not None
-        self._overlap.sync(self.policy.value_net)
-
     def _gradient_steps(self, batches: list[Batch]) -> list[float]:
         """One gradient step on V per sampled batch; returns the losses (the learner thread's work when overlapping)."""
         losses = []
@@ -331,7 +337,7 @@ class APGValue(OffPolicyAlgorithm):
             self._last_obs = self.env.reset()  # type: ignore[union-attr]
             self._last_episode_starts = np.ones((self.env.num_envs,), dtype=bool)  # type: ignore[union-attr]
         if self._overlap is not None:  # overlap_training: act with V as imitation left it
-            self._sync_acting_net()
+            self._overlap.sync(self.policy.value_net)
         self._update_exploration()
         return result
 
@@ -359,33 +365,28 @@ class APGValue(OffPolicyAlgorithm):
     # ------------------------------------------------------------------ logging
     def _update_info_buffer(self, infos: list[dict[str, Any]], dones: np.ndarray | None = None) -> None:
         super()._update_info_buffer(infos, dones)
-        self._rollout_stats.update(infos)
+        self._rollout_stats.update(infos)  # the crowd's rollout/* scalars
 
     def dump_logs(self) -> None:
         self._rollout_stats.record(self.logger)
         super().dump_logs()
 
     def save(self, path, exclude=None, include=None) -> None:
-        """SB3's ``save``; the policy's current ``lookahead_dtype`` is saved with it.
-
-        With ``overlap_training``, a save inside ``learn()`` (a checkpoint callback) first waits for the gradient
-        steps in flight, so the saved V and optimiser are those of a completed step.
-        """
+        """SB3's ``save`` with the current ``lookahead_dtype`` and the spaces as plain JSON; inside ``learn()`` with
+        ``overlap_training`` it first waits for the gradient steps in flight (the V of a completed step is saved)."""
         self._join_learner()
         if self.policy is not None and self.policy_kwargs.get("lookahead_dtype", "float32") != self.policy.lookahead_dtype:
             self.policy_kwargs["lookahead_dtype"] = self.policy.lookahead_dtype
         super().save(path, exclude, include)
-        if isinstance(path, (str, Path)):  # the spaces as plain JSON, so that loading never unpickles them
+        if isinstance(path, (str, Path)):  # so that loading never unpickles them
             write_spaces(path if str(path).endswith(".zip") else f"{path}.zip", self.observation_space, self.action_space)
 
     @classmethod
     def load(cls: type[SelfAPGValue], path, env: GymEnv | None = None, device: th.device | str = "auto",
              custom_objects: dict[str, Any] | None = None, print_system_info: bool = False, force_reset: bool = True,
              trusted: bool = False, **kwargs: Any) -> SelfAPGValue:
-        """SB3's ``load``, without unpickling anything from the file (:mod:`sb3_crowdnav.serialization`).
-
-        :param trusted: load a file whose entries need unpickling (SB3's own load); only for files you made
-        """
+        """SB3's ``load`` without unpickling anything (:mod:`sb3_crowdnav.serialization`); ``trusted=True``: SB3's
+        own load, which unpickles (only for files you made)."""
         if not trusted:
             custom_objects = {**safe_custom_objects(path, env), **(custom_objects or {})}
         return super().load(path, env, device, custom_objects, print_system_info, force_reset, **kwargs)

@@ -15,6 +15,7 @@ with no lookahead target.
 from __future__ import annotations
 
 import warnings
+from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -95,3 +96,43 @@ def follow_timeout_handling(buffer: DictReplayBuffer | None, bootstrap_timeouts:
     else:
         warnings.warn("the replay buffer did not record timeouts: its old truncations stay terminal")
         buffer.handle_timeout_termination = True
+
+
+def save_buffer(buffer: DictReplayBuffer, path: str | Path) -> Path:
+    """Write ``buffer`` as an ``.npz`` of plain arrays (loading it cannot run code); returns the path written.
+
+    Holds the observations and next observations per key, actions, rewards, dones, timeouts, a
+    :class:`ValueReplayBuffer`'s ``greedy`` and ``lookahead_target``, and ``pos``, ``full``, the size and the
+    timeout handling.
+    """
+    arrays = {f"observations.{k}": v for k, v in buffer.observations.items()}
+    arrays.update({f"next_observations.{k}": v for k, v in buffer.next_observations.items()})
+    arrays.update({name: getattr(buffer, name) for name in (*_FIELDS, *_VALUE_FIELDS) if hasattr(buffer, name)})
+    meta = {"pos": buffer.pos, "full": buffer.full, "buffer_size": buffer.buffer_size, "n_envs": buffer.n_envs,
+            "handle_timeout_termination": buffer.handle_timeout_termination}
+    path = Path(path)
+    with open(path, "wb") as f:  # np.savez would append ".npz" to a name without it
+        np.savez(f, **arrays, **{f"meta.{k}": np.asarray(v) for k, v in meta.items()})
+    return path
+
+
+def load_buffer(buffer: DictReplayBuffer, path: str | Path) -> None:
+    """Fill ``buffer`` (made by the algorithm with the same size and spaces) from :func:`save_buffer`'s file."""
+    with np.load(path, allow_pickle=False) as saved:
+        for key in ("buffer_size", "n_envs"):
+            if int(saved[f"meta.{key}"]) != getattr(buffer, key):
+                raise ValueError(f"{path}: the replay buffer was saved with {key} = {int(saved[f'meta.{key}'])}, "
+                                 f"the model's has {getattr(buffer, key)}")
+        targets = {f"observations.{k}": v for k, v in buffer.observations.items()}
+        targets.update({f"next_observations.{k}": v for k, v in buffer.next_observations.items()})
+        targets.update({name: getattr(buffer, name) for name in (*_FIELDS, *_VALUE_FIELDS) if hasattr(buffer, name)})
+        for name, target in targets.items():
+            if name not in saved or saved[name].shape != target.shape:
+                raise ValueError(f"{path}: array {name!r} is missing or of another shape than the model's buffer")
+            target[...] = saved[name]
+        buffer.pos, buffer.full = int(saved["meta.pos"]), bool(saved["meta.full"])
+        buffer.handle_timeout_termination = bool(saved["meta.handle_timeout_termination"])
+
+
+_FIELDS = ("actions", "rewards", "dones", "timeouts")
+_VALUE_FIELDS = ("greedy", "lookahead_target")

@@ -136,7 +136,12 @@ def _train_variant(args: argparse.Namespace) -> int:
         raise UsageError(f"--from-imitation: no saved model at {str(args.from_imitation)!r}")
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "config.json").write_text(json.dumps(config_dict(config), indent=2, default=str) + "\n")
-    result = train_schedule(args.out, config, from_imitation=args.from_imitation)
+    from sb3_crowdnav.training.run_folder import RunLockedError
+
+    try:
+        result = train_schedule(args.out, config, from_imitation=args.from_imitation)
+    except RunLockedError as exc:
+        raise UsageError(str(exc)) from None
     return 0 if result.stopped_by is None else 128 + result.stopped_by
 
 

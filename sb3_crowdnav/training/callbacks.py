@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import signal
 import time
@@ -13,6 +12,16 @@ from typing import Any
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_crowdnav.evaluation import run_episodes, summarize
+from sb3_crowdnav.training.run_folder import (
+    atomic_write,
+    buffer_path,
+    checkpoint_path,
+    kill_point,
+    read_json,
+    remove_stale,
+    sha256,
+    write_json,
+)
 
 VALIDATION_SEED_OFFSET = 2_000_000  # greedy validation episodes: disjoint from training and from the test seeds
 SELECT_BY = ("success", "return")
@@ -23,7 +32,7 @@ class EpisodeCheckpoint(BaseCallback):
 
     Validation: ``eval_episodes`` greedy episodes on fixed seeds (the ε-greedy rollout rates of the
     training log understate the greedy policy while ε is large), logged as ``eval/*`` and appended
-    to ``OUT/eval_curve.jsonl``; a copy of each checkpoint is kept as ``OUT/checkpoint_<episodes>.zip``
+    to ``OUT/eval_curve.jsonl``; every checkpoint is kept as ``OUT/checkpoint_<episodes>.zip``
     and the best one so far as ``OUT/best.zip``: highest success, then shortest navigation time
     (``select_by="success"``), or highest mean discounted return under the variant's own reward
     (``select_by="return"``, which counts the comfort and angular penalties of APG_CRL/APG_CARL).
@@ -48,45 +57,66 @@ class EpisodeCheckpoint(BaseCallback):
         self.out, self.max_episodes, self.every, self.eval_episodes = Path(out), max_episodes, every, eval_episodes
         self.select_by, self.env_kwargs, self.env_id = select_by, dict(env_kwargs or {}), env_id
         self._last = -1
+        self.validate_first = False  # validate the resumed checkpoint before training on (a kill skipped it)
         self.stopped_by: int | None = None  # the signal that stopped training early, if any
         self._previous_handlers: dict[int, Any] = {}
 
     def validate(self) -> None:
-        model = self.model
-        start = time.time()
-        s = summarize(run_episodes(model, self.eval_episodes, self.env_kwargs, env_id=self.env_id,
-                                   seed_offset=VALIDATION_SEED_OFFSET))
-        row = {"episodes": model._episode_num, "timesteps": model.num_timesteps, "wall": time.time(),
-               "eval_seconds": time.time() - start,
-               "success": s.success_rate, "collision": s.collision_rate, "timeout": s.timeout_rate,
-               "time": s.navigation_time, "gap": s.min_separation, "return": s.discounted_return,
-               "comfort_time": s.comfort_zone_time, "heading": s.heading_change, "sharp_turns": s.sharp_turns}
+        """Validate the checkpoint of the current episode count (once: a row an interrupted attempt left is reused),
+        update the best model, and mark the checkpoint validated in ``progress.json``."""
+        model, n = self.model, self.model._episode_num
+        curve = self.out / "eval_curve.jsonl"
+        rows = [json.loads(line) for line in curve.read_text().splitlines()] if curve.exists() else []
+        row = next((r for r in rows if r["episodes"] == n), None)
+        if row is None:
+            start = time.time()
+            s = summarize(run_episodes(model, self.eval_episodes, self.env_kwargs, env_id=self.env_id,
+                                       seed_offset=VALIDATION_SEED_OFFSET))
+            row = {"episodes": n, "timesteps": model.num_timesteps, "wall": time.time(),
+                   "eval_seconds": time.time() - start,
+                   "success": s.success_rate, "collision": s.collision_rate, "timeout": s.timeout_rate,
+                   "time": s.navigation_time, "gap": s.min_separation, "return": s.discounted_return,
+                   "comfort_time": s.comfort_zone_time, "heading": s.heading_change, "sharp_turns": s.sharp_turns}
+            rows.append(row)
+            atomic_write(curve, lambda tmp: tmp.write_text("".join(json.dumps(r) + "\n" for r in rows)))
+            kill_point("eval")
         for key in ("success", "collision", "timeout", "time", "gap", "return"):
             model.logger.record(f"eval/{key}", row[key])
-        with open(self.out / "eval_curve.jsonl", "a") as f:
-            f.write(json.dumps(row) + "\n")
+        self._update_best(row)
+        progress = read_json(self.out / "progress.json") or {}
+        progress["validated"] = sorted({*progress.get("validated", []), n})
+        write_json(self.out / "progress.json", progress)
+        print(f"validation after {n} RL episodes: success {row['success']:.2f}, "
+              f"collision {row['collision']:.2f}, time {row['time']:.2f} s", flush=True)
+
+    def _update_best(self, row: dict[str, Any]) -> None:
         if self.select_by == "return":
-            score = (s.discounted_return,)
+            score = [row["return"]]
         else:
-            score = (s.success_rate, -s.navigation_time if s.navigation_time == s.navigation_time else 0.0)
-        best_file = self.out / "best.json"
-        best = json.loads(best_file.read_text()) if best_file.exists() else None
-        if best is None or best.get("select_by", "success") != self.select_by or score > tuple(best["score"]):
-            shutil.copy(self.out / "checkpoint.zip", self.out / "best.zip")
-            best_file.write_text(json.dumps({"score": score, "select_by": self.select_by, **row}))
-        print(f"validation after {row['episodes']} RL episodes: success {s.success_rate:.2f}, "
-              f"collision {s.collision_rate:.2f}, time {s.navigation_time:.2f} s", flush=True)
+            score = [row["success"], -row["time"] if row["time"] == row["time"] else 0.0]
+        best = read_json(self.out / "best.json")
+        if best is None or best.get("select_by", "success") != self.select_by or score > list(best["score"]):
+            source = checkpoint_path(self.out, row["episodes"])
+            atomic_write(self.out / "best.zip", lambda tmp: shutil.copyfile(source, tmp))
+            kill_point("best_zip")
+            write_json(self.out / "best.json", {"score": score, "select_by": self.select_by,
+                                                "sha256": sha256(self.out / "best.zip"), **row})
+            kill_point("best_json")
 
     def save(self) -> None:
-        """Write ``checkpoint.zip``, ``replay_buffer.pkl`` (temporary names first) and ``progress.json``."""
-        model = self.model
-        tmp = self.out / "checkpoint.tmp.zip"
-        model.save(tmp)
-        model.save_replay_buffer(self.out / "replay_buffer.tmp.pkl")
-        os.replace(tmp, self.out / "checkpoint.zip")
-        os.replace(self.out / "replay_buffer.tmp.pkl", self.out / "replay_buffer.pkl")
-        (self.out / "progress.json").write_text(json.dumps(
-            {"episodes": model._episode_num, "timesteps": model.num_timesteps, "time": time.time()}))
+        """Write ``replay_buffer_<N>.npz`` then ``checkpoint_<N>.zip`` (each atomically), then ``progress.json``;
+        remove older buffers (see :mod:`sb3_crowdnav.training.run_folder`)."""
+        model, n = self.model, self.model._episode_num
+        atomic_write(buffer_path(self.out, n), model.save_replay_buffer)
+        kill_point("buffer")
+        atomic_write(checkpoint_path(self.out, n), model.save)
+        kill_point("checkpoint")
+        progress = read_json(self.out / "progress.json") or {}
+        progress.update(episodes=n, timesteps=model.num_timesteps, time=time.time(),
+                        checkpoint=checkpoint_path(self.out, n).name)
+        write_json(self.out / "progress.json", progress)
+        kill_point("progress")
+        remove_stale(self.out, keep=n)
 
     def _stop(self, signum: int, _frame: Any) -> None:
         self.stopped_by = signum
@@ -100,6 +130,9 @@ class EpisodeCheckpoint(BaseCallback):
     def _on_training_start(self) -> None:
         self._last = self.model._episode_num  # a resumed run does not checkpoint and validate its first episode count again
         self._previous_handlers = {s: signal.signal(s, self._stop) for s in (signal.SIGTERM, signal.SIGINT)}
+        if self.validate_first and self.eval_episodes:
+            self.validate_first = False
+            self.validate()
 
     def _on_training_end(self) -> None:
         self._restore_handlers()
@@ -111,7 +144,6 @@ class EpisodeCheckpoint(BaseCallback):
         if episodes != self._last and episodes > 0 and episodes % self.every == 0:
             self._last = episodes
             self.save()
-            shutil.copy(self.out / "checkpoint.zip", self.out / f"checkpoint_{episodes}.zip")
             if self.eval_episodes:
                 self.validate()
         return episodes < self.max_episodes

@@ -6,26 +6,30 @@ from Python::
     from sb3_crowdnav.training import ScheduleConfig, train_schedule
 
     result = train_schedule("runs/apg_rl", ScheduleConfig(variant="apg_rl"))  # 3,000 IL + 10,000 RL episodes
-    result = train_schedule("runs/apg_rl", ScheduleConfig(variant="apg_rl"))  # again: resumes, or does nothing left
+    result = train_schedule("runs/apg_rl", ScheduleConfig(variant="apg_rl"))  # again: resumes, or nothing is left
 
-The run folder holds:
+The run folder (:mod:`sb3_crowdnav.training.run_folder` has the file protocol) holds:
 
-- ``imitation.zip`` / ``imitation_replay_buffer.pkl``: the model after imitation (``from_imitation`` restarts a
-  variant from it);
-- ``checkpoint.zip`` / ``replay_buffer.pkl`` / ``progress.json``: the last checkpoint, every
-  ``checkpoint_episodes`` RL episodes (written to temporary names first, so an interrupted save keeps the
-  previous checkpoint), plus a copy ``checkpoint_<episodes>.zip`` each time;
+- ``imitation.zip`` / ``imitation_replay_buffer.npz``: the model after imitation (``from_imitation`` restarts a
+  variant from it; a run killed after imitation resumes from it);
+- ``checkpoint_<N>.zip`` every ``checkpoint_episodes`` RL episodes (all kept) and ``replay_buffer_<N>.npz``
+  (the newest only), ``progress.json``;
 - ``eval_curve.jsonl``, ``best.json``, ``best.zip``: the greedy validation at each checkpoint and the best
   model so far (:class:`~sb3_crowdnav.training.callbacks.EpisodeCheckpoint`);
-- ``final.zip`` after the last episode; TensorBoard logs in ``tb/``.
+- ``final.zip`` after the last episode; TensorBoard logs in ``tb/``; ``run.lock`` while a process writes.
 
-Running the same call again resumes from ``checkpoint.zip``. A resumed run draws new training episodes
-(its envs are seeded ``seed + 7919 × episodes done``) instead of replaying the first ones, so a run
-stopped and resumed is a valid run but not the same run, to the bit, as an uninterrupted one.
-To continue a run on another machine, ``checkpoint.zip`` and ``progress.json`` are enough (add
-``eval_curve.jsonl``, ``best.json`` and ``best.zip`` to keep the validation curve and the selection);
-without ``replay_buffer.pkl`` (~200 MB) the resumed run starts with an empty buffer and makes no gradient
-step until it has collected ``refill_steps`` new transitions.
+Every file is written to a temporary name and renamed; a process killed at any moment (even SIGKILL) resumes
+with the same call from the newest checkpoint whose replay buffer exists, validates a checkpoint whose
+validation it missed, repairs a ``best.zip`` that does not match ``best.json``, and loses nothing but the
+episodes since that checkpoint. A second process on the same folder stops at once (``run.lock``; a lock left
+by a dead process is taken over). Running a finished run again does nothing.
+
+A resumed run draws new training episodes (its envs are seeded ``seed + 7919 × episodes done``) instead of
+replaying the first ones, so a run stopped and resumed is a valid run but not the same run, to the bit, as an
+uninterrupted one. To continue a run on another machine, the newest ``checkpoint_<N>.zip`` is enough (add
+``progress.json``, ``eval_curve.jsonl``, ``best.json`` and ``best.zip`` to keep the validation curve and the
+selection); without ``replay_buffer_<N>.npz`` (~200 MB) the resumed run starts with an empty buffer and makes
+no gradient step until it has collected ``refill_steps`` new transitions.
 
 SIGTERM or SIGINT during RL stops the run at the end of the current step and writes the checkpoint first
 (:attr:`ScheduleResult.stopped_by`; the CLI exits with 128 + the signal).
@@ -34,8 +38,10 @@ SIGTERM or SIGINT during RL stops the run at the end of the current step and wri
 from __future__ import annotations
 
 import dataclasses
-import json
+import os
+import shutil
 import time
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -48,6 +54,19 @@ from sb3_crowdnav.apg_value.checks import VALUE_TARGETS
 from sb3_crowdnav.apg_value.policies import ValueLookaheadPolicy
 from sb3_crowdnav.sim.config import check_choice, check_int, check_number
 from sb3_crowdnav.training.callbacks import SELECT_BY, EpisodeCheckpoint
+from sb3_crowdnav.training.run_folder import (
+    RunLock,
+    atomic_write,
+    buffer_path,
+    checkpoint_path,
+    checkpoints,
+    kill_point,
+    latest_checkpoint,
+    read_json,
+    remove_stale,
+    sha256,
+    write_json,
+)
 
 
 @dataclass(frozen=True)
@@ -169,22 +188,37 @@ class ScheduleResult:
     wall_time: float  # [s] of this call's RL phase
 
 
-def _done_episodes(out: Path) -> int:
-    """RL episodes of the checkpoint in ``out`` (0 without ``progress.json``)."""
-    path = out / "progress.json"
-    return json.loads(path.read_text())["episodes"] if path.exists() else 0
-
-
-def _resume(out: Path, config: ScheduleConfig, env: Any, log: Any) -> APGValue:
-    model = APGValue.load(out / "checkpoint.zip", env=env, tensorboard_log=str(out / "tb"),
-                          overlap_training=config.overlap)
-    log(f"resuming from {out / 'checkpoint.zip'} at episode {model._episode_num}, {model.num_timesteps} steps")
-    if (out / "replay_buffer.pkl").exists():
-        model.load_replay_buffer(out / "replay_buffer.pkl")
+def _resume(out: Path, episodes: int, has_buffer: bool, config: ScheduleConfig, env: Any, log: Any) -> APGValue:
+    path = checkpoint_path(out, episodes)
+    try:
+        model = APGValue.load(path, env=env, tensorboard_log=str(out / "tb"), overlap_training=config.overlap)
+    except (ValueError, OSError, zipfile.BadZipFile) as exc:
+        raise RuntimeError(f"cannot resume from {path}: {exc}; remove it to resume from the checkpoint before") from exc
+    log(f"resuming from {path} at episode {model._episode_num}, {model.num_timesteps} steps")
+    if has_buffer:
+        model.load_replay_buffer(buffer_path(out, episodes))
     else:  # a run carried to another machine without its (large) buffer: refill it before the next gradient step
         model.learning_starts = model.num_timesteps + config.refill_steps
         log(f"no replay buffer in {out}: collecting {config.refill_steps} transitions before training again")
     return model
+
+
+def _check_best(out: Path, log: Any) -> None:
+    """A ``best.zip`` that is not the file ``best.json`` recorded is restored from its checkpoint, or set aside."""
+    best, path = read_json(out / "best.json"), out / "best.zip"
+    if best is None or (path.exists() and sha256(path) == best.get("sha256")):
+        return
+    source = checkpoint_path(out, int(best["episodes"]))
+    if source.exists():
+        atomic_write(path, lambda tmp: shutil.copyfile(source, tmp))
+        write_json(out / "best.json", {**best, "sha256": sha256(path)})
+        log(f"{path} did not match best.json: restored from {source.name}")
+    else:
+        if path.exists():
+            os.replace(path, out / "best.zip.damaged")
+        (out / "best.json").unlink()
+        log(f"{path} did not match best.json and {source.name} is gone: set aside as best.zip.damaged; the next "
+            "validation chooses a new best")
 
 
 def _from_imitation(path: Path, config: ScheduleConfig, env: Any, out: Path) -> APGValue:
@@ -198,8 +232,8 @@ def _from_imitation(path: Path, config: ScheduleConfig, env: Any, out: Path) -> 
         model.policy.optimizer_class, model.policy.optimizer_kwargs = optimizer_class, optimizer_kwargs
         model.policy.optimizer = optimizer_class(model.policy.value_net.parameters(), lr=config.learning_rate,
                                                  **optimizer_kwargs)
-    if (path.parent / "imitation_replay_buffer.pkl").exists():
-        model.load_replay_buffer(path.parent / "imitation_replay_buffer.pkl")
+    if (path.parent / "imitation_replay_buffer.npz").exists():
+        model.load_replay_buffer(path.parent / "imitation_replay_buffer.npz")
     return model
 
 
@@ -214,8 +248,9 @@ def _new(config: ScheduleConfig, env: Any, out: Path) -> APGValue:
                      policy_kwargs=dict(optimizer_class=optimizer_class, optimizer_kwargs=optimizer_kwargs,
                                         lookahead_dtype=config.lookahead_dtype))
     model.learn(0, tb_log_name=config.variant)  # imitation pre-training only; kept so variants can restart from it
-    model.save(out / "imitation.zip")
-    model.save_replay_buffer(out / "imitation_replay_buffer.pkl")
+    atomic_write(out / "imitation_replay_buffer.npz", model.save_replay_buffer)
+    atomic_write(out / "imitation.zip", model.save)
+    kill_point("imitation")
     return model
 
 
@@ -223,10 +258,10 @@ def train_schedule(out: str | Path, config: ScheduleConfig | None = None, from_i
                    log: Any = None) -> ScheduleResult:
     """Run (or resume) the paper's schedule of ``config.variant`` in the folder ``out`` (see the module docstring).
 
-    :param out: the run folder (created; an existing ``checkpoint.zip`` there is resumed)
+    :param out: the run folder (created; a run there is resumed)
     :param config: the schedule; the paper's APG_RL by default
     :param from_imitation: start RL from this saved post-imitation model instead of imitating again (its
-        ``imitation_replay_buffer.pkl`` beside it is loaded when present); ignored when resuming
+        ``imitation_replay_buffer.npz`` beside it is loaded when present); ignored when resuming
     :param log: ``log(message)`` for progress lines (default: ``print`` with flush)
     """
     config = ScheduleConfig() if config is None else config
@@ -235,30 +270,52 @@ def train_schedule(out: str | Path, config: ScheduleConfig | None = None, from_i
     log = log if log is not None else (lambda message: print(message, flush=True))
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    resume = (out / "checkpoint.zip").exists()
-    done_episodes = _done_episodes(out) if resume else 0
+    with RunLock(out):
+        return _train(out, config, from_imitation, log)
+
+
+def _train(out: Path, config: ScheduleConfig, from_imitation: str | Path | None, log: Any) -> ScheduleResult:
+    progress = read_json(out / "progress.json") or {}
+    latest = latest_checkpoint(out)
+    if progress.get("finished") and latest is not None and latest[0] >= config.rl_episodes:
+        log(f"{out} has finished its {latest[0]} RL episodes: nothing to do")
+        return ScheduleResult(APGValue.load(out / "final.zip"), None, 0.0)
+    remove_stale(out, keep=latest[0] if latest else -1)
+    _check_best(out, log)
     env_kwargs = config.training_env_kwargs
     # a resumed run draws new training episodes instead of replaying the first ones
-    env = make_vec_env(config.spec.env_id, n_envs=config.n_envs, seed=config.seed + 7919 * done_episodes,
+    env = make_vec_env(config.spec.env_id, n_envs=config.n_envs, seed=config.seed + 7919 * (latest[0] if latest else 0),
                        env_kwargs=env_kwargs)
-    if resume:
-        model, reset = _resume(out, config, env, log), False
-    elif from_imitation is not None:
-        model, reset = _from_imitation(Path(from_imitation), config, env, out), True
+    imitated = (out / "imitation.zip").exists() and (out / "imitation_replay_buffer.npz").exists()
+    if latest is not None:
+        model, reset = _resume(out, *latest, config, env, log), False
+    elif from_imitation is not None or imitated:  # a run killed after imitation resumes from it
+        model, reset = _from_imitation(Path(from_imitation or out / "imitation.zip"), config, env, out), True
+        reset = from_imitation is not None
     else:
         model, reset = _new(config, env, out), False
     model.policy.set_lookahead_dtype(config.lookahead_dtype)  # also for a resumed or from_imitation run
     callback = EpisodeCheckpoint(out, config.rl_episodes, config.checkpoint_episodes, config.eval_episodes,
                                  select_by=config.select_by, env_kwargs=env_kwargs, env_id=config.spec.env_id)
+    n = model._episode_num
+    if latest is not None and progress.get("episodes") != n:  # killed after the checkpoint, before progress.json
+        progress.update(episodes=n, timesteps=model.num_timesteps, checkpoint=checkpoint_path(out, n).name)
+        write_json(out / "progress.json", progress)
+    if latest is not None and config.eval_episodes and n % config.checkpoint_episodes == 0 and n > 0 \
+            and n not in progress.get("validated", []):  # killed between saving this checkpoint and validating it
+        callback.validate_first = True
     start = time.time()
     model.learn(total_timesteps=config.rl_episodes * STEPS_PER_EPISODE_BOUND, callback=callback,
                 reset_num_timesteps=reset, tb_log_name=config.variant, log_interval=50)
-    callback.save()
+    if model._episode_num not in checkpoints(out):  # the last episodes since the last checkpoint
+        callback.save()
     if callback.stopped_by is not None:
         log(f"stopped by signal {callback.stopped_by} after {model._episode_num} RL episodes, "
             f"{model.num_timesteps} steps; checkpoint written, run the same command again to resume")
     else:
-        model.save(out / "final.zip")
+        atomic_write(out / "final.zip", model.save)
+        kill_point("final")
+        write_json(out / "progress.json", {**(read_json(out / "progress.json") or {}), "finished": True})
         log(f"done: {model._episode_num} RL episodes, {model.num_timesteps} steps, {time.time() - start:.0f} s this run")
     return ScheduleResult(model, callback.stopped_by, time.time() - start)
 
