@@ -44,8 +44,8 @@ PRETRAINED_SHA256 = {
     "cadrl": "d1134885815d7411408b0db0286ff508a97a7681b0144a41d803c3f781fe82e1",
     "sf_rl": "47abefd9a25b01b18a52638d130b66c5228e6516457be5768a88823cd6ec03e6",
     "lm_rl": "bb3b01d8d88c503423562d865c2e807def4f314a635fd2f1ea0866d336ed1cab",
-    "ppo_apg": "e2ca62c482ec8754c7c38e7e18b7cef2322cfed0698d42eee06a84d1d950fb04",
-    "dqn_apg": "8d2b5367bcf4fb46be12507b724afad181606ddec84c49fb08cf6ed2d1462aaa",
+    "ppo_apg": "b94d155294700d0b283f655d846783022276dcf9290edcf6dd5c1b6b96154d2f",
+    "dqn_apg": "4002a0bdffcb70e967655d430a72a5d1f45a04918dacf247f0c87c78d7ebf94e",
 }
 
 
@@ -154,6 +154,30 @@ def load_model(path: str | Path, env: Any = None, algo: str | None = None, devic
     raise ValueError(f"could not load {str(p)!r} with any of {sorted(algos)}: " + "; ".join(errors))
 
 
+def world_mismatch(model_or_path: Any, env: Any) -> str | None:
+    """How the world a model was trained in (time step, kinematics, rotation range) differs from ``env``'s; None
+    when it does not, or when either is unknown (a model saved elsewhere, an env that is not a crowd env)."""
+    from sb3_crowdnav.serialization import WORLD_KEYS, read_world, world_of
+
+    policy = getattr(model_or_path, "policy", None)
+    if policy is not None:
+        trained = {key: getattr(policy, key) for key in WORLD_KEYS} if hasattr(policy, "kinematics") else None
+    elif isinstance(model_or_path, (str, Path)):
+        trained = read_world(model_or_path)
+    else:
+        trained = None
+    world = world_of(env)
+    if trained is None or world is None:
+        return None
+    diffs = [f"{key}={trained[key]!r} (the env has {world[key]!r})" for key in WORLD_KEYS
+             if not _same(trained[key], world[key])]
+    return f"the model was trained with {', '.join(diffs)}" if diffs else None
+
+
+def _same(a: Any, b: Any) -> bool:
+    return abs(a - b) <= 1e-9 * max(1.0, abs(b)) if isinstance(a, float) and isinstance(b, float) else a == b
+
+
 def available_pretrained() -> list[str]:
     """Names of the shipped models present in this installation."""
     return [name for name in PRETRAINED if (WEIGHTS_DIR / f"{name}.zip").exists()]
@@ -197,4 +221,5 @@ __all__ = [
     "pretrained",
     "pretrained_path",
     "resolve_model_path",
+    "world_mismatch",
 ]

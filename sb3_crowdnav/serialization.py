@@ -224,10 +224,41 @@ def space_from_dict(data: dict[str, Any]) -> spaces.Space:
     raise UnsafeModelFileError(f"unknown space type {kind!r}")
 
 
-def write_spaces(path: str | Path, observation_space: spaces.Space, action_space: spaces.Space) -> None:
-    """Add the plain description of the model's spaces to the saved ``.zip`` (member ``sb3_crowdnav.json``)."""
-    text = json.dumps({"observation_space": space_to_dict(observation_space),
-                       "action_space": space_to_dict(action_space)})
+WORLD_KEYS = ("time_step", "kinematics", "rotation_range")  # the physics a model must act in as it was trained
+
+
+def world_of(env: Any) -> dict[str, Any] | None:
+    """The :data:`WORLD_KEYS` of a crowd env (or VecEnv of them); None for another env."""
+    try:
+        scene = env.get_attr("scene")[0] if hasattr(env, "get_attr") else env.unwrapped.scene
+    except AttributeError:
+        return None
+    return {key: getattr(scene, key) for key in WORLD_KEYS}
+
+
+def read_world(path: str | Path) -> dict[str, Any] | None:
+    """The world a saved model was trained in: the member's ``world``, or an APGValue file's plain policy_kwargs."""
+    with zipfile.ZipFile(path) as archive:
+        if SPACES_MEMBER in archive.namelist():
+            world = json.loads(archive.read(SPACES_MEMBER)).get("world")
+            if world:
+                return world
+        data = json.loads(archive.read("data").decode("utf-8"))
+    kwargs = data.get("policy_kwargs")
+    if isinstance(kwargs, dict) and all(key in kwargs for key in WORLD_KEYS):
+        return {key: kwargs[key] for key in WORLD_KEYS}
+    return None
+
+
+def write_spaces(path: str | Path, observation_space: spaces.Space, action_space: spaces.Space,
+                 env: Any = None) -> None:
+    """Add the plain description of the model's spaces (and, given its crowd ``env``, of its world) to the saved
+    ``.zip`` (member ``sb3_crowdnav.json``)."""
+    content: dict[str, Any] = {"observation_space": space_to_dict(observation_space),
+                               "action_space": space_to_dict(action_space)}
+    if env is not None and (world := world_of(env)) is not None:
+        content["world"] = world
+    text = json.dumps(content)
     with zipfile.ZipFile(path, "a") as archive:
         if SPACES_MEMBER not in archive.namelist():
             archive.writestr(SPACES_MEMBER, text)
@@ -326,5 +357,15 @@ def safe_custom_objects(path: Any, env: Any = None) -> dict[str, Any]:
     return objects
 
 
-__all__ = ["SPACES_MEMBER", "UnsafeModelFileError", "decode", "safe_custom_objects", "space_from_dict",
-           "space_to_dict", "write_spaces"]
+__all__ = [
+    "SPACES_MEMBER",
+    "WORLD_KEYS",
+    "UnsafeModelFileError",
+    "decode",
+    "read_world",
+    "safe_custom_objects",
+    "space_from_dict",
+    "space_to_dict",
+    "world_of",
+    "write_spaces",
+]

@@ -306,13 +306,22 @@ def test_old_dict_buffer_is_wrapped_on_load(tmp_path):
     old = APGValue("ApgPolicy", "CrowdNav-v0", imitation_episodes=0, seed=0, replay_buffer_class=DictReplayBuffer,
                    learning_starts=100)
     old.learn(10)
-    old.save_replay_buffer(tmp_path / "rb")
-    model = APGValue("ApgPolicy", "CrowdNav-v0", imitation_episodes=0, seed=0, value_target="greedy_td", batch_size=8)
-    model.load_replay_buffer(tmp_path / "rb")
-    assert isinstance(model.replay_buffer, ValueReplayBuffer)
-    assert model.replay_buffer.greedy[:10].all() and np.isnan(model.replay_buffer.lookahead_target[:10]).all()
-    np.testing.assert_array_equal(model.replay_buffer.actions[:10], old.replay_buffer.actions[:10])
-    model.learn(10, reset_num_timesteps=False)
+    old.save_replay_buffer(tmp_path / "rb.npz")
+    from stable_baselines3.common.save_util import save_to_pkl
+
+    save_to_pkl(tmp_path / "rb.pkl", old.replay_buffer)  # as SB3 and earlier versions wrote it
+    for path, kw in ((tmp_path / "rb.npz", {}), (tmp_path / "rb.pkl", {"trusted": True})):
+        model = APGValue("ApgPolicy", "CrowdNav-v0", imitation_episodes=0, seed=0, value_target="greedy_td",
+                         batch_size=8)
+        model.load_replay_buffer(path, **kw)
+        assert isinstance(model.replay_buffer, ValueReplayBuffer) and model.replay_buffer.pos == old.replay_buffer.pos
+        assert model.replay_buffer.greedy[:10].all() and np.isnan(model.replay_buffer.lookahead_target[:10]).all()
+        np.testing.assert_array_equal(model.replay_buffer.actions[:10], old.replay_buffer.actions[:10])
+        model.learn(10, reset_num_timesteps=False)
+    from sb3_crowdnav.serialization import UnsafeModelFileError
+
+    with pytest.raises(UnsafeModelFileError, match="is a pickle"):  # never unpickled unless trusted
+        model.load_replay_buffer(tmp_path / "rb.pkl")
 
 
 # ---------------------------------------------------------------- bfloat16 lookahead

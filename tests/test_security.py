@@ -116,3 +116,27 @@ def test_every_shipped_model_loads_safely_without_an_env():
     for name in models.available_pretrained():
         model = pretrained(name)
         assert model.observation_space is not None
+
+
+@pytest.mark.parametrize(("option", "value", "name", "env_kwargs"), [
+    ("--kinematics", "holonomic", "kinematics", {"kinematics": "holonomic"}),
+    ("--env-kwargs", "dict(time_step=0.5)", "time_step", {"time_step": 0.5}),
+    ("--env-kwargs", "dict(rotation_range=1.5)", "rotation_range", {"rotation_range": 1.5}),
+])
+@pytest.mark.parametrize("policy", ["pretrained:apg_rl", "pretrained:ppo_apg"])
+def test_a_model_is_never_silently_evaluated_in_another_world(tmp_path, capsys, option, value, name, env_kwargs,
+                                                                policy):
+    for command in (["evaluate"], ["benchmark", "--out", str(tmp_path / "b"), "--no-gif"],
+                    ["render", "--out", str(tmp_path / "e.png")]):
+        with pytest.raises(SystemExit) as exc:
+            main([*command, "--policy", policy, option, value, "--episodes", "1"][: None if command[0] != "render"
+                                                                                   else -2])
+        err = capsys.readouterr().err
+        assert exc.value.code == 2 and f"trained with {name}=" in err and "--allow-env-mismatch" in err
+        assert len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "b").exists()  # refused before any work
+    assert main(["evaluate", "--policy", policy, option, value, "--episodes", "1", "--allow-env-mismatch"]) == 0
+    env = gym.make("CrowdNav-v0", **env_kwargs)
+    with pytest.raises(ValueError, match=f"trained with {name}="):
+        make_policy(policy, env)
+    assert make_policy(policy, env, allow_env_mismatch=True) is not None

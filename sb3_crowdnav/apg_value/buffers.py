@@ -127,9 +127,12 @@ def load_buffer(buffer: DictReplayBuffer, path: str | Path) -> None:
         targets.update({f"next_observations.{k}": v for k, v in buffer.next_observations.items()})
         targets.update({name: getattr(buffer, name) for name in (*_FIELDS, *_VALUE_FIELDS) if hasattr(buffer, name)})
         for name, target in targets.items():
-            if name not in saved or saved[name].shape != target.shape:
+            if name in _VALUE_FIELDS and name not in saved:  # a plain DictReplayBuffer's: all greedy, no targets
+                target[...] = True if name == "greedy" else np.nan
+            elif name not in saved or saved[name].shape != target.shape:
                 raise ValueError(f"{path}: array {name!r} is missing or of another shape than the model's buffer")
-            target[...] = saved[name]
+            else:
+                target[...] = saved[name]
         buffer.pos, buffer.full = int(saved["meta.pos"]), bool(saved["meta.full"])
         buffer.handle_timeout_termination = bool(saved["meta.handle_timeout_termination"])
 

@@ -28,6 +28,9 @@ def _run_options(p: argparse.ArgumentParser, default_episodes: int = 500) -> Non
     g.add_argument("--seed-offset", type=nonneg_int, default=TEST_SEED_OFFSET,
                    help="seed of the first test episode; episode i uses seed-offset + i (default: %(default)s)")
     g.add_argument("--stochastic", action="store_true", help="sample actions instead of acting deterministically")
+    g.add_argument("--allow-env-mismatch", action="store_true",
+                   help="evaluate a model in another world (time step, kinematics, rotation range) than it was trained "
+                        "for; refused otherwise")
 
 
 def add_parsers(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
@@ -63,12 +66,15 @@ def add_parsers(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
     p.add_argument("--out", type=Path, required=True, metavar="FILE", help="episode.gif, episode.mp4 or episode.png")
     p.add_argument("--fps", type=float, help="frames per second of an animation (default: real time, 1/Δt)")
     p.add_argument("--stochastic", action="store_true", help="sample actions instead of acting deterministically")
+    p.add_argument("--allow-env-mismatch", action="store_true",
+                   help="render a model in another world than it was trained for")
     p.set_defaults(func=_cmd_render)
 
 
 
 # ------------------------------------------------------------------ helpers
-def _check_policy(spec: str, env_id: str = "CrowdNav-v0", env_kwargs: dict[str, Any] | None = None) -> str:
+def _check_policy(spec: str, env_id: str = "CrowdNav-v0", env_kwargs: dict[str, Any] | None = None,
+                  allow_env_mismatch: bool = False) -> str:
     """The policy spec, checked before any episode runs: a shipped model's hash, a file's loadability without
     unpickling (with the env's spaces for a plain SB3 file)."""
     s = spec.strip()
@@ -78,9 +84,10 @@ def _check_policy(spec: str, env_id: str = "CrowdNav-v0", env_kwargs: dict[str, 
         from sb3_crowdnav.models import check_pretrained
 
         try:
-            check_pretrained(s.partition(":")[2])
+            path = check_pretrained(s.partition(":")[2])
         except ValueError as exc:
             raise UsageError(f"--policy: {exc}") from None
+        _check_world(path, env_id, env_kwargs, allow_env_mismatch)
         return s
     head, _, tail = s.partition(":")
     if head.lower() == "random":
@@ -106,7 +113,22 @@ def _check_policy(spec: str, env_id: str = "CrowdNav-v0", env_kwargs: dict[str, 
         raise UsageError(f"--policy: {exc}") from None
     finally:
         env.close()
+    _check_world(path, env_id, env_kwargs, allow_env_mismatch)
     return str(path)
+
+
+def _check_world(path: Path, env_id: str, env_kwargs: dict[str, Any] | None, allow: bool) -> None:
+    import gymnasium as gym
+
+    from sb3_crowdnav.models import world_mismatch
+
+    env = gym.make(env_id, **(env_kwargs or {}))
+    try:
+        mismatch = world_mismatch(path, env)
+    finally:
+        env.close()
+    if mismatch and not allow:
+        raise UsageError(f"--policy {path.name}: {mismatch}; pass --allow-env-mismatch to evaluate it there anyway")
 
 
 def _labels(specs: list[str]) -> list[str]:
@@ -133,6 +155,7 @@ def _run(args: argparse.Namespace, spec: str, env_kwargs: dict[str, Any], **kwar
     from sb3_crowdnav.evaluation.runner import run_episodes
 
     return run_episodes(spec, args.episodes, env_kwargs, env_id=args.env, seed_offset=args.seed_offset,
+                        allow_env_mismatch=args.allow_env_mismatch,
                         workers=args.workers, deterministic=not args.stochastic, progress=progress_enabled(args),
                         torch_threads=args.threads, **kwargs)
 
@@ -153,7 +176,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
 
     env_kwargs = env_kwargs_from_args(args)
     check_env(args.env, env_kwargs)
-    spec = _check_policy(args.policy, args.env, env_kwargs)
+    spec = _check_policy(args.policy, args.env, env_kwargs, args.allow_env_mismatch)
     label = _labels([spec])[0]
     start = time.perf_counter()
     records = _run(args, spec, env_kwargs)
@@ -172,6 +195,7 @@ def _figure_episodes(args, specs, labels, env_kwargs, seed):
     from sb3_crowdnav.evaluation.runner import run_episodes
 
     return {label: run_episodes(spec, seeds=[seed], env_kwargs=env_kwargs, env_id=args.env,
+                                allow_env_mismatch=args.allow_env_mismatch,
                                 deterministic=not args.stochastic, keep_trajectories=True,
                                 torch_threads=args.threads)[0]
             for spec, label in zip(specs, labels, strict=True)}
@@ -186,7 +210,7 @@ def _value_map(args, spec: str, label: str, env_kwargs: dict[str, Any], seed: in
 
     env = make_env(args.env, env_kwargs)
     try:
-        model = make_policy(spec, env)
+        model = make_policy(spec, env, args.allow_env_mismatch)
         if not hasattr(getattr(model, "policy", None), "action_values"):
             return None
         obs, _ = env.reset(seed=seed)
@@ -211,7 +235,7 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
 
     env_kwargs = env_kwargs_from_args(args)
     check_env(args.env, env_kwargs)
-    specs = [_check_policy(p, args.env, env_kwargs) for p in args.policy]
+    specs = [_check_policy(p, args.env, env_kwargs, args.allow_env_mismatch) for p in args.policy]
     labels = _labels(specs)
     if args.sweep and max(args.sweep) > 0 and "num_humans" in env_kwargs:
         print("note: --sweep sets the number of pedestrians; --humans applies to the main table only", file=sys.stderr)
@@ -245,6 +269,7 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
     if args.sweep:
         idx = next((i for i, s in enumerate(specs) if _is_model(s)), 0)
         sweep = run_sweep(specs[idx], args.sweep, args.episodes, env_kwargs, env_id=args.env,
+                          allow_env_mismatch=args.allow_env_mismatch,
                           seed_offset=args.seed_offset, workers=args.workers, deterministic=not args.stochastic,
                           progress=progress_enabled(args), torch_threads=args.threads)
         stable = sweep_table({n: summarize(r) for n, r in sweep.items()})
@@ -270,9 +295,10 @@ def _cmd_render(args: argparse.Namespace) -> int:
         raise UsageError(f"--fps must be > 0, got {args.fps}")
     env_kwargs = env_kwargs_from_args(args)
     check_env(args.env, env_kwargs)
-    spec = _check_policy(args.policy, args.env, env_kwargs)
+    spec = _check_policy(args.policy, args.env, env_kwargs, args.allow_env_mismatch)
     label = _labels([spec])[0]
     record = run_episodes(spec, seeds=[args.seed], env_kwargs=env_kwargs, env_id=args.env,
+                          allow_env_mismatch=args.allow_env_mismatch,
                           deterministic=not args.stochastic, keep_trajectories=True, torch_threads=args.threads)[0]
     if suffix == ".png":
         plot_trajectories({label: record}, args.out, title=f"seed {args.seed}")

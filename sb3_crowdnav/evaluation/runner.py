@@ -173,18 +173,21 @@ def policy_label(spec: Any) -> str:
     return Path(s).stem
 
 
-def make_policy(spec: Any, env: gym.Env | None = None) -> Any:
+def make_policy(spec: Any, env: gym.Env | None = None, allow_env_mismatch: bool = False) -> Any:
     """Turn a spec into an object with ``predict``; objects with ``predict`` pass through.
 
     ``"orca"`` → :class:`~sb3_crowdnav.sim.orca.OrcaPolicy` built from ``env`` (nearest-action
     mapping, the paper's ORCA row); ``"orca-constrained"`` → the same with the constrained mapping;
     ``"random"`` or ``"random:SEED"`` → :class:`RandomPolicy`; ``"pretrained:NAME"`` → a model
     shipped with the package (:func:`sb3_crowdnav.pretrained`); any other string → a saved model
-    loaded with :func:`~sb3_crowdnav.models.load_model`.
+    loaded with :func:`~sb3_crowdnav.models.load_model`. A model trained in another world than ``env`` (time step,
+    kinematics, rotation range) is refused unless ``allow_env_mismatch``.
     """
     if not isinstance(spec, (str, Path)):
         if not hasattr(spec, "predict"):
             raise TypeError(f"a policy must have predict(observation, deterministic=...), got {type(spec).__name__}")
+        if env is not None and not allow_env_mismatch:
+            check_world(spec, env)
         return spec
     s = str(spec)
     if s.lower() in ("orca", "orca-constrained"):
@@ -208,7 +211,19 @@ def make_policy(spec: Any, env: gym.Env | None = None) -> Any:
     model = load_model(s, spaces_from=env)
     if env is not None:
         check_spaces(model, env, s)
+        if not allow_env_mismatch:
+            check_world(s, env)
     return model
+
+
+def check_world(model_or_path: Any, env: gym.Env) -> None:
+    """``ValueError`` when a model was trained in another world (time step, kinematics, rotation range) than ``env``."""
+    from sb3_crowdnav.models import world_mismatch
+
+    mismatch = world_mismatch(model_or_path, env)
+    if mismatch:
+        raise ValueError(f"{mismatch}; evaluate it in the world it was trained for, or pass allow_env_mismatch=True "
+                         "(--allow-env-mismatch) to do so on purpose")
 
 
 def check_spaces(model: Any, env: gym.Env, name: str = "the model") -> None:
@@ -289,7 +304,7 @@ def _init_worker(spec: PolicySpec, env_id: str, env_kwargs: dict[str, Any], torc
     _set_torch_threads(torch_threads)
     env = make_env(env_id, env_kwargs)
     _WORKER["env"] = env
-    _WORKER["policy"] = make_policy(spec, env)
+    _WORKER["policy"] = make_policy(spec, env, allow_env_mismatch=True)  # the parent checked it
     _set_torch_threads(torch_threads)
 
 
@@ -317,6 +332,7 @@ def run_episodes(
     progress: bool = False,
     desc: str | None = None,
     torch_threads: int | None = 1,
+    allow_env_mismatch: bool = False,
 ) -> list[EpisodeRecord]:
     """Evaluate ``policy`` on test episodes and return one :class:`EpisodeRecord` per episode, in seed order.
 
@@ -329,6 +345,7 @@ def run_episodes(
     :param keep_trajectories: attach the full :class:`Trajectory` to every record
     :param progress: show a tqdm progress bar
     :param torch_threads: torch threads in each worker (``None``: leave as is)
+    :param allow_env_mismatch: evaluate a model in another world than it was trained for (see :func:`make_policy`)
     """
     if seeds is None:
         if n_episodes is None or isinstance(n_episodes, bool) or int(n_episodes) < 1:
@@ -344,7 +361,7 @@ def run_episodes(
         if workers == 1:
             env = make_env(env_id, env_kwargs)
             try:
-                pol = make_policy(policy, env)
+                pol = make_policy(policy, env, allow_env_mismatch)
                 records = []
                 for s in seeds:
                     records.append(run_episode(env, pol, s, deterministic, keep_trajectories))
@@ -358,7 +375,7 @@ def run_episodes(
         # fail here, not in the workers: a Pool restarts workers whose initializer raises, forever
         env = make_env(env_id, env_kwargs)
         try:
-            make_policy(str(policy), env)
+            make_policy(str(policy), env, allow_env_mismatch)
         finally:
             env.close()
         ctx = mp.get_context("spawn")

@@ -269,7 +269,7 @@ def train_from_hyperparams(algo: str, hyperparams: Mapping[str, Any], out_dir: s
     model.save(model_path)
     from sb3_crowdnav.serialization import write_spaces
 
-    write_spaces(model_path, model.observation_space, model.action_space)  # loads later without unpickling
+    write_spaces(model_path, model.observation_space, model.action_space, env)  # loads later without unpickling
     env.close()
     return model, model_path
 
