@@ -188,3 +188,14 @@ def test_model_with_other_capacity_is_refused(tmp_path):
         run_episodes(str(tmp_path / "m.zip"), 1, {**FAST, "max_humans": 5})
     with pytest.raises(ValueError, match="max_humans"):  # checked before any worker starts
         run_episodes(str(tmp_path / "m.zip"), 2, {**FAST, "max_humans": 5}, workers=2)
+
+
+@pytest.mark.parametrize("spec", ["pretrained:apg_rl", "pretrained:ppo_apg"])
+def test_stochastic_evaluation_is_the_same_with_one_or_two_workers(spec):
+    """Each episode's sampled actions are seeded from its episode seed: the split across processes does not matter."""
+    kwargs = dict(seeds=[1_000_000, 1_000_001, 1_000_002, 1_000_003], deterministic=False, env_kwargs={"num_humans": 3})
+    one = run_episodes(spec, workers=1, **kwargs)
+    two = run_episodes(spec, workers=2, **kwargs)
+    assert one == two
+    again = run_episodes(spec, workers=1, **{**kwargs, "seeds": kwargs["seeds"][::-1]})
+    assert one == again[::-1]  # nor does their order

@@ -176,18 +176,20 @@ class APGValue(OffPolicyAlgorithm):
         given_gamma = self.policy_kwargs.setdefault("gamma", self.gamma)
         if given_gamma != self.gamma:
             raise ValueError(f"policy_kwargs['gamma'] = {given_gamma!r} differs from the algorithm's gamma = {self.gamma!r}")
-        super()._setup_model()
-        self._explore_rng = np.random.default_rng(self.seed)
+        super()._setup_model()  # seeds the ε draws too (set_random_seed)
         self._rollout_stats = RolloutStats(self._stats_window_size)
         self._overlap: OverlappingLearner | None = None  # inside learn() with overlap_training; never saved
+
+    def set_random_seed(self, seed: int | None = None) -> None:
+        super().set_random_seed(seed)
+        self._explore_rng = np.random.default_rng(seed)  # the ε draws of predict(deterministic=False)
 
     def set_env(self, env: GymEnv, force_reset: bool = True) -> None:
         super().set_env(env, force_reset)
         check_env_compatible(self.env)
 
     # ------------------------------------------------------------------ acting
-    def _update_exploration(self) -> None:
-        # not SB3's get_linear_fn: that is a function of the remaining step budget; the paper decays ε by episodes
+    def _update_exploration(self) -> None:  # by episodes (the paper), not SB3's get_linear_fn of the steps left
         frac = min(1.0, self._episode_num / self.exploration_episodes)
         start, end = self.exploration_initial_eps, self.exploration_final_eps
         self.exploration_rate = start + frac * (end - start)
@@ -368,7 +370,7 @@ class APGValue(OffPolicyAlgorithm):
         self._rollout_stats.update(infos)  # the crowd's rollout/* scalars
 
     def dump_logs(self) -> None:
-        self._rollout_stats.record(self.logger)
+        self._rollout_stats.record(self.logger)  # then SB3's own
         super().dump_logs()
 
     def save(self, path, exclude=None, include=None) -> None:

@@ -7,8 +7,8 @@ Episode ``i`` of an evaluation is ``env.reset(seed=TEST_SEED_OFFSET + i)`` with
 --seed s``) uses small seeds ``s, s + 1, ...`` for its envs, so the test episodes are disjoint from
 the episodes a model was trained on. An episode depends only on its seed (the env is seeded
 through ``reset(seed=...)`` and a stochastic policy is re-seeded per episode through
-:meth:`RandomPolicy.seed_episode`), so records do not depend on the order of the episodes or on
-how they are split across worker processes.
+:meth:`RandomPolicy.seed_episode`, or an SB3 model through its ``set_random_seed``), so records do
+not depend on the order of the episodes or on how they are split across worker processes.
 
 Policies are given either as an object with ``predict`` (one process) or as a picklable **spec**
 (any number of processes): ``"orca"``, ``"random"`` / ``"random:SEED"``, or the path of a saved
@@ -258,6 +258,8 @@ def run_episode(env: gym.Env, policy: Any, seed: int, deterministic: bool = True
     obs, _ = env.reset(seed=int(seed))
     if hasattr(policy, "seed_episode"):
         policy.seed_episode(int(seed))
+    elif not deterministic and hasattr(policy, "set_random_seed"):  # an SB3 model sampling its actions
+        policy.set_random_seed(int(seed))  # torch, numpy, its action space (and APGValue's ε draws)
     state, episode_start = None, np.ones((1,), dtype=bool)
     total, steps = 0.0, 0
     while True:
