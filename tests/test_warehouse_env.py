@@ -140,7 +140,8 @@ def test_the_example_layout_file_drives():
 
 
 @pytest.mark.parametrize(("kwargs", "message"), [
-    ({"num_humans": 200, "max_humans": 200}, "num_humans: at most"),
+    ({"num_humans": 100, "max_humans": 100}, "num_humans: at most"),
+    ({"num_humans": 200, "max_humans": 200}, "max_humans must be <= 100"),
     ({"layout_ranges": {"aisle_width": (0.5, 0.6)}}, "narrower than the robot's diameter"),
     ({"layout": {"width": 8, "height": 8, "racks": [{"rect": [-4, -0.5, 4, 0.5]}]}}, "split into 2 parts"),
     ({"min_route_distance": 100.0}, "min_route_distance: 100.0 m does not fit"),

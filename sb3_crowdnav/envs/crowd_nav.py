@@ -105,6 +105,8 @@ class CrowdNavEnv(gym.Env):
                  **kwargs: Any) -> None:
         scene_kwargs, reward_kwargs = split_env_kwargs(kwargs)
         self._configure(render_mode, reward, gamma, scene_kwargs, reward_kwargs)
+        if self.scene.scenario == "warehouse":
+            raise ValueError("scenario 'warehouse' is CrowdNavWarehouse-v0's: gym.make('CrowdNavWarehouse-v0')")
         self.sim = CrowdSimulator(self.scene, self.reward_config)
         s = self.scene
         half = max(s.circle_radius + s.start_noise, s.square_width / 2)
@@ -189,6 +191,8 @@ class CrowdNavEnv(gym.Env):
 
     # ------------------------------------------------------------------ API
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        if options:
+            raise ValueError(f"reset options {sorted(options)} are not supported (the scene is set at construction)")
         super().reset(seed=seed)
         self.sim.reset(self.np_random)
         self._reset_stats()

@@ -95,6 +95,8 @@ class CrowdNavWarehouseEnv(CrowdNavEnv):
                  **kwargs: Any) -> None:
         warehouse = {k: kwargs.pop(k) for k in list(kwargs) if k in WAREHOUSE_KEYS}
         scene_kwargs, reward_kwargs = split_env_kwargs(kwargs)
+        if scene_kwargs.setdefault("scenario", "warehouse") != "warehouse":
+            raise ValueError(f"scenario must be 'warehouse' in CrowdNavWarehouse-v0, got {scene_kwargs['scenario']!r}")
         self._configure(render_mode, reward, gamma, scene_kwargs, reward_kwargs)
         layout = warehouse.get("layout")
         if isinstance(layout, str) or hasattr(layout, "__fspath__"):

@@ -11,7 +11,23 @@ from dataclasses import dataclass, fields
 from numbers import Integral, Real
 from typing import Any, Literal
 
-SCENARIOS = ("circle_crossing", "square_crossing")
+import numpy as np
+
+SCENARIOS = ("circle_crossing", "square_crossing", "warehouse")  # "warehouse": CrowdNavWarehouse-v0 only
+MAX_EPISODE_STEPS = 10_000
+# sensible upper bounds (name, limit, unit): beyond them the physics, the observation bounds or the rewards overflow
+SCENE_LIMITS = (
+    ("max_humans", 100, ""), ("history_length", 50, ""), ("time_step", 2.0, " s"), ("time_limit", 3600.0, " s"),
+    ("robot_radius", 2.0, " m"), ("human_radius", 2.0, " m"), ("robot_v_pref", 10.0, " m/s"),
+    ("human_v_pref", 10.0, " m/s"), ("circle_radius", 100.0, " m"), ("square_width", 200.0, " m"),
+    ("start_noise", 10.0, " m"), ("orca_neighbor_dist", 100.0, " m"), ("orca_max_neighbors", 100, ""),
+    ("orca_time_horizon", 100.0, " s"), ("orca_time_horizon_obst", 100.0, " s"),
+)
+REWARD_LIMITS = (  # on the absolute value
+    ("success_reward", 100.0, ""), ("collision_penalty", 100.0, ""), ("discomfort_dist", 5.0, " m"),
+    ("discomfort_factor", 100.0, ""), ("comfort_person", 10.0, " m"), ("comfort_side", 10.0, " m"),
+    ("social_penalty", 100.0, ""), ("angular_penalty", 100.0, ""), ("angular_penalty_threshold", math.pi, " rad"),
+)
 KINEMATICS = ("unicycle", "holonomic")
 HUMAN_POLICIES = ("orca", "linear")
 REWARDS = ("crowdnav", "comfort", "comfort_angular")
@@ -36,10 +52,26 @@ def check_int(name: str, value: Any, minimum: int) -> None:
         raise ValueError(f"{name} must be >= {minimum}, got {value!r}")
 
 
+def check_at_most(name: str, value: Any, limit: float, unit: str = "") -> None:
+    """``ValueError`` when ``value`` exceeds its sensible upper ``limit`` (the bounds table of the docs)."""
+    if value > limit:
+        raise ValueError(f"{name} must be <= {limit}{unit}, got {value!r}")
+
+
 def check_choice(name: str, value: Any, choices: tuple[str, ...]) -> None:
     """``ValueError`` naming the allowed ``choices`` when ``value`` is not one of them."""
     if value not in choices:
         raise ValueError(f"{name} must be one of {choices}, got {value!r}")
+
+
+def _to_python_scalars(config: Any) -> None:
+    """Replace NumPy scalars (accepted like Python's) by Python ones in a frozen dataclass: plain reprs and JSON."""
+    for f in fields(config):
+        value = getattr(config, f.name)
+        if isinstance(value, np.generic):
+            object.__setattr__(config, f.name, value.item())
+        elif isinstance(value, (tuple, list)) and any(isinstance(v, np.generic) for v in value):
+            object.__setattr__(config, f.name, type(value)(v.item() if isinstance(v, np.generic) else v for v in value))
 
 
 def check_unknown_keys(cls: type, kwargs: dict[str, Any]) -> None:
@@ -90,7 +122,7 @@ class SceneConfig:
     human_radius: float = 0.3
     human_v_pref: float = 1.0
     robot_visible: bool = False
-    scenario: Literal["circle_crossing", "square_crossing"] = "circle_crossing"
+    scenario: Literal["circle_crossing", "square_crossing", "warehouse"] = "circle_crossing"
     circle_radius: float = 4.0
     start_noise: float = 0.5
     human_policy: Literal["orca", "linear"] = "orca"
@@ -119,13 +151,44 @@ class SceneConfig:
             raise ValueError(f"rotation_range must be in (0, 2π], got {self.rotation_range!r}")
         if self.time_step > self.time_limit:
             raise ValueError(f"time_step ({self.time_step}) must not exceed time_limit ({self.time_limit})")
-        if not isinstance(self.robot_visible, bool):
+        if not isinstance(self.robot_visible, (bool, np.bool_)):
             raise TypeError(f"robot_visible must be a bool, got {self.robot_visible!r}")
+        _to_python_scalars(self)
         check_choice("scenario", self.scenario, SCENARIOS)
         check_choice("kinematics", self.kinematics, KINEMATICS)
         check_choice("human_policy", self.human_policy, HUMAN_POLICIES)
         check_int("history_length", self.history_length, 1)
         check_int("orca_max_neighbors", self.orca_max_neighbors, 1)
+        for name, limit, unit in SCENE_LIMITS:
+            check_at_most(name, getattr(self, name), limit, unit)
+        if self.max_steps > MAX_EPISODE_STEPS:
+            raise ValueError(f"time_limit / time_step must be <= {MAX_EPISODE_STEPS} steps per episode, got "
+                             f"{self.time_limit} / {self.time_step} = {self.max_steps}")
+        self._check_placement()
+
+    def _check_placement(self) -> None:
+        """``ValueError`` unless the largest crowd can be placed (starts and goals apart) with room to spare.
+
+        The scenario draws starts at random and redraws on overlap; random sequential placement fills about
+        75 % of a line (and 55 % of an area) before it jams, so at most 60 % of the circle's capacity
+        (30 % of the square's) is accepted: a reset then never fails in practice.
+        """
+        _, n = self.humans_range
+        if n == 0 or self.scenario == "warehouse":  # the warehouse checks its own pick faces
+            return
+        gap = 2 * self.human_radius + 0.2  # two pedestrians' starts (or goals) at least this far apart
+        robot_gap = self.robot_radius + self.human_radius + 0.2
+        if self.scenario == "circle_crossing":
+            room = 2 * math.pi * self.circle_radius - 4 * robot_gap
+            capacity = int(0.6 * room / gap) if room > 0 else 0
+            where = f"the {self.circle_radius} m circle"
+        else:
+            capacity = int(0.3 * self.square_width**2 / gap**2)
+            where = f"the {self.square_width} m square"
+        if n > capacity:
+            raise ValueError(f"num_humans: {n} pedestrians of radius {self.human_radius} m cannot be placed reliably on "
+                             f"{where} beside a robot of radius {self.robot_radius} m (at most {capacity}); lower "
+                             "num_humans or the radii, or enlarge the scene")
 
     @property
     def humans_range(self) -> tuple[int, int]:
@@ -180,6 +243,9 @@ class RewardConfig:
             check_number(name, getattr(self, name), allow_zero=True)
         for name in ("comfort_person", "comfort_side", "angular_penalty_threshold"):
             check_number(name, getattr(self, name))
+        for name, limit, unit in REWARD_LIMITS:
+            check_at_most(name, abs(getattr(self, name)), limit, unit)
+        _to_python_scalars(self)
 
     @property
     def uses_social(self) -> bool:

@@ -1,0 +1,104 @@
+"""What an evaluation episode leaves: its :class:`EpisodeRecord` and, on request, its :class:`Trajectory`."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields
+from typing import Any
+
+import numpy as np
+
+from sb3_crowdnav.sim.config import SceneConfig
+
+
+@dataclass(frozen=True, eq=False)
+class Trajectory:
+    """The states of one episode (``env.unwrapped.trajectory`` as arrays).
+
+    :param robot: (steps + 1, 9) robot states [px, py, vx, vy, radius, gx, gy, v_pref, heading]
+    :param humans: (steps + 1, n_humans, 5) pedestrian states [px, py, vx, vy, radius]
+    :param human_goals: (n_humans, 2) [m]
+    :param scene: the env's scene configuration (time step, geometry)
+    :param obstacles: the static obstacles (racks, walls) as (k, 2) vertex arrays; empty on the open floor
+    """
+
+    robot: np.ndarray
+    humans: np.ndarray
+    human_goals: np.ndarray
+    scene: SceneConfig
+    obstacles: tuple[np.ndarray, ...] = ()
+
+    @property
+    def times(self) -> np.ndarray:
+        """Time [s] of each state, (steps + 1,)."""
+        return np.arange(len(self.robot)) * self.scene.time_step
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Trajectory):
+            return NotImplemented
+        return (self.scene == other.scene and np.array_equal(self.robot, other.robot)
+                and np.array_equal(self.humans, other.humans)
+                and np.array_equal(self.human_goals, other.human_goals, equal_nan=True)
+                and len(self.obstacles) == len(other.obstacles)
+                and all(np.array_equal(a, b) for a, b in zip(self.obstacles, other.obstacles, strict=True)))
+
+    __hash__ = None  # type: ignore[assignment]
+
+
+@dataclass(frozen=True)
+class EpisodeRecord:
+    """One evaluation episode (units: s, m, rad).
+
+    ``episode_return`` is the undiscounted sum of rewards; ``discounted_return`` is
+    Σ_t gamma^(t·Δt·v_pref)·r_t as computed by the env (the "return" of the paper's Table 3).
+    ``min_separation`` is the smallest surface distance to any pedestrian (``inf`` without
+    pedestrians, ≤ 0 after a collision); ``discomfort_frequency`` the share of this episode's
+    steps with a pedestrian closer than the discomfort distance (0.2 m).
+    ``discomfort_separation`` and ``comfort_zone_separation`` are the mean over this episode's
+    discomfort steps, respectively its steps inside a pedestrian's comfort ellipse, of the
+    step's minimum surface distance to any pedestrian (``nan`` when there is no such step); the
+    first is the field's "average min separate distance in danger". ``sharp_turns`` counts the
+    steps whose heading change reaches the env's ``angular_penalty_threshold`` (π/2 by default; the
+    turns Eq. 13 penalises), whatever reward the episode ran under.
+    """
+
+    seed: int
+    outcome: str
+    steps: int
+    navigation_time: float
+    path_length: float
+    episode_return: float
+    discounted_return: float
+    min_separation: float
+    discomfort_frequency: float
+    comfort_zone_time: float
+    heading_change: float
+    num_humans: int
+    discomfort_separation: float = math.nan
+    comfort_zone_separation: float = math.nan
+    sharp_turns: int = 0
+    collision_with: str = ""  # "human" or "obstacle" (a rack or wall, in the warehouse) after a collision
+    route_length: float = math.nan  # [m] the warehouse robot's planned route from start to goal
+    trajectory: Trajectory | None = field(default=None, repr=False)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The scalar fields (no trajectory), e.g. for a CSV row."""
+        return {f.name: getattr(self, f.name) for f in fields(self) if f.name != "trajectory"}
+
+    def __eq__(self, other: object) -> bool:
+        """Field by field, with ``nan == nan`` (an episode without discomfort steps has a ``nan`` separation)."""
+        if not isinstance(other, EpisodeRecord):
+            return NotImplemented
+        return all(_same(getattr(self, f.name), getattr(other, f.name)) for f in fields(self))
+
+
+def _same(a: Any, b: Any) -> bool:
+    if isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b):
+        return True
+    return bool(a == b)
+
+
+RECORD_FIELDS = tuple(f.name for f in fields(EpisodeRecord) if f.name != "trajectory")
+
+
+__all__ = ["RECORD_FIELDS", "EpisodeRecord", "Trajectory"]
