@@ -24,6 +24,7 @@ def build_parser() -> argparse.ArgumentParser:
                     formatter_class=argparse.RawDescriptionHelpFormatter,
                     epilog="Run 'sb3-crowdnav <command> --help' for the options of a command.")
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    parser.add_argument("--debug", action="store_true", help="show the Python traceback of an error")
     sub = parser.add_subparsers(dest="command", metavar="command", required=True)
     parents = [common_options(), env_options()]
     evaluate.add_parsers(sub, parents)
@@ -45,6 +46,13 @@ def main(argv: list[str] | None = None) -> int:
         parser.exit(2, f"sb3-crowdnav {args.command}: error: {exc}\n")
     except KeyboardInterrupt:
         parser.exit(130, "interrupted\n")
+    except Exception as exc:  # one line, not a traceback (unless --debug)
+        if args.debug:
+            raise
+        user_error = isinstance(exc, (ValueError, TypeError, OSError, RuntimeError))
+        message = " ".join(str(exc).split()) or type(exc).__name__
+        parser.exit(2 if user_error else 1, f"sb3-crowdnav {args.command}: error: {type(exc).__name__}: {message} "
+                                           "(--debug shows the traceback)\n")
 
 
 __all__ = ["UsageError", "build_parser", "main"]

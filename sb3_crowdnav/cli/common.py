@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
+from pathlib import Path
 from typing import Any, NoReturn
 
 from sb3_crowdnav.evaluation.runner import DEFAULT_ENV_ID
@@ -78,7 +80,8 @@ def env_kwargs_from_args(args: argparse.Namespace) -> dict[str, Any]:
         try:
             extra = safe_eval(args.env_kwargs, {"dict": dict})
         except ValueError as exc:
-            raise UsageError(f"--env-kwargs: {exc}") from None
+            raise UsageError(f"--env-kwargs: {exc} (write a mapping as \"dict(time_limit=30)\" or "
+                             "\"{'time_limit': 30}\")") from None
         if not isinstance(extra, dict):
             raise UsageError(f"--env-kwargs must be a dict, got {args.env_kwargs!r}")
         kwargs.update(extra)
@@ -92,15 +95,40 @@ def env_kwargs_from_args(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def check_env(env_id: str, kwargs: dict[str, Any]) -> None:
+    """The env can be made with these options, and it is one of this package's crowd envs."""
     import gymnasium as gym
 
     import sb3_crowdnav  # noqa: F401  (registers the envs)
 
     try:
-        gym.make(env_id, **kwargs).close()
+        env = gym.make(env_id, **kwargs)
     except gym.error.Error as exc:
         raise UsageError(f"--env: {exc}") from None
     except (TypeError, ValueError) as exc:
         raise UsageError(f"bad environment options: {exc}") from None
+    crowd = hasattr(env.unwrapped, "scene")
+    env.close()
+    if not crowd:
+        from sb3_crowdnav import ENV_IDS, WAREHOUSE_ENV_IDS
+
+        raise UsageError(f"--env {env_id} is not a crowd-navigation env; use one of "
+                         f"{', '.join([*ENV_IDS, *WAREHOUSE_ENV_IDS])}")
+
+
+def check_out(path: Path, option: str = "--out", is_file: bool = False) -> None:
+    """``option`` can be written: its folder (or, for a file, the file's folder) exists or can be made, and is
+    writable; found before any work, not after an hour of it."""
+    folder = path.parent if is_file else path
+    if is_file and path.is_dir():
+        raise UsageError(f"{option} {str(path)!r} is a folder; give a file name")
+    if folder.exists() and not folder.is_dir():
+        raise UsageError(f"{option} {str(folder)!r} is a file, not a folder")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        probe = folder / f".sb3_crowdnav_write_test_{os.getpid()}"
+        probe.write_text("")
+        probe.unlink()
+    except OSError as exc:
+        raise UsageError(f"{option} {str(folder)!r} cannot be written: {exc.strerror or exc}") from None
 
 

@@ -12,6 +12,7 @@ from typing import Any
 from sb3_crowdnav.cli.common import (
     UsageError,
     check_env,
+    check_out,
     env_kwargs_from_args,
     nonneg_int,
     positive_int,
@@ -80,6 +81,8 @@ def _check_policy(spec: str, env_id: str = "CrowdNav-v0", env_kwargs: dict[str, 
     s = spec.strip()
     if s.lower() in ("orca", "orca-constrained"):
         return s.lower()
+    import gymnasium as gym
+
     if s.lower().startswith("pretrained:"):
         from sb3_crowdnav.models import check_pretrained
 
@@ -88,11 +91,18 @@ def _check_policy(spec: str, env_id: str = "CrowdNav-v0", env_kwargs: dict[str, 
         except ValueError as exc:
             raise UsageError(f"--policy: {exc}") from None
         _check_world(path, env_id, env_kwargs, allow_env_mismatch)
+        from sb3_crowdnav.serialization import safe_custom_objects
+
+        env = gym.make(env_id, **(env_kwargs or {}))
+        try:
+            _check_shapes(path, safe_custom_objects(path).get("observation_space"), env.observation_space)
+        finally:
+            env.close()
         return s
     head, _, tail = s.partition(":")
     if head.lower() == "random":
-        if tail and not tail.lstrip("-").isdigit():
-            raise UsageError(f"--policy: a random policy is 'random' or 'random:SEED', got {spec!r}")
+        if tail and not tail.isdigit():
+            raise UsageError(f"--policy: a random policy is 'random' or 'random:SEED' with SEED >= 0, got {spec!r}")
         return s.lower()
     from sb3_crowdnav.models import detect_algorithm, resolve_model_path
     from sb3_crowdnav.serialization import UnsafeModelFileError, safe_custom_objects
@@ -104,17 +114,25 @@ def _check_policy(spec: str, env_id: str = "CrowdNav-v0", env_kwargs: dict[str, 
         raise UsageError(
             f"--policy {spec!r}: expected orca, orca-constrained, random[:SEED], pretrained:NAME or a saved model .zip ({exc})"
         ) from None
-    import gymnasium as gym
-
     env = gym.make(env_id, **(env_kwargs or {}))
     try:
-        safe_custom_objects(path, env)
+        objects = safe_custom_objects(path, env)
+        _check_shapes(path, objects.get("observation_space"), env.observation_space)
     except UnsafeModelFileError as exc:
         raise UsageError(f"--policy: {exc}") from None
     finally:
         env.close()
     _check_world(path, env_id, env_kwargs, allow_env_mismatch)
     return str(path)
+
+
+def _check_shapes(path: Path, model_space: Any, env_space: Any) -> None:
+    """The model's observation shapes are the env's (another ``max_humans``, another env)."""
+    shapes = {k: v.shape for k, v in getattr(model_space, "spaces", {}).items()}
+    env_shapes = {k: v.shape for k, v in getattr(env_space, "spaces", {}).items()}
+    if shapes and shapes != env_shapes:
+        raise UsageError(f"--policy {path.name} was trained on observations {shapes}, the env gives {env_shapes}; "
+                         "use the env, --max-humans and history length it was trained with")
 
 
 def _check_world(path: Path, env_id: str, env_kwargs: dict[str, Any] | None, allow: bool) -> None:
@@ -177,6 +195,8 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     env_kwargs = env_kwargs_from_args(args)
     check_env(args.env, env_kwargs)
     spec = _check_policy(args.policy, args.env, env_kwargs, args.allow_env_mismatch)
+    if args.out is not None:
+        check_out(args.out)
     label = _labels([spec])[0]
     start = time.perf_counter()
     records = _run(args, spec, env_kwargs)
@@ -236,6 +256,12 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
     env_kwargs = env_kwargs_from_args(args)
     check_env(args.env, env_kwargs)
     specs = [_check_policy(p, args.env, env_kwargs, args.allow_env_mismatch) for p in args.policy]
+    for n in args.sweep or ():  # every crowd of the sweep can be made
+        try:
+            check_env(args.env, {**env_kwargs, "num_humans": n, "max_humans": max(max(args.sweep), 1)})
+        except UsageError as exc:
+            raise UsageError(f"--sweep {n}: {exc}") from None
+    check_out(args.out)
     labels = _labels(specs)
     if args.sweep and max(args.sweep) > 0 and "num_humans" in env_kwargs:
         print("note: --sweep sets the number of pedestrians; --humans applies to the main table only", file=sys.stderr)
@@ -291,11 +317,12 @@ def _cmd_render(args: argparse.Namespace) -> int:
         raise UsageError(f"--out must end in .gif, .mp4 or .png, got {str(args.out)!r}")
     if suffix == ".mp4" and not ffmpeg_available():
         raise UsageError("--out .mp4 needs ffmpeg through imageio-ffmpeg (pip install imageio-ffmpeg); or write a .gif")
-    if args.fps is not None and not args.fps > 0:
-        raise UsageError(f"--fps must be > 0, got {args.fps}")
+    if args.fps is not None and not 0.1 <= args.fps <= 60:
+        raise UsageError(f"--fps must be in [0.1, 60] frames per second, got {args.fps}")
     env_kwargs = env_kwargs_from_args(args)
     check_env(args.env, env_kwargs)
     spec = _check_policy(args.policy, args.env, env_kwargs, args.allow_env_mismatch)
+    check_out(args.out, is_file=True)
     label = _labels([spec])[0]
     record = run_episodes(spec, seeds=[args.seed], env_kwargs=env_kwargs, env_id=args.env,
                           allow_env_mismatch=args.allow_env_mismatch,

@@ -13,7 +13,15 @@ import time
 from pathlib import Path
 from typing import Any
 
-from sb3_crowdnav.cli.common import UsageError, check_env, env_kwargs_from_args, nonneg_int, positive_int, progress_enabled
+from sb3_crowdnav.cli.common import (
+    UsageError,
+    check_env,
+    check_out,
+    env_kwargs_from_args,
+    nonneg_int,
+    positive_int,
+    progress_enabled,
+)
 
 ALGOS = ("apg_value", "dqn", "dqfd", "ppo")
 # flags of a --variant run (the paper's schedule) with the ScheduleConfig field each one sets
@@ -134,6 +142,7 @@ def _train_variant(args: argparse.Namespace) -> int:
     check_env(variant.env_id, config.training_env_kwargs)
     if args.from_imitation is not None and not args.from_imitation.is_file():
         raise UsageError(f"--from-imitation: no saved model at {str(args.from_imitation)!r}")
+    check_out(args.out)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "config.json").write_text(json.dumps(config_dict(config), indent=2, default=str) + "\n")
     from sb3_crowdnav.training.run_folder import RunLockedError
@@ -145,12 +154,30 @@ def _train_variant(args: argparse.Namespace) -> int:
     return 0 if result.stopped_by is None else 128 + result.stopped_by
 
 
+def _dry_run(algo: str, cfg: dict[str, Any], env_id: str, env_kwargs: dict[str, Any]) -> None:
+    """Build the algorithm once on one env: a bad value (``learning_rate: abc``, ``batch_size: -1``) is refused
+    before any imitation or training starts."""
+    from stable_baselines3.common.env_util import make_vec_env
+
+    from sb3_crowdnav.models import algorithms
+
+    env = make_vec_env(env_id, n_envs=1, env_kwargs=env_kwargs)
+    kwargs = {**cfg["kwargs"], **({"policy_kwargs": cfg["policy_kwargs"]} if cfg["policy_kwargs"] else {})}
+    try:
+        algorithms()[algo](cfg["policy"], env, **kwargs)
+    except (AssertionError, TypeError, ValueError, KeyError) as exc:
+        raise UsageError(f"--hyperparams: {algo} refuses them: {exc}") from None
+    finally:
+        env.close()
+
+
 def _train_hyperparams(args: argparse.Namespace) -> int:
     from sb3_crowdnav.models import algorithms
     from sb3_crowdnav.training.hyperparams import load_hyperparams, prepare, train_from_hyperparams
 
     if args.algo not in algorithms():
         raise UsageError(f"--algo {args.algo}: the algorithm cannot be imported in this installation")
+    check_env(args.env, {})  # a crowd env at all, before its entry in the file is looked for
     try:
         hp = load_hyperparams(args.hyperparams, args.env)
         cfg = prepare(args.algo, hp)
@@ -169,6 +196,8 @@ def _train_hyperparams(args: argparse.Namespace) -> int:
         raise UsageError("--algo dqfd learns from demonstrations: give --imitation-episodes N")
     if imitation_episodes and imitation_epochs < 1:
         raise UsageError(f"--imitation-epochs: expected a positive integer with --imitation-episodes, got {imitation_epochs}")
+    _dry_run(args.algo, cfg, args.env, env_kwargs)
+    check_out(args.out)
     start = time.perf_counter()
     _, path = train_from_hyperparams(
         args.algo, hp, args.out, env_id=args.env, timesteps=args.timesteps, seed=args.seed,

@@ -136,8 +136,13 @@ def load_hyperparams(path: str | Path, env_id: str = "CrowdNav-v0") -> dict[str,
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"no hyperparameter file {str(path)!r}")
-    with path.open() as f:
-        content = yaml.safe_load(f)
+    try:
+        with path.open() as f:
+            content = yaml.safe_load(f)  # plain YAML only: a !!python tag is an error, never a call
+    except yaml.YAMLError as exc:
+        where = getattr(exc, "problem_mark", None)
+        line = f" (line {where.line + 1})" if where is not None else ""
+        raise ValueError(f"{str(path)!r} is not valid YAML{line}: {getattr(exc, 'problem', None) or exc}") from None
     if not isinstance(content, dict) or env_id not in content:
         keys = sorted(content) if isinstance(content, dict) else []
         raise ValueError(f"{str(path)!r} has no top-level key {env_id!r} (keys: {keys})")
@@ -161,6 +166,26 @@ def _schedule(value: Any) -> Any:
     return value
 
 
+def _check_keys(algo: str, kwargs: Mapping[str, Any]) -> None:
+    """``ValueError`` naming a hyperparameter the algorithm's constructor does not take."""
+    import inspect
+
+    from sb3_crowdnav.models import algorithms
+
+    cls = algorithms().get(algo)
+    if cls is None:
+        return
+    accepted = set()
+    for klass in cls.__mro__:  # DQfD passes **kwargs on to DQN
+        if "__init__" in vars(klass):
+            accepted |= set(inspect.signature(klass.__init__).parameters)
+    accepted = {name for name in accepted if not name.startswith("_")} - {"self", "args", "kwargs", "policy", "env"}
+    unknown = sorted(set(kwargs) - accepted)
+    if unknown:
+        raise ValueError(f"{unknown} {'is not a hyperparameter' if len(unknown) == 1 else 'are not hyperparameters'} "
+                         f"of {cls.__name__}; allowed: {sorted(accepted)}")
+
+
 def prepare(algo: str, hyperparams: Mapping[str, Any]) -> dict[str, Any]:
     """Split rl-zoo3 hyperparameters into ``policy``, ``policy_kwargs``, ``env_kwargs``, ``n_envs``,
     ``n_timesteps`` and the algorithm's constructor ``kwargs``; ``ValueError`` on what is not supported."""
@@ -175,7 +200,10 @@ def prepare(algo: str, hyperparams: Mapping[str, Any]) -> dict[str, Any]:
     policy_kwargs = hp.pop("policy_kwargs", None) or {}
     names = policy_kwargs_names()
     if isinstance(policy_kwargs, str):
-        policy_kwargs = safe_eval(policy_kwargs, names)
+        try:
+            policy_kwargs = safe_eval(policy_kwargs, names)
+        except ValueError as exc:
+            raise ValueError(f"policy_kwargs: {exc}") from None
     if not isinstance(policy_kwargs, dict):
         raise ValueError(f"policy_kwargs must be a dict, got {policy_kwargs!r}")
     fe = policy_kwargs.get("features_extractor_class")
@@ -185,7 +213,10 @@ def prepare(algo: str, hyperparams: Mapping[str, Any]) -> dict[str, Any]:
         policy_kwargs["features_extractor_class"] = names[fe]
     env_kwargs = hp.pop("env_kwargs", None) or {}
     if isinstance(env_kwargs, str):
-        env_kwargs = safe_eval(env_kwargs, {"dict": dict})
+        try:
+            env_kwargs = safe_eval(env_kwargs, {"dict": dict})
+        except ValueError as exc:
+            raise ValueError(f"env_kwargs: {exc}") from None
     if not isinstance(env_kwargs, dict):
         raise ValueError(f"env_kwargs must be a dict, got {env_kwargs!r}")
     n_envs = hp.pop("n_envs", 1)
@@ -198,6 +229,7 @@ def prepare(algo: str, hyperparams: Mapping[str, Any]) -> dict[str, Any]:
             hp[key] = _schedule(hp[key])
     if isinstance(hp.get("train_freq"), list):
         hp["train_freq"] = tuple(hp["train_freq"])
+    _check_keys(algo, hp)
     return {"policy": policy, "policy_kwargs": policy_kwargs, "env_kwargs": env_kwargs, "n_envs": n_envs,
             "n_timesteps": None if n_timesteps is None else int(float(n_timesteps)), "kwargs": hp}
 
