@@ -2,17 +2,25 @@
 
     python examples/ship_model.py runs/apg_rl/best.zip apg_rl
 
-The optimiser's momentum buffers are dropped (they only matter to continue training, and a
-continued run starts from its own checkpoint); weights and every constructor setting are kept.
+The optimiser's momentum buffers are dropped (they only matter to continue training, and a continued run
+starts from its own checkpoint); weights and every constructor setting are kept. A ``best.zip`` is shipped
+only if it is the file its ``best.json`` recorded (a damaged copy is refused). The file is read without
+unpickling and written with its plain spaces and world (``sb3_crowdnav.json``); paste the printed SHA-256
+into ``PRETRAINED_SHA256`` in ``sb3_crowdnav/models.py``, which checks it before every load.
 """
 
 from __future__ import annotations
 
 import argparse
 import collections
+import hashlib
+import json
 from pathlib import Path
 
+import gymnasium as gym
+
 from sb3_crowdnav.models import PRETRAINED, WEIGHTS_DIR, load_model
+from sb3_crowdnav.serialization import read_world, write_spaces
 
 
 def main() -> None:
@@ -20,11 +28,20 @@ def main() -> None:
     p.add_argument("checkpoint", type=Path)
     p.add_argument("name", choices=sorted(PRETRAINED))
     args = p.parse_args()
+    record = args.checkpoint.with_name("best.json")
+    if args.checkpoint.name == "best.zip" and record.exists():
+        expected = json.loads(record.read_text()).get("sha256")
+        if expected and hashlib.sha256(args.checkpoint.read_bytes()).hexdigest() != expected:
+            p.error(f"{args.checkpoint} is not the file {record} recorded: damaged, not shipped")
     model = load_model(args.checkpoint, algo=PRETRAINED[args.name])
     model.policy.optimizer.state = collections.defaultdict(dict)
     out = WEIGHTS_DIR / f"{args.name}.zip"
     model.save(out)
-    print(f"wrote {out} ({out.stat().st_size / 1e6:.2f} MB)")
+    world = read_world(args.checkpoint)
+    env = gym.make("CrowdNav-v0", **(world or {}))  # the world it was trained in, recorded with its spaces
+    write_spaces(out, model.observation_space, model.action_space, env)
+    print(f"wrote {out} ({out.stat().st_size / 1e6:.2f} MB); PRETRAINED_SHA256[{args.name!r}] = "
+          f"{hashlib.sha256(out.read_bytes()).hexdigest()!r}")
 
 
 if __name__ == "__main__":
