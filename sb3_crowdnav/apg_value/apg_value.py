@@ -14,7 +14,7 @@ from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 from stable_baselines3.common.utils import polyak_update
 
-from sb3_crowdnav.apg_value.buffers import ValueReplayBuffer, follow_timeout_handling, load_buffer, save_buffer
+from sb3_crowdnav.apg_value.buffers import ValueReplayBuffer, follow_timeout_handling, is_npz, load_buffer, save_buffer
 from sb3_crowdnav.apg_value.checks import (
     check_args,
     check_env_compatible,
@@ -232,7 +232,7 @@ class APGValue(OffPolicyAlgorithm):
     def load_replay_buffer(self, path, truncate_last_traj: bool = True, trusted: bool = False) -> None:
         """Fill the replay buffer from :meth:`save_replay_buffer`'s ``.npz``. A pickled buffer (``.pkl``, saved by
         SB3 or older versions) loads only with ``trusted=True``; a plain ``DictReplayBuffer`` is wrapped."""
-        if str(path).endswith(".pkl"):
+        if not is_npz(path):  # told apart by content: SB3's CheckpointCallback names our .npz buffers ".pkl"
             if not trusted:
                 raise UnsafeModelFileError(f"{path} is a pickle: load it with trusted=True only if you made it")
             super().load_replay_buffer(path, truncate_last_traj)

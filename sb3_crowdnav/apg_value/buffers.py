@@ -116,6 +116,15 @@ def save_buffer(buffer: DictReplayBuffer, path: str | Path) -> Path:
     return path
 
 
+def is_npz(path: Any) -> bool:
+    """Whether ``path`` holds an ``.npz`` (a zip archive) rather than a pickle, whatever its name."""
+    try:
+        with open(path, "rb") as f:
+            return f.read(4) == b"PK\x03\x04"
+    except OSError:
+        return False
+
+
 def load_buffer(buffer: DictReplayBuffer, path: str | Path) -> None:
     """Fill ``buffer`` (made by the algorithm with the same size and spaces) from :func:`save_buffer`'s file."""
     with np.load(path, allow_pickle=False) as saved:

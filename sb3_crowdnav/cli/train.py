@@ -22,6 +22,7 @@ from sb3_crowdnav.cli.common import (
     positive_int,
     progress_enabled,
 )
+from sb3_crowdnav.training.run_folder import write_json
 
 ALGOS = ("apg_value", "dqn", "dqfd", "ppo")
 # flags of a --variant run (the paper's schedule) with the ScheduleConfig field each one sets
@@ -144,7 +145,7 @@ def _train_variant(args: argparse.Namespace) -> int:
         raise UsageError(f"--from-imitation: no saved model at {str(args.from_imitation)!r}")
     check_out(args.out)
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "config.json").write_text(json.dumps(config_dict(config), indent=2, default=str) + "\n")
+    write_json(args.out / "config.json", json.loads(json.dumps(config_dict(config), default=str)))
     from sb3_crowdnav.training.run_folder import RunLockedError
 
     try:
@@ -208,7 +209,7 @@ def _train_hyperparams(args: argparse.Namespace) -> int:
     config = {"algo": args.algo, "env": args.env, "hyperparams": hp, "env_kwargs": env_kwargs, "seed": args.seed,
               "timesteps": args.timesteps or cfg["n_timesteps"], "imitation_episodes": imitation_episodes,
               "imitation_epochs": imitation_epochs, "wall_time_s": round(time.perf_counter() - start, 1)}
-    (Path(args.out) / "config.json").write_text(json.dumps(config, indent=2, default=str) + "\n")
+    write_json(Path(args.out) / "config.json", json.loads(json.dumps(config, default=str)))
     print(f"trained {args.algo} for {config['timesteps']} steps in {config['wall_time_s']} s -> {path} "
           f"(TensorBoard logs: {Path(args.out) / 'tb'})")
     return 0

@@ -197,28 +197,14 @@ def prepare(algo: str, hyperparams: Mapping[str, Any]) -> dict[str, Any]:
         hp.pop(k, None)
     if hp.pop("normalize", False):
         raise ValueError("normalize: VecNormalize would corrupt the physical states of the observation; remove it")
-    policy_kwargs = hp.pop("policy_kwargs", None) or {}
     names = policy_kwargs_names()
-    if isinstance(policy_kwargs, str):
-        try:
-            policy_kwargs = safe_eval(policy_kwargs, names)
-        except ValueError as exc:
-            raise ValueError(f"policy_kwargs: {exc}") from None
-    if not isinstance(policy_kwargs, dict):
-        raise ValueError(f"policy_kwargs must be a dict, got {policy_kwargs!r}")
+    policy_kwargs = _mapping("policy_kwargs", hp.pop("policy_kwargs", None), names)
     fe = policy_kwargs.get("features_extractor_class")
     if isinstance(fe, str):  # a YAML mapping may name the extractor as a plain string
         if fe not in names or fe in ("dict", "nn"):
             raise ValueError(f"unknown features_extractor_class {fe!r}")
         policy_kwargs["features_extractor_class"] = names[fe]
-    env_kwargs = hp.pop("env_kwargs", None) or {}
-    if isinstance(env_kwargs, str):
-        try:
-            env_kwargs = safe_eval(env_kwargs, {"dict": dict})
-        except ValueError as exc:
-            raise ValueError(f"env_kwargs: {exc}") from None
-    if not isinstance(env_kwargs, dict):
-        raise ValueError(f"env_kwargs must be a dict, got {env_kwargs!r}")
+    env_kwargs = _mapping("env_kwargs", hp.pop("env_kwargs", None), {"dict": dict})
     n_envs = hp.pop("n_envs", 1)
     if isinstance(n_envs, bool) or not isinstance(n_envs, int) or n_envs < 1:
         raise ValueError(f"n_envs must be a positive int, got {n_envs!r}")
@@ -230,8 +216,25 @@ def prepare(algo: str, hyperparams: Mapping[str, Any]) -> dict[str, Any]:
     if isinstance(hp.get("train_freq"), list):
         hp["train_freq"] = tuple(hp["train_freq"])
     _check_keys(algo, hp)
+    try:
+        n_timesteps = None if n_timesteps is None else int(float(n_timesteps))
+    except (TypeError, ValueError):
+        raise ValueError(f"n_timesteps must be a number, got {n_timesteps!r}") from None
     return {"policy": policy, "policy_kwargs": policy_kwargs, "env_kwargs": env_kwargs, "n_envs": n_envs,
-            "n_timesteps": None if n_timesteps is None else int(float(n_timesteps)), "kwargs": hp}
+            "n_timesteps": n_timesteps, "kwargs": hp}
+
+
+def _mapping(name: str, value: Any, names: Mapping[str, Any]) -> dict[str, Any]:
+    """A YAML mapping, or a Python-literal string of one read by :func:`safe_eval`; ``ValueError`` naming ``name``."""
+    if isinstance(value, str):
+        try:
+            value = safe_eval(value, names)
+        except ValueError as exc:
+            raise ValueError(f"{name}: {exc}") from None
+    value = value or {}
+    if not isinstance(value, dict):
+        raise ValueError(f"{name} must be a dict, got {value!r}")
+    return value
 
 
 def train_from_hyperparams(algo: str, hyperparams: Mapping[str, Any], out_dir: str | Path, env_id: str = "CrowdNav-v0",
