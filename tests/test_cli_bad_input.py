@@ -144,3 +144,21 @@ def test_bad_command_arguments(tmp_path, capsys, monkeypatch, argv, fragment):
     _refused(capsys, argv, fragment)
     assert not Path("pwned").exists()
     assert not [p for p in tmp_path.rglob("*") if p.is_file() and p.name != "FILE" and p.suffix != ".yml"]
+
+
+def test_a_model_of_another_env_is_refused(tmp_path, capsys):
+    from stable_baselines3 import PPO
+
+    path = tmp_path / "cartpole.zip"
+    PPO("MlpPolicy", "CartPole-v1", n_steps=32, batch_size=32).save(path)
+    _refused(capsys, ["evaluate", "--policy", str(path), "--episodes", "1"], "the model acts in Discrete(2)")
+
+
+def test_a_damaged_checkpoint_is_reported_on_resume(tmp_path, capsys):
+    out = tmp_path / "run"
+    argv = ["train", "--variant", "apg_rl", "--out", str(out), "--il-episodes", "2", "--il-epochs", "1",
+            "--num-humans", "2", "--checkpoint-episodes", "2", "--eval-episodes", "0"]
+    assert main([*argv, "--rl-episodes", "2"]) == 0
+    (out / "checkpoint_2.zip").write_bytes(b"PK\x03\x04 truncated")
+    capsys.readouterr()
+    _refused(capsys, [*argv, "--rl-episodes", "4"], f"cannot resume from {out / 'checkpoint_2.zip'}")
