@@ -307,11 +307,23 @@ def _check_env_spaces(data: dict[str, Any], env: Any, path: Path) -> None:
                                        f"{env_shapes}; use the same max_humans and history_length as in training")
 
 
-def safe_custom_objects(path: Any, env: Any = None) -> dict[str, Any]:
+def _check_value_model(data: dict[str, Any], path: Any) -> None:
+    """``TypeError`` saying which loader to use when an APGValue loader is given another algorithm's file."""
+    if "imitation_episodes" in data:
+        return
+    module = data.get("policy_class", {}).get("__module__", "") if isinstance(data.get("policy_class"), dict) else ""
+    kind = ("PPO" if "clip_range" in data else "DQN" if "exploration_fraction" in data
+            else "A2C" if "gae_lambda" in data else module or "another algorithm")
+    raise TypeError(f"{path} holds a {kind} model, not an APGValue one: load it with {kind}.load(...) or, for any "
+                    "algorithm, sb3_crowdnav.models.load_model(path)")
+
+
+def safe_custom_objects(path: Any, env: Any = None, value_model: bool = False) -> dict[str, Any]:
     """SB3 ``custom_objects`` replacing every pickled entry of the model file ``path`` (see the module docstring).
 
     :param env: the env (or VecEnv) the model will be used with, when known: its spaces replace the file's
         when the file has no ``sb3_crowdnav.json`` member
+    :param value_model: the caller is APGValue: another algorithm's file is a ``TypeError`` naming its loader
     :raises UnsafeModelFileError: naming the entry that only unpickling could read
     """
     source: Any = path
@@ -326,6 +338,8 @@ def safe_custom_objects(path: Any, env: Any = None) -> dict[str, Any]:
             plain = json.loads(archive.read(SPACES_MEMBER)) if SPACES_MEMBER in archive.namelist() else None
         if hasattr(source, "seek"):  # a file object: SB3 reads it again
             source.seek(0)
+        if value_model:
+            _check_value_model(data, path)
     except (zipfile.BadZipFile, KeyError, json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise ValueError(f"{str(path)!r} is not a Stable-Baselines3 model archive ({exc})") from exc
     objects: dict[str, Any] = {}

@@ -162,3 +162,30 @@ def test_a_damaged_checkpoint_is_reported_on_resume(tmp_path, capsys):
     (out / "checkpoint_2.zip").write_bytes(b"PK\x03\x04 truncated")
     capsys.readouterr()
     _refused(capsys, [*argv, "--rl-episodes", "4"], f"cannot resume from {out / 'checkpoint_2.zip'}")
+
+
+def test_messages_that_say_what_to_do(tmp_path, capsys, monkeypatch):
+    """The Python API's wrong-kind-of-thing cases name the fix."""
+    import gymnasium as gym
+    from stable_baselines3 import PPO
+
+    import sb3_crowdnav
+    from sb3_crowdnav.apg_value import APGValue
+    from sb3_crowdnav.imitation import collect_demonstrations
+
+    ppo = tmp_path / "ppo.zip"
+    PPO("MultiInputPolicy", "CrowdNav-v0", n_steps=32, batch_size=32).save(ppo)
+    with pytest.raises(TypeError, match=r"holds a PPO model, not an APGValue one: load it with PPO.load"):
+        APGValue.load(ppo)
+    with pytest.raises(ValueError, match=r"'MlpPolicy' is not an APGValue policy; use one of \['ApgPolicy'"):
+        APGValue("MlpPolicy", "CrowdNav-v0")
+    demos = collect_demonstrations(gym.make("CrowdNav-v0", num_humans=2), 2)  # a single env is wrapped
+    assert demos.episodes == 2
+    with pytest.raises(TypeError, match="env must be a CrowdNav env or a VecEnv"):
+        collect_demonstrations(gym.make("CartPole-v1"), 2)
+    # a local file named like a shipped model: loaded, and said so; without it, the shipped name is suggested
+    monkeypatch.chdir(tmp_path)
+    _refused(capsys, ["evaluate", "--policy", "apg_rl", "--episodes", "1"], "the shipped model is --policy pretrained:apg_rl")
+    APGValue.load(sb3_crowdnav.models.check_pretrained("apg_rl")).save(tmp_path / "apg_rl")
+    assert main(["evaluate", "--policy", "apg_rl", "--episodes", "1"]) == 0
+    assert "loads the local file apg_rl.zip; the shipped model is --policy pretrained:apg_rl" in capsys.readouterr().err

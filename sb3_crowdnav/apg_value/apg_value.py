@@ -14,14 +14,8 @@ from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 from stable_baselines3.common.utils import polyak_update
 
+from sb3_crowdnav.apg_value import checks
 from sb3_crowdnav.apg_value.buffers import ValueReplayBuffer, follow_timeout_handling, is_npz, load_buffer, save_buffer
-from sb3_crowdnav.apg_value.checks import (
-    check_args,
-    check_env_compatible,
-    check_imitation_args,
-    check_replay_buffer_class,
-    lookahead_settings,
-)
 from sb3_crowdnav.apg_value.overlap import Batch, OverlappingLearner
 from sb3_crowdnav.apg_value.policies import POLICY_ALIASES, ValueLookaheadPolicy
 from sb3_crowdnav.apg_value.pretraining import pretrain_from_orca
@@ -127,18 +121,19 @@ class APGValue(OffPolicyAlgorithm):
     ) -> None:
         if torch_threads is not None:
             th.set_num_threads(int(torch_threads))
-        check_args(exploration_initial_eps=exploration_initial_eps, exploration_final_eps=exploration_final_eps,
+        checks.check_policy_name(policy, self.policy_aliases)
+        checks.check_args(exploration_initial_eps=exploration_initial_eps, exploration_final_eps=exploration_final_eps,
                    gamma=gamma, tau=tau, exploration_episodes=exploration_episodes,
                    imitation_episodes=imitation_episodes, imitation_epochs=imitation_epochs,
                    target_update_interval=target_update_interval, batch_size=batch_size,
                    bootstrap_timeouts=bootstrap_timeouts, overlap_training=overlap_training, value_target=value_target)
-        replay_buffer_class = check_replay_buffer_class(replay_buffer_class, value_target)
+        replay_buffer_class = checks.check_replay_buffer_class(replay_buffer_class, value_target)
         replay_buffer_kwargs = dict(replay_buffer_kwargs or {})
         replay_buffer_kwargs.setdefault("handle_timeout_termination", bootstrap_timeouts)
         policy_kwargs = dict(policy_kwargs or {})
         if "optimizer_class" not in policy_kwargs:  # RL with Adam (see imitation_optimizer_class)
             policy_kwargs.update(optimizer_class=th.optim.Adam, optimizer_kwargs=policy_kwargs.get("optimizer_kwargs", {}))
-        imitation_optimizer_kwargs = check_imitation_args(
+        imitation_optimizer_kwargs = checks.check_imitation_args(
             imitation_learning_rate, imitation_optimizer_class, imitation_optimizer_kwargs, imitation_safety_space,
             imitation_mapping, OrcaPolicy.MAPPINGS)
         super().__init__(
@@ -148,7 +143,7 @@ class APGValue(OffPolicyAlgorithm):
             tensorboard_log=tensorboard_log, verbose=verbose, device=device, seed=seed, sde_support=False,
             supported_action_spaces=(spaces.Discrete,), support_multi_env=True,
         )
-        check_env_compatible(self.env)
+        checks.check_env_compatible(self.env)
         self.exploration_initial_eps, self.exploration_final_eps = exploration_initial_eps, exploration_final_eps
         self.exploration_episodes, self.target_update_interval = exploration_episodes, target_update_interval
         self.imitation_episodes, self.imitation_epochs = imitation_episodes, imitation_epochs
@@ -167,7 +162,7 @@ class APGValue(OffPolicyAlgorithm):
     # ------------------------------------------------------------------ set-up
     def _setup_model(self) -> None:
         ObservationSchema.from_space(self.observation_space)  # here, not in __init__: load() sets the spaces later
-        settings = lookahead_settings(self.env)
+        settings = checks.lookahead_settings(self.env)
         for key, value in settings.items():
             given = self.policy_kwargs.get(key, value)
             if given != value:
@@ -186,7 +181,7 @@ class APGValue(OffPolicyAlgorithm):
 
     def set_env(self, env: GymEnv, force_reset: bool = True) -> None:
         super().set_env(env, force_reset)
-        check_env_compatible(self.env)
+        checks.check_env_compatible(self.env)
 
     # ------------------------------------------------------------------ acting
     def _update_exploration(self) -> None:  # by episodes (the paper), not SB3's get_linear_fn of the steps left
@@ -390,7 +385,7 @@ class APGValue(OffPolicyAlgorithm):
         """SB3's ``load`` without unpickling anything (:mod:`sb3_crowdnav.serialization`); ``trusted=True``: SB3's
         own load, which unpickles (only for files you made)."""
         if not trusted:
-            custom_objects = {**safe_custom_objects(path, env), **(custom_objects or {})}
+            custom_objects = {**safe_custom_objects(path, env, value_model=True), **(custom_objects or {})}
         return super().load(path, env, device, custom_objects, print_system_info, force_reset, **kwargs)
 
     def _excluded_save_params(self) -> list[str]:

@@ -49,6 +49,14 @@ def lookahead_settings(env: VecEnv | None) -> dict[str, Any]:
     }
 
 
+def check_policy_name(policy: Any, aliases: dict[str, Any]) -> None:
+    """``ValueError`` listing APGValue's policy aliases when given another name (SB3's ``MlpPolicy``, ...)."""
+    if isinstance(policy, str) and policy not in aliases:
+        raise ValueError(f"policy {policy!r} is not an APGValue policy; use one of {sorted(aliases)} (SB3's "
+                         "MlpPolicy and MultiInputPolicy are for DQN and PPO; with them, use ApgDQNPolicy or "
+                         "ApgActorCriticPolicy for the APG extractor)")
+
+
 def check_args(*, exploration_initial_eps: float, exploration_final_eps: float, gamma: float, tau: float,
                exploration_episodes: int, imitation_episodes: int, imitation_epochs: int, target_update_interval: int,
                batch_size: int, bootstrap_timeouts: bool, overlap_training: bool, value_target: str) -> None:

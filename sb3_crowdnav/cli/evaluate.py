@@ -104,16 +104,22 @@ def _check_policy(spec: str, env_id: str = "CrowdNav-v0", env_kwargs: dict[str, 
         if tail and not tail.isdigit():
             raise UsageError(f"--policy: a random policy is 'random' or 'random:SEED' with SEED >= 0, got {spec!r}")
         return s.lower()
-    from sb3_crowdnav.models import detect_algorithm, resolve_model_path
+    from sb3_crowdnav.models import PRETRAINED, detect_algorithm, resolve_model_path
     from sb3_crowdnav.serialization import UnsafeModelFileError, safe_custom_objects
 
+    shipped = Path(s).name.removesuffix(".zip") if Path(s).name.removesuffix(".zip") in PRETRAINED else None
     try:
         path = resolve_model_path(s)
         detect_algorithm(path)
     except (FileNotFoundError, ValueError) as exc:
+        hint = f"; the shipped model is --policy pretrained:{shipped}" if shipped else ""
         raise UsageError(
-            f"--policy {spec!r}: expected orca, orca-constrained, random[:SEED], pretrained:NAME or a saved model .zip ({exc})"
+            f"--policy {spec!r}: expected orca, orca-constrained, random[:SEED], pretrained:NAME or a saved model .zip "
+            f"({exc}{hint})"
         ) from None
+    if shipped:  # a local file named like a shipped model: say which one is used
+        print(f"note: --policy {spec} loads the local file {path}; the shipped model is --policy pretrained:{shipped}",
+              file=sys.stderr)
     env = gym.make(env_id, **(env_kwargs or {}))
     try:
         objects = safe_custom_objects(path, env)

@@ -13,15 +13,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from sb3_crowdnav.cli.common import (
-    UsageError,
-    check_env,
-    check_out,
-    env_kwargs_from_args,
-    nonneg_int,
-    positive_int,
-    progress_enabled,
-)
+from sb3_crowdnav.cli import common
+from sb3_crowdnav.cli.common import UsageError
 from sb3_crowdnav.training.run_folder import write_json
 
 ALGOS = ("apg_value", "dqn", "dqfd", "ppo")
@@ -64,29 +57,30 @@ def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
     mode.add_argument("--variant", choices=sorted(VARIANTS), help="a variant of the paper's tables, trained with its schedule")
     mode.add_argument("--hyperparams", type=Path, metavar="YAML", help="rl-zoo3 hyperparameter file (give --algo)")
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder (a --variant run resumes from it)")
-    p.add_argument("--seed", type=nonneg_int, default=0, help="training seed; envs use seed, seed+1, ... (default: 0)")
+    p.add_argument("--seed", type=common.nonneg_int, default=0, help="training seed; envs use seed, seed+1, ... (default: 0)")
     p.add_argument("--verbose", type=int, choices=(0, 1, 2), help="SB3 verbosity (default: 1 with --variant, else 0)")
-    p.add_argument("--imitation-episodes", "--il-episodes", dest="imitation_episodes", type=nonneg_int,
+    p.add_argument("--imitation-episodes", "--il-episodes", dest="imitation_episodes", type=common.nonneg_int,
                    help="ORCA-robot episodes imitated first (default: 3000 with --variant; 0 with --hyperparams, "
                         "where it is for ppo, a2c, dqn and dqfd)")
-    p.add_argument("--imitation-epochs", "--il-epochs", dest="imitation_epochs", type=nonneg_int,
+    p.add_argument("--imitation-epochs", "--il-epochs", dest="imitation_epochs", type=common.nonneg_int,
                    help="passes over the demonstrations (default: 10)")
     p.add_argument("--imitation-learning-rate", "--il-learning-rate", dest="imitation_learning_rate", type=_positive_float,
                    help="learning rate of the imitation (default: 0.01 with --variant, Table 1; 0.001 with --hyperparams)")
 
     g = p.add_argument_group("the paper's schedule (--variant)")
-    g.add_argument("--rl-episodes", type=positive_int, help="RL episodes in total (default: 10000)")
-    g.add_argument("--n-envs", type=positive_int, help="training envs, one batched lookahead (default: 1)")
+    g.add_argument("--rl-episodes", type=common.positive_int, help="RL episodes in total (default: 10000)")
+    g.add_argument("--n-envs", type=common.positive_int, help="training envs, one batched lookahead (default: 1)")
     g.add_argument("--learning-rate", type=_positive_float, help="RL learning rate (default: 0.001, Table 1)")
-    g.add_argument("--train-freq", type=positive_int, help="one gradient step every this many env steps (default: 4)")
-    g.add_argument("--buffer-size", type=positive_int, help="replay capacity [transitions] (default: 100000)")
-    g.add_argument("--checkpoint-episodes", type=positive_int,
+    g.add_argument("--train-freq", type=common.positive_int, help="one gradient step every this many env steps (default: 4)")
+    g.add_argument("--buffer-size", type=common.positive_int, help="replay capacity [transitions] (default: 100000)")
+    g.add_argument("--checkpoint-episodes", type=common.positive_int,
                    help="checkpoint and validate every N RL episodes (default: 500)")
-    g.add_argument("--eval-episodes", type=nonneg_int,
+    g.add_argument("--eval-episodes", type=common.nonneg_int,
                    help="greedy validation episodes per checkpoint, 0: none (default: 100)")
     g.add_argument("--no-bootstrap-timeouts", dest="bootstrap_timeouts", action="store_const", const=False,
                    help="end timed-out episodes with zero future value (the field's reference code)")
-    g.add_argument("--exploration-episodes", type=positive_int, help="RL episodes of the ε decay 0.5 -> 0.1 (default: 5000)")
+    g.add_argument("--exploration-episodes", type=common.positive_int,
+                   help="RL episodes of the ε decay 0.5 -> 0.1 (default: 5000)")
     g.add_argument("--select-by", choices=SELECT_BY,
                    help="best.zip: highest validation success then shortest time (default), or highest return under "
                         "the variant's own reward (use for apg_crl / apg_carl)")
@@ -95,14 +89,14 @@ def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
     g.add_argument("--from-imitation", type=Path, metavar="ZIP", help="start from a saved post-imitation model")
     g.add_argument("--overlap", action="store_const", const=True,
                    help="gradient steps on the second core while acting (APGValue overlap_training)")
-    g.add_argument("--refill-steps", type=nonneg_int,
+    g.add_argument("--refill-steps", type=common.nonneg_int,
                    help="resuming without OUT/replay_buffer.pkl: env steps collected before training again (default: 5000)")
     g.add_argument("--lookahead-dtype", choices=LOOKAHEAD_DTYPES, help="precision of the acting lookahead (default: float32)")
 
     g = p.add_argument_group("hyperparameter files (--hyperparams)")
     g.add_argument("--algo", choices=ALGOS, help="algorithm (required with --hyperparams)")
-    g.add_argument("--timesteps", type=positive_int, help="total timesteps (default: n_timesteps of the file)")
-    g.add_argument("--checkpoint-freq", type=nonneg_int,
+    g.add_argument("--timesteps", type=common.positive_int, help="total timesteps (default: n_timesteps of the file)")
+    g.add_argument("--checkpoint-freq", type=common.nonneg_int,
                    help="save DIR/checkpoints/ every this many env steps (default: 0, only the final model)")
     p.set_defaults(func=cmd_train)
 
@@ -129,7 +123,7 @@ def _train_variant(args: argparse.Namespace) -> int:
     variant = VARIANTS[args.variant]
     if args.env != variant.env_id:
         raise UsageError(f"--env {args.env}: variant {args.variant} trains on {variant.env_id}")
-    env_kwargs = env_kwargs_from_args(args)
+    env_kwargs = common.env_kwargs_from_args(args)
     num_humans = env_kwargs.pop("num_humans", None)
     given = {name: getattr(args, name) for name in (*SCHEDULE_FLAGS, "imitation_episodes", "imitation_epochs",
                                                      "imitation_learning_rate", "seed")}
@@ -140,10 +134,10 @@ def _train_variant(args: argparse.Namespace) -> int:
         config = ScheduleConfig(variant=args.variant, env_kwargs=env_kwargs, **given)
     except (TypeError, ValueError) as exc:
         raise UsageError(str(exc)) from None
-    check_env(variant.env_id, config.training_env_kwargs)
+    common.check_env(variant.env_id, config.training_env_kwargs)
     if args.from_imitation is not None and not args.from_imitation.is_file():
         raise UsageError(f"--from-imitation: no saved model at {str(args.from_imitation)!r}")
-    check_out(args.out)
+    common.check_out(args.out)
     args.out.mkdir(parents=True, exist_ok=True)
     write_json(args.out / "config.json", json.loads(json.dumps(config_dict(config), default=str)))
     from sb3_crowdnav.training.run_folder import RunLockedError
@@ -178,14 +172,14 @@ def _train_hyperparams(args: argparse.Namespace) -> int:
 
     if args.algo not in algorithms():
         raise UsageError(f"--algo {args.algo}: the algorithm cannot be imported in this installation")
-    check_env(args.env, {})  # a crowd env at all, before its entry in the file is looked for
+    common.check_env(args.env, {})  # a crowd env at all, before its entry in the file is looked for
     try:
         hp = load_hyperparams(args.hyperparams, args.env)
         cfg = prepare(args.algo, hp)
     except (FileNotFoundError, ValueError) as exc:
         raise UsageError(f"--hyperparams: {exc}") from None
-    env_kwargs = {**cfg["env_kwargs"], **env_kwargs_from_args(args)}
-    check_env(args.env, env_kwargs)
+    env_kwargs = {**cfg["env_kwargs"], **common.env_kwargs_from_args(args)}
+    common.check_env(args.env, env_kwargs)
     imitation_episodes = args.imitation_episodes or 0
     imitation_epochs = 10 if args.imitation_epochs is None else args.imitation_epochs
     if args.timesteps is None and cfg["n_timesteps"] is None:
@@ -198,11 +192,11 @@ def _train_hyperparams(args: argparse.Namespace) -> int:
     if imitation_episodes and imitation_epochs < 1:
         raise UsageError(f"--imitation-epochs: expected a positive integer with --imitation-episodes, got {imitation_epochs}")
     _dry_run(args.algo, cfg, args.env, env_kwargs)
-    check_out(args.out)
+    common.check_out(args.out)
     start = time.perf_counter()
     _, path = train_from_hyperparams(
         args.algo, hp, args.out, env_id=args.env, timesteps=args.timesteps, seed=args.seed,
-        progress_bar=progress_enabled(args), verbose=args.verbose or 0, env_overrides=env_kwargs_from_args(args),
+        progress_bar=common.progress_enabled(args), verbose=args.verbose or 0, env_overrides=common.env_kwargs_from_args(args),
         imitation_episodes=imitation_episodes, imitation_epochs=imitation_epochs,
         imitation_learning_rate=1e-3 if args.imitation_learning_rate is None else args.imitation_learning_rate,
         checkpoint_freq=args.checkpoint_freq or 0)
