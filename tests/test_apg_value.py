@@ -456,3 +456,24 @@ def test_overlap_training_errors_reach_the_caller(monkeypatch):
     assert model._overlap is None
     with pytest.raises(TypeError, match="overlap_training must be a bool"):
         APGValue("ApgPolicy", "CrowdNav-v0", overlap_training="yes")
+
+
+def test_imitation_reports_progress_and_fps_counts_rl_only(tmp_path, capsys):
+    """verbose=1 prints the imitation's progress as it goes; SB3's fps is not diluted by the imitation's minutes."""
+    import csv
+    import time
+
+    from stable_baselines3.common.logger import configure
+
+    model = APGValue("ApgPolicy", "CrowdNav-v0", seed=0, imitation_episodes=60, imitation_epochs=6, verbose=1,
+                     learning_starts=50, train_freq=4)
+    model.set_logger(configure(str(tmp_path), ["csv"]))
+    start = time.time()
+    model.learn(300, log_interval=1)
+    total = time.time() - start
+    out = capsys.readouterr().out
+    assert "imitation: ORCA-robot episodes, 0/60" in out and "imitation: ORCA-robot episodes, 60/60" in out
+    assert "epochs, 6/6" in out and "about" in out
+    with open(tmp_path / "progress.csv") as f:
+        fps = [float(row["time/fps"]) for row in csv.DictReader(f) if row.get("time/fps")]
+    assert fps and fps[-1] > 2 * model.num_timesteps / total  # RL steps over RL time, not over imitation + RL

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 from typing import Any, ClassVar, TypeVar
 
@@ -329,8 +330,9 @@ class APGValue(OffPolicyAlgorithm):
         result = super()._setup_learn(total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar)
         follow_timeout_handling(self.replay_buffer, self.bootstrap_timeouts)
         if not self.imitation_done:
-            pretrain_from_orca(self)
+            pretrain_from_orca(self, progress_bar)
             self.imitation_done = True
+            self.start_time = time.time_ns()  # SB3's fps and time_elapsed count RL only
             self._last_obs = self.env.reset()  # type: ignore[union-attr]
             self._last_episode_starts = np.ones((self.env.num_envs,), dtype=bool)  # type: ignore[union-attr]
         if self._overlap is not None:  # overlap_training: act with V as imitation left it

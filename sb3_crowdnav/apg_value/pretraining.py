@@ -33,14 +33,47 @@ def last_step_first(episode_end: np.ndarray) -> np.ndarray:
                           or [np.zeros(0, dtype=np.int64)])
 
 
-def pretrain_from_orca(model: APGValue) -> list[float]:
+class Progress:
+    """Progress of one imitation phase: a tqdm bar (``progress_bar``) and/or a log line every tenth (``verbose``),
+    with the elapsed time and an ETA; the first line comes at once."""
+
+    def __init__(self, total: int, what: str, verbose: int, progress_bar: bool) -> None:
+        self.total, self.what, self.verbose, self.done, self.start = total, what, verbose, 0, time.time()
+        self.bar = None
+        if progress_bar:
+            from tqdm.auto import tqdm
+
+            self.bar = tqdm(total=total, desc=f"imitation: {what}")
+        elif verbose >= 1:
+            print(f"imitation: {what}, 0/{total}", flush=True)
+
+    def update(self, done: int, note: str = "") -> None:
+        step, self.done = done - self.done, done
+        if self.bar is not None:
+            self.bar.update(step)
+            return
+        tenth = max(1, self.total // 10)
+        if self.verbose >= 1 and (done % tenth == 0 or done == self.total):
+            elapsed = time.time() - self.start
+            eta = elapsed / done * (self.total - done)
+            print(f"imitation: {self.what}, {done}/{self.total} ({elapsed:.0f} s, about {eta:.0f} s left){note}",
+                  flush=True)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+def pretrain_from_orca(model: APGValue, progress_bar: bool = False) -> list[float]:
     """Collect ``model.imitation_episodes`` ORCA episodes into the replay buffer and regress V on their returns.
 
-    Logs ``imitation/*_rate`` and ``train/imitation_loss`` per epoch; returns the loss of each epoch.
+    Logs ``imitation/*_rate`` and ``train/imitation_loss`` per epoch; returns the loss of each epoch. Reports its
+    progress as it goes: a progress bar with ``progress_bar``, else log lines with ``verbose >= 1``.
     """
     env = model.env
     assert env is not None
     start = time.time()
+    collecting = Progress(model.imitation_episodes, "ORCA-robot episodes", model.verbose, progress_bar)
 
     def store(obs, actions, new_obs, rewards, dones, infos) -> None:
         model._last_obs = obs
@@ -48,7 +81,8 @@ def pretrain_from_orca(model: APGValue) -> list[float]:
 
     demos = collect_demonstrations(env, model.imitation_episodes, mapping=model.imitation_mapping,
                                    safety_space=model.imitation_safety_space, on_step=store,
-                                   keep_next_observations=False)
+                                   keep_next_observations=False, on_episode=collecting.update)
+    collecting.close()
     for key, count in demos.outcomes.items():
         model.logger.record(f"imitation/{key}_rate", count / max(demos.episodes, 1))
     collect_time = time.time() - start
@@ -64,14 +98,18 @@ def pretrain_from_orca(model: APGValue) -> list[float]:
     generator = th.Generator().manual_seed(int(model._explore_rng.integers(2**31)))
     epochs = model.imitation_epochs
 
+    fitting = Progress(epochs, f"fitting V on {len(returns)} states, epochs", model.verbose, progress_bar)
+
     def log_epoch(epoch: int, loss: float) -> None:
         model.logger.record("train/imitation_loss", loss)
         model.logger.record("train/imitation_epoch", epoch + 1)
         model.logger.dump(step=epoch + 1 - epochs)
+        fitting.update(epoch + 1, f", loss {loss:.4f}")
 
     model.policy.set_training_mode(True)
     losses = pretrain_value(net, observations, returns, optimizer, epochs, model.batch_size, generator,
                             model.max_grad_norm, model.device, on_epoch=log_epoch)
+    fitting.close()
     model.policy.set_training_mode(False)
     model.policy.value_net_target.load_state_dict(net.state_dict())
     if model.verbose >= 1:

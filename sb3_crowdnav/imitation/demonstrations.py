@@ -51,7 +51,8 @@ class Demonstrations:
 
 
 def collect_demonstrations(env: Any, episodes: int, mapping: str = "constrained", safety_space: float = 0.0, *,
-                           on_step: StepCallback | None = None, keep_next_observations: bool = True) -> Demonstrations:
+                           on_step: StepCallback | None = None, keep_next_observations: bool = True,
+                           on_episode: Callable[[int], None] | None = None) -> Demonstrations:
     """Run the ORCA robot in ``env`` until ``episodes`` episodes have finished; keep every transition of those.
 
     :param env: a VecEnv of CrowdNav envs (its auto-reset and ``terminal_observation`` are used), or one
@@ -63,6 +64,7 @@ def collect_demonstrations(env: Any, episodes: int, mapping: str = "constrained"
         (VecEnv arrays, all envs); APGValue stores the transitions in its replay buffer with it
     :param keep_next_observations: keep ``next_observations`` (Q-learning needs them; a value regression does not,
         and they double the memory)
+    :param on_episode: called with the number of complete episodes each time one more is kept (progress reports)
     """
     if isinstance(episodes, bool) or not isinstance(episodes, (int, np.integer)) or episodes < 1:
         raise ValueError(f"episodes must be an int >= 1, got {episodes!r}")
@@ -96,6 +98,8 @@ def collect_demonstrations(env: Any, episodes: int, mapping: str = "constrained"
                     kept.extend(pending[i])
                     outcomes[infos[i]["outcome"]] += 1
                     done_episodes += 1
+                    if on_episode is not None:
+                        on_episode(done_episodes)
                 pending[i] = []
         obs = new_obs
     return Demonstrations(
