@@ -64,7 +64,8 @@ def _draw_trajectory(ax, traj: Trajectory, stamp_every: int, cmap) -> None:
     robot, humans = traj.robot, traj.humans
     times = traj.times
     last = len(robot) - 1
-    stamps = sorted(set(range(0, last + 1, stamp_every)) | {last})
+    # the last state always; a regular stamp too close to it would print over it
+    stamps = [k for k in range(0, last, stamp_every) if last - k >= stamp_every / 2] + [last]
     ax.plot(robot[:, 0], robot[:, 1], color=ROBOT_COLOR, lw=1.2, zorder=2)
     for i in range(humans.shape[1]):
         ax.plot(humans[:, i, 0], humans[:, i, 1], color=cmap(i % 10), lw=0.8, alpha=0.6, zorder=1)
@@ -83,6 +84,23 @@ def _draw_trajectory(ax, traj: Trajectory, stamp_every: int, cmap) -> None:
     ax.plot(goal[0], goal[1], marker="*", color="red", ms=12, mec="k", zorder=6)
     for i, g in enumerate(traj.human_goals):
         ax.plot(g[0], g[1], marker="x", color=cmap(i % 10), ms=4, alpha=0.6)
+
+
+def _trajectory_legend(fig, stamp_interval: float, obstacles: bool) -> None:
+    """What the marks mean, under the panels."""
+    from matplotlib.lines import Line2D
+
+    handles = [
+        Line2D([], [], marker="o", color=ROBOT_COLOR, mec="k", ls="-", label=f"robot, every {stamp_interval:g} s "
+               "(number: time [s])"),
+        Line2D([], [], marker="o", mfc="none", color="tab:blue", ls="-", label="pedestrian (same numbers)"),
+        Line2D([], [], marker="*", color="red", mec="k", ms=10, ls="none", label="robot goal"),
+    ]
+    if obstacles:
+        handles.append(Line2D([], [], marker="s", color="0.6", ls="none", ms=8, label="rack / wall"))
+    else:
+        handles.append(Line2D([], [], marker="x", color="tab:blue", ls="none", label="pedestrian goal"))
+    fig.legend(handles=handles, loc="lower center", ncol=len(handles), fontsize=7, frameon=False)
 
 
 def plot_trajectories(episodes: Mapping[str, EpisodeRecord | Trajectory], path: str | Path,
@@ -125,7 +143,8 @@ def plot_trajectories(episodes: Mapping[str, EpisodeRecord | Trajectory], path: 
         ax.set_visible(False)
     if title:
         fig.suptitle(title)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.06, 1, 1))
+    _trajectory_legend(fig, stamp_interval, any(traj.obstacles for _, traj, _ in items))
     return _save(fig, path)
 
 
@@ -200,14 +219,21 @@ def plot_value_map(model: Any, observation: Mapping[str, np.ndarray], path: str 
     best = int(np.argmax(values))
     robot = np.asarray(observation["robot"], dtype=np.float64).reshape(-1)
     i_speed, i_dir = np.unravel_index(int(np.argmax(grid)), grid.shape)
-    ax.plot(angles[i_dir], speeds[i_speed] - (speeds[0] / 2), marker="o", color="red", ms=7, mec="w")
+    ax.plot(angles[i_dir], speeds[i_speed] - (speeds[0] / 2), marker="o", color="red", ms=7, mec="w",
+            ls="none", label="chosen action (highest value)")
     heading = float(robot[Robot.HEADING])
     ax.annotate("", xy=(heading, speeds[-1]), xytext=(0, 0),
                 arrowprops={"arrowstyle": "->", "color": "w", "lw": 1.5})
+    from matplotlib.lines import Line2D
+
+    arrow = Line2D([], [], color="0.4", marker=">", ls="-", label="robot heading (rings: speed [m/s])")
+    fig.legend(handles=[*ax.get_legend_handles_labels()[0], arrow], loc="lower left", ncol=1, fontsize=7,
+               frameon=False)
+    fig.subplots_adjust(bottom=0.16)
     ax.set_ylim(0, speeds[-1])
     ax.set_yticks(speeds)
     ax.set_yticklabels([f"{s:.1f}" for s in speeds], fontsize=7)
-    ax.set_title(title or f"action values (best: action {best})", fontsize=10)
+    ax.set_title(title or f"action values (best: action {best})", fontsize=10, pad=18)
     _save(fig, path, bbox_inches="tight")
     return values
 
