@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 TORCH ?= torch==2.13.0
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test slow lint benchmark reproduce clean
+.PHONY: demo test slow lint docs benchmark reproduce clean
 
 $(STAMP): setup.cfg pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -21,6 +21,11 @@ demo: $(STAMP)
 test: $(STAMP)
 	# pytest exits 5 when it collects nothing: that fails make, as it should
 	$(BIN)/python -m pytest -q
+
+docs: $(STAMP)
+	$(BIN)/pip install -q -e ".[docs]"
+	# warnings are errors: a broken reference or an unreadable figure fails the build
+	$(BIN)/python -m sphinx -W --keep-going -q -b html docs docs/_build/html
 
 slow: $(STAMP)
 	$(BIN)/python -m pytest -q -m slow
@@ -38,4 +43,4 @@ reproduce: $(STAMP)
 	$(BIN)/python examples/reproduce.py
 
 clean:
-	rm -rf $(VENV) build *.egg-info
+	rm -rf $(VENV) build *.egg-info docs/_build

@@ -1,4 +1,4 @@
-"""Lookahead decision time of APGValue (SPEC §7): one env, and per env with 16 envs batched.
+"""Lookahead decision time of APGValue: one env, and per env with 16 envs batched.
 
 Usage: python benchmarks/lookahead_speed.py [--extractor apg] [--decisions 300] [--dtype float32|bfloat16] [--threads 1]
 Prints median milliseconds, and the multiply-add rate of the encoder's per-(step, pedestrian) layers

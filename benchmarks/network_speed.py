@@ -1,4 +1,4 @@
-"""Forward time of the crowd encoders (SPEC §7): ``python benchmarks/network_speed.py``.
+"""Forward time of the crowd encoders: ``python benchmarks/network_speed.py``.
 
 Times one ``torch.no_grad()`` forward pass (median of many runs, one torch thread) of each
 extractor followed by a value head ``create_mlp(features_dim, 1, [150, 100, 100])`` (ψ_M), on

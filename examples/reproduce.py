@@ -18,7 +18,7 @@ from sb3_crowdnav import available_pretrained
 from sb3_crowdnav.evaluation import results_table, run_episodes, run_sweep, summarize, sweep_table
 from sb3_crowdnav.evaluation.plots import plot_learning_curves, plot_trajectories
 
-# SPEC §6 (500 tests, 6 pedestrians)
+# the paper's Tables 3-5 (500 tests, 6 pedestrians)
 PAPER_T3 = {  # method: (success, collision, time, return, gap)
     "ORCA": (0.33, 0.66, 11.03, -0.0652, None),
     "CADRL": (0.59, 0.40, 10.68, 0.0738, None),

@@ -2,7 +2,7 @@
 
 Shipped models: each file in ``sb3_crowdnav/weights/`` is an SB3 ``.zip`` saved without its replay
 buffer (policy weights and optimiser state, about 1 MB), loaded by ``pretrained("apg_rl")``. They are
-produced by ``sb3-crowdnav train --variant NAME`` (see the README for the command, wall time and
+produced by ``sb3-crowdnav train --variant NAME`` (see the docs, "Shipped models and results", for the command, wall time and
 results of each).
 
 Loading without being told the algorithm:

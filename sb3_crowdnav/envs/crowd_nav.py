@@ -38,7 +38,7 @@ class CrowdNavEnv(gym.Env):
 
     A robot crosses a circle of radius 4 m from (0, -4) to (0, 4) while pedestrians, driven by
     ORCA (the RVO2 library through ``pyrvo``), cross the same circle towards their antipodes
-    (paper §3, SPEC §2). By default the robot is invisible to the pedestrians: they do not
+    (paper §3). By default the robot is invisible to the pedestrians: they do not
     yield, so the robot must avoid them.
 
     ## Action Space
@@ -52,11 +52,13 @@ class CrowdNavEnv(gym.Env):
 
     A ``Dict`` in world coordinates (everything the lookahead needs; float32):
 
-    | key | shape | content |
-    |-----|-------|---------|
-    | ``robot`` | (9,) | px, py, vx, vy, radius, gx, gy, v_pref, heading |
-    | ``humans`` | (T * max_humans * 5,) | px, py, vx, vy, radius of every slot for the last T = 5 steps (1) |
-    | ``humans_mask`` | (max_humans,) | 1 for a present pedestrian, 0 for a padded slot (whose values are 0) |
+    ===============  =====================  ====================================================================
+    key              shape                  content
+    ===============  =====================  ====================================================================
+    ``robot``        (9,)                   px, py, vx, vy, radius, gx, gy, v_pref, heading
+    ``humans``       (T * max_humans * 5,)  px, py, vx, vy, radius of every slot for the last T = 5 steps (1)
+    ``humans_mask``  (max_humans,)          1 for a present pedestrian, 0 for a padded slot (whose values are 0)
+    ===============  =====================  ====================================================================
 
     (1) oldest first, flat; view it as (T, max_humans, 5). At reset the first state is repeated.
 

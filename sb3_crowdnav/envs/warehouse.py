@@ -44,14 +44,16 @@ class CrowdNavWarehouseEnv(CrowdNavEnv):
 
     ``CrowdNav-v0``'s keys, unchanged in meaning, plus the static world (float32, world coordinates):
 
-    | key | shape | content |
-    |-----|-------|---------|
-    | ``robot`` | (9,) | px, py, vx, vy, radius, gx, gy (the final goal), v_pref, heading |
-    | ``humans`` | (T * max_humans * 5,) | the pickers' px, py, vx, vy, radius for the last T = 5 steps |
-    | ``humans_mask`` | (max_humans,) | 1 for a present picker |
-    | ``obstacles`` | (max_obstacles * 4,) | the nearest rack and wall segments (1), [x0, y0, x1, y1] |
-    | ``obstacles_mask`` | (max_obstacles,) | 1 for an observed segment, 0 for padding (zeros) |
-    | ``waypoints`` | (num_waypoints * 2,) | the current route waypoint and the next ones (3), the goal repeated at the end |
+    ==================  =====================  ==============================================================================
+    key                 shape                  content
+    ==================  =====================  ==============================================================================
+    ``robot``           (9,)                   px, py, vx, vy, radius, gx, gy (the final goal), v_pref, heading
+    ``humans``          (T * max_humans * 5,)  the pickers' px, py, vx, vy, radius for the last T = 5 steps
+    ``humans_mask``     (max_humans,)          1 for a present picker
+    ``obstacles``       (max_obstacles * 4,)   the nearest rack and wall segments (1), [x0, y0, x1, y1]
+    ``obstacles_mask``  (max_obstacles,)       1 for an observed segment, 0 for padding (zeros)
+    ``waypoints``       (num_waypoints * 2,)   the current route waypoint and the next ones (3), the goal repeated at the end
+    ==================  =====================  ==============================================================================
 
     (1) the ``max_obstacles`` (16) segments nearest the robot within ``sensor_range`` (4 m), nearest first.
     Positions are bounded by ± (the largest hall's half diagonal + 1 m).

@@ -1,6 +1,6 @@
 """Evaluation harness: one runner for every policy, the paper's metrics, tables and figures.
 
-Protocol (SPEC §5): ``run_episodes(policy, 500)`` plays test episodes ``env.reset(seed=TEST_SEED_OFFSET + i)``
+Protocol: ``run_episodes(policy, 500)`` plays test episodes ``env.reset(seed=TEST_SEED_OFFSET + i)``
 (``TEST_SEED_OFFSET = 1_000_000``, disjoint from the small training seeds), ``summarize`` turns the
 records into rates with Wilson 95 % intervals and means, ``results_table`` into Markdown/CSV::
 

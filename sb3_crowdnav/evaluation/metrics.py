@@ -1,4 +1,4 @@
-"""Aggregate episode records into the paper's metrics (SPEC §2.4, §5).
+"""Aggregate episode records into the paper's metrics (Tables 3-5).
 
 Confidence intervals of the success / collision / timeout rates are **Wilson score intervals**
 at 95 % (z = 1.959964): for k successes in n episodes, p̂ = k / n,

@@ -1,4 +1,4 @@
-"""Torch crowd encoders (SB3 features extractors) and policies using them (SPEC §3).
+"""Torch crowd encoders (SB3 features extractors) and policies using them (paper §2.1, Table 2).
 
 ``EXTRACTORS`` maps a short name to each extractor class: ``"apg"`` (the paper's APG +
 temporal attention + LSTM), and the baselines ``"cadrl"``, ``"sf"``, ``"lm"``, ``"lstm_rl"``

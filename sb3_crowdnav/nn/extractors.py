@@ -1,6 +1,6 @@
 """Crowd encoders as Stable-Baselines3 features extractors.
 
-Every extractor takes the ``Dict`` observation of a sb3_crowdnav env (SPEC §2.2), infers the
+Every extractor takes the ``Dict`` observation of a sb3_crowdnav env (:mod:`sb3_crowdnav.sim.observation`), infers the
 history length T and the capacity ``max_humans`` from its shapes, and returns
 ``concat[robot-centric robot features (7), crowd encoding]`` of shape (B, features_dim). The
 value / Q / policy head is the caller's: SB3's ``net_arch``, or ψ_M for ``APGValue``.

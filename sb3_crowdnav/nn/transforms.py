@@ -1,4 +1,4 @@
-"""From the world-frame observation (SPEC §2.2) to robot-centric tensors.
+"""From the world-frame observation (:mod:`sb3_crowdnav.sim.observation`) to robot-centric tensors.
 
 The robot-centric frame has its origin at the robot's **current** position and its x-axis
 pointing from the robot to its goal (y-axis counter-clockwise from it), as in the field's

@@ -208,7 +208,7 @@ class SceneConfig:
 
 @dataclass(frozen=True)
 class RewardConfig:
-    """Reward setting (paper Eq. 9-14, SPEC §2.3).
+    """Reward setting (paper Eq. 9-14).
 
     :param name: ``"crowdnav"`` (Table 3), ``"comfort"`` (APG_CRL) or ``"comfort_angular"`` (APG_CARL)
     :param success_reward: reward for reaching the goal (Eq. 12 prints 2; Table 3's returns imply 1)

@@ -7,24 +7,28 @@ history as (T, max_humans, 5) (:meth:`ObservationSchema.humans_view`), the ORCA 
 demonstration collector iterate over :data:`OBS_KEYS`. Adding a key is a change here plus what its
 users need of it.
 
-The observation is a ``Dict`` in world coordinates (SPEC of ``CrowdNav-v0``):
+The observation of ``CrowdNav-v0`` is a ``Dict`` in world coordinates:
 
-| key | shape | content |
-|-----|-------|---------|
-| ``robot`` | (9,) | :data:`ROBOT_FIELDS`, columns named by :class:`Robot` |
-| ``humans`` | (T * max_humans * 5,) | :data:`HUMAN_FIELDS` of every slot for the last T steps, oldest first |
-| ``humans_mask`` | (max_humans,) | 1 for a present pedestrian, 0 for a padded slot |
+===============  =====================  =====================================================================
+key              shape                  content
+===============  =====================  =====================================================================
+``robot``        (9,)                   :data:`ROBOT_FIELDS`, columns named by :class:`Robot`
+``humans``       (T * max_humans * 5,)  :data:`HUMAN_FIELDS` of every slot for the last T steps, oldest first
+``humans_mask``  (max_humans,)          1 for a present pedestrian, 0 for a padded slot
+===============  =====================  =====================================================================
 
 ``humans`` is stored flat because SB3's ``check_env`` warns on Box shapes that are neither 1-D nor
 image-like. Never use bare column numbers elsewhere: name them through :class:`Robot` / :class:`Human`.
 
 The warehouse (``CrowdNavWarehouse-v0``) adds, in world coordinates too:
 
-| key | shape | content |
-|-----|-------|---------|
-| ``obstacles`` | (max_obstacles * 4,) | the nearest rack and wall segments [x0, y0, x1, y1], nearest first, zero padded |
-| ``obstacles_mask`` | (max_obstacles,) | 1 for an observed segment, 0 for padding |
-| ``waypoints`` | (num_waypoints * 2,) | the robot's current route waypoint and the next ones; the goal repeats at the end |
+==================  ====================  =================================================================================
+key                 shape                 content
+==================  ====================  =================================================================================
+``obstacles``       (max_obstacles * 4,)  the nearest rack and wall segments [x0, y0, x1, y1], nearest first, zero padded
+``obstacles_mask``  (max_obstacles,)      1 for an observed segment, 0 for padding
+``waypoints``       (num_waypoints * 2,)  the robot's current route waypoint and the next ones; the goal repeats at the end
+==================  ====================  =================================================================================
 
 This module is on the ground floor (numpy only): it describes spaces without importing Gymnasium;
 :meth:`ObservationSchema.from_space` reads any ``Dict``-like space with ``.spaces`` and ``.shape``.

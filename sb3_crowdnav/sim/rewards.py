@@ -1,9 +1,9 @@
-"""The reward terms of SPEC §2.3 (paper Eq. 9-14), implemented once.
+"""The reward terms (paper Eq. 9-14), implemented once.
 
 The env calls :func:`compute_reward` on one transition; the lookahead calls it on all
 (batch x 80) propagated transitions. Everything broadcasts over leading dimensions.
 
-Conventions (decisions on the paper's ambiguities, also in the README):
+Conventions (decisions on the paper's ambiguities, also in the docs: decisions):
 
 * Collision: the robot and a pedestrian overlap at some moment of the step; both move on
   straight lines during Δt and the closest approach of the two segments is checked.
