@@ -477,3 +477,10 @@ def test_imitation_reports_progress_and_fps_counts_rl_only(tmp_path, capsys):
     with open(tmp_path / "progress.csv") as f:
         fps = [float(row["time/fps"]) for row in csv.DictReader(f) if row.get("time/fps")]
     assert fps and fps[-1] > 2 * model.num_timesteps / total  # RL steps over RL time, not over imitation + RL
+
+
+def test_imitation_progress_bar(capsys):
+    model = APGValue("ApgPolicy", "CrowdNav-v0", seed=0, imitation_episodes=5, imitation_epochs=1)
+    model.learn(20, progress_bar=True)
+    err = capsys.readouterr().err
+    assert "imitation: ORCA-robot episodes" in err and "5/5" in err
