@@ -277,7 +277,8 @@ def train_schedule(out: str | Path, config: ScheduleConfig | None = None, from_i
 def _train(out: Path, config: ScheduleConfig, from_imitation: str | Path | None, log: Any) -> ScheduleResult:
     progress = read_json(out / "progress.json") or {}
     latest = latest_checkpoint(out)
-    if progress.get("finished") and latest is not None and latest[0] >= config.rl_episodes:
+    if progress.get("finished") and latest is not None and latest[0] >= config.rl_episodes \
+            and (out / "final.zip").exists():
         log(f"{out} has finished its {latest[0]} RL episodes: nothing to do")
         return ScheduleResult(APGValue.load(out / "final.zip"), None, 0.0)
     remove_stale(out, keep=latest[0] if latest else -1)
