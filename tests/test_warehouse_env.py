@@ -215,3 +215,19 @@ def test_cli_renders_a_warehouse_episode(tmp_path):
     assert len(frames) > 10
     grey = np.all(np.abs(frames[-1][..., :3].astype(int) - 140) < 6, axis=2).mean()  # racks and walls are drawn
     assert grey > 0.02
+
+
+def test_a_picker_pressed_into_a_rack_is_pushed_out_to_its_radius():
+    """The guard behind ORCA: a centre inside a rack, or closer to it than the radius, goes back to the surface."""
+    from sb3_crowdnav.sim.config import RewardConfig, SceneConfig
+    from sb3_crowdnav.sim.warehouse.config import WarehouseConfig
+    from sb3_crowdnav.sim.warehouse.simulator import WarehouseSimulator
+
+    sim = WarehouseSimulator(SceneConfig(num_humans=4, scenario="warehouse"), RewardConfig(), WarehouseConfig())
+    sim.reset(np.random.default_rng(0))
+    rack = Polygon(sim.layout.racks[0])
+    for inside in (np.asarray(rack.centroid.coords[0]), np.asarray(rack.exterior.coords[0]) + 0.05):
+        out = sim.pickers._outside(inside)
+        assert not rack.contains(Point(out))
+        assert rack.exterior.distance(Point(out)) == pytest.approx(0.3 + 1e-3, abs=1e-6)
+    assert sim.pickers._outside(np.array(sim.pickers.slots[0])) is None  # a pick slot is clear of every rack

@@ -120,10 +120,20 @@ class WarehouseLayout:
         return [np.asarray(shapely.geometry.polygon.orient(Polygon(v)).exterior.coords)[:-1]
                 for v in (*self.racks, *self.wall_polygons)]
 
-    def free_space(self, clearance: float = 0.0) -> Any:
-        """The hall minus the racks, shrunk by ``clearance`` [m] (the centres a disc of that radius may take)."""
-        free = self.hall.difference(shapely.union_all(self.rack_polygons)) if self.racks else self.hall
-        return free.buffer(-clearance) if clearance > 0 else free
+    @functools.cached_property
+    def open_floor(self) -> Any:
+        """The hall minus the racks (computed once per layout)."""
+        return self.hall.difference(shapely.union_all(self.rack_polygons)) if self.racks else self.hall
+
+    def free_space(self, clearance: float = 0.0, join_style: str = "round") -> Any:
+        """The hall minus the racks, shrunk by ``clearance`` [m] (the centres a disc of that radius may take);
+        remembered per clearance, as a layout is immutable."""
+        cache = self.__dict__.setdefault("_free_spaces", {})
+        key = (float(clearance), join_style)
+        if key not in cache:
+            floor = self.open_floor
+            cache[key] = floor.buffer(-clearance, join_style=join_style) if clearance > 0 else floor
+        return cache[key]
 
     # ------------------------------------------------------------------ validation
     def validate(self, robot_radius: float, margin: float = 0.2, name: str = "layout") -> None:
@@ -241,8 +251,7 @@ class Roadmap:
     def __init__(self, layout: WarehouseLayout, clearance: float) -> None:
         check_number("clearance", clearance, allow_zero=True)
         self.layout, self.clearance = layout, float(clearance)
-        free = layout.hall.difference(shapely.union_all(layout.rack_polygons)) if layout.racks else layout.hall
-        self.free = free.buffer(-clearance, join_style="mitre") if clearance > 0 else free
+        self.free = layout.free_space(clearance, join_style="mitre")
         self._cover = self.free.buffer(1e-6)  # segments along the boundary count as inside
         shapely.prepare(self.free)
         shapely.prepare(self._cover)

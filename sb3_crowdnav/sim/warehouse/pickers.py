@@ -70,10 +70,9 @@ class PickerCrowd:
         self.scene, self.slots, self.roadmap, self.rng, self.dwell_time = scene, slots, roadmap, rng, dwell_time
         n = len(starts)
         self.n = n
-        self.obstacles = shapely.union_all([shapely.geometry.Polygon(p) for p in layout.polygons])
-        shapely.prepare(self.obstacles)
-        self._reach = self.obstacles.buffer(scene.human_radius - 1e-6)  # a centre in here overlaps an obstacle
-        shapely.prepare(self._reach)
+        self._layout = layout
+        self._room = layout.free_space(scene.human_radius - 1e-6)  # a centre outside it overlaps a rack or wall
+        shapely.prepare(self._room)
         self.orca = OrcaCrowd(scene, slots[starts], np.full(n, scene.human_radius), np.full(n, scene.human_v_pref),
                               None, obstacles=layout.polygons)
         self.slot = np.array(starts, dtype=np.int64)  # a copy: the caller keeps the start slots
@@ -125,7 +124,7 @@ class PickerCrowd:
         """One ORCA step from ``positions`` (n, 2); new positions and velocities, each (n, 2)."""
         dt = self.scene.time_step
         pos, vel = self.orca.step(self.preferred_velocities(positions))
-        pressed = shapely.contains_xy(self._reach, pos[:, 0], pos[:, 1])
+        pressed = ~shapely.contains_xy(self._room, pos[:, 0], pos[:, 1])
         for i in np.flatnonzero(pressed):  # never seen at Δt <= 0.5 s; a guard that costs one vectorised call
             p = self._outside(pos[i])
             if p is not None:
@@ -144,6 +143,8 @@ class PickerCrowd:
         """Where to put a picker centred at ``position`` that overlaps an obstacle (None: it does not)."""
         radius = self.scene.human_radius
         point = Point(position)
+        if not hasattr(self, "obstacles"):  # built on the first push only (never needed at Δt <= 0.5 s so far)
+            self.obstacles = shapely.union_all([shapely.geometry.Polygon(p) for p in self._layout.polygons])
         if self.obstacles.distance(point) >= radius - 1e-6:
             return None
         inside = self.obstacles.contains(point)
