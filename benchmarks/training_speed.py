@@ -8,8 +8,12 @@ Measures (one torch thread, 6 pedestrians):
       (default 51.2, the mean of a full APG_RL run; the short run here starts from a 200-episode imitation model
       and its episodes end early in collisions, so its own mean is optimistic).
 
+  (4) the bare decision rate (greedy lookaheads per second on real observations, the env not timed) and the
+      acting efficiency: RL env steps/s with learning on over that rate, measured in the same run.
+
 Usage: python benchmarks/training_speed.py [--n-envs 1] [--rl-steps 3000] [--il-episodes 200]
                                           [--dtype float32|bfloat16] [--optimizer adam|sgd] [--overlap]
+                                          [--from-pretrained apg_rl] [--epsilon 0.1]
 
 ``--overlap`` runs the gradient steps in a second thread while the env collects the next steps
 (``APGValue(overlap_training=True)``): the paper's schedule on both cores.
@@ -32,6 +36,23 @@ from sb3_crowdnav.imitation import pretrain_value
 from sb3_crowdnav.nn import configure_cpu
 
 
+def bare_decision_rate(model: APGValue, decisions: int) -> float:
+    """Greedy lookahead decisions per second on observations of real episodes (the env steps are not timed)."""
+    env = model.env
+    observations, obs = [], env.reset()
+    while len(observations) < decisions:
+        observations.append(obs)
+        action = model.policy.action_values(obs).argmax(axis=1)
+        obs, *_ = env.step(action)
+    model.policy.set_training_mode(False)
+    start = time.perf_counter()
+    for obs in observations:
+        model.policy.action_values(obs)
+    rate = decisions * env.num_envs / (time.perf_counter() - start)
+    model._last_obs = env.reset()  # learn() starts from fresh episodes
+    return rate
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__)
     p.add_argument("--n-envs", type=int, default=1)
@@ -48,6 +69,10 @@ def main() -> None:
     p.add_argument("--dtype", default="float32", choices=("float32", "bfloat16"), help="lookahead precision when acting")
     p.add_argument("--optimizer", default="adam", choices=("adam", "sgd"), help="RL optimiser (APGValue's default: adam)")
     p.add_argument("--overlap", action="store_true", help="APGValue(overlap_training=True): gradient steps on a 2nd core")
+    p.add_argument("--from-pretrained", metavar="NAME",
+                   help="start RL from a shipped model's weights (e.g. apg_rl), as the acting-efficiency measurement of "
+                        "the issue tracker does; imitation is then only timed, not used")
+    p.add_argument("--decisions", type=int, default=400, help="greedy decisions timed for the bare decision rate")
     args = p.parse_args()
     configure_cpu(num_threads=1)  # one torch thread + keep freed tensor memory (sb3_crowdnav.nn.perf)
     env = make_vec_env("CrowdNav-v0", n_envs=args.n_envs, seed=0)
@@ -74,7 +99,14 @@ def main() -> None:
                    th.Generator().manual_seed(0), model.max_grad_norm)
     per_epoch_per_k = (time.perf_counter() - t1) / 2 / (states / 1000)
     model.imitation_epochs, model.imitation_done = epochs, True
+    if args.from_pretrained:
+        from sb3_crowdnav.models import check_pretrained
 
+        shipped = APGValue.load(check_pretrained(args.from_pretrained))
+        model.policy.value_net.load_state_dict(shipped.policy.value_net.state_dict())
+        model.policy.value_net_target.load_state_dict(shipped.policy.value_net.state_dict())
+
+    decisions_per_s = bare_decision_rate(model, args.decisions)
     t2 = time.perf_counter()
     model.learn(args.rl_steps, reset_num_timesteps=False)
     rl = time.perf_counter() - t2
@@ -90,6 +122,8 @@ def main() -> None:
     print(f"imitation regression: {per_epoch_per_k:.3f} s per epoch per 1,000 states")
     print(f"RL: {steps_per_s:.0f} env steps/s, mean episode length {ep_len:.1f} steps, "
           f"{3600 * steps_per_s / ep_len:.0f} episodes/h")
+    print(f"bare decision rate: {decisions_per_s:.0f} decisions/s (greedy lookahead of one env, real observations, "
+          f"same weights); acting efficiency = RL env steps/s / decisions/s = {steps_per_s / decisions_per_s:.2f}")
     for label, length in (("measured episode length", ep_len), (f"{args.episode_length:g}-step episodes",
                                                                  args.episode_length)):
         total = il_collect_s + il_regress_s + args.rl_schedule * length / steps_per_s
