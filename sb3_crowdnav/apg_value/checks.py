@@ -41,12 +41,18 @@ def lookahead_settings(env: VecEnv | None) -> dict[str, Any]:
         reward = env.get_attr("reward_config")[0]
     except AttributeError:
         return {}
-    return {
+    settings = {
         "time_step": scene.time_step,
         "kinematics": scene.kinematics,
         "rotation_range": scene.rotation_range,
         "reward": dataclasses.asdict(reward),
     }
+    try:  # the warehouse: what the lookahead needs to know of its static world
+        warehouse = env.get_attr("warehouse")[0]
+    except AttributeError:
+        return settings
+    settings["obstacles"] = {"penalty": warehouse.obstacle_collision_penalty, "waypoint_radius": warehouse.waypoint_radius}
+    return settings
 
 
 def check_policy_name(policy: Any, aliases: dict[str, Any]) -> None:

@@ -18,7 +18,9 @@ from sb3_crowdnav.nn import ApgExtractor, CadrlExtractor, LmExtractor, LstmRlExt
 from sb3_crowdnav.nn.layers import bfloat16_supported
 from sb3_crowdnav.sim.actions import N_ACTIONS
 from sb3_crowdnav.sim.config import KINEMATICS, RewardConfig
-from sb3_crowdnav.sim.observation import OBS_KEYS, ObservationSchema
+from sb3_crowdnav.sim.observation import OBS_KEYS, OBSTACLE_KEYS, WAYPOINT_KEY, ObservationSchema
+
+STATIC_KEYS = (*OBSTACLE_KEYS, WAYPOINT_KEY)  # the warehouse's, propagated when the observation has them
 
 
 class ValueNetwork(nn.Module):
@@ -58,6 +60,9 @@ class ValueLookaheadPolicy(BasePolicy):
     :param optimizer_class: RL optimiser (here SGD with momentum 0.9, as the field's reference code; ``APGValue``
         passes Adam unless ``policy_kwargs`` name one)
     :param optimizer_kwargs: its keyword arguments
+    :param obstacles: in the warehouse, ``{"penalty": ..., "waypoint_radius": ...}`` of its env (set by APGValue):
+        the lookahead charges the obstacle collision of every action whose swept disc touches an observed segment
+        and moves the observed waypoints as the env does
     :param lookahead_dtype: precision of the acting lookahead. ``"float32"`` (default) everywhere;
         ``"bfloat16"`` runs the APG encoder's per-(step, pedestrian) layers in bfloat16 when acting
         (needs a CPU with native bfloat16 matrix kernels; the softmax, LSTM and value head stay in
@@ -87,6 +92,7 @@ class ValueLookaheadPolicy(BasePolicy):
         optimizer_class: type[th.optim.Optimizer] = th.optim.SGD,
         optimizer_kwargs: dict[str, Any] | None = None,
         lookahead_dtype: str = "float32",
+        obstacles: dict[str, float] | None = None,
     ) -> None:
         schema = ObservationSchema.from_space(observation_space)
         self.history_length, self.max_humans = schema.history_length, schema.max_humans
@@ -120,8 +126,9 @@ class ValueLookaheadPolicy(BasePolicy):
         self.reward_config = RewardConfig(**reward)
         self.net_arch = list(net_arch) if net_arch is not None else [150, 100, 100]
         self.activation_fn = activation_fn
+        self.obstacles = dict(obstacles) if obstacles else None
         self.propagation = PropagationModel(self.time_step, kinematics, self.rotation_range, self.reward_config,
-                                            self.history_length, self.gamma)
+                                            self.history_length, self.gamma, self.obstacles)
         self._build(lr_schedule)
         self.lookahead_dtype = "float32"
         self.set_lookahead_dtype(lookahead_dtype)
@@ -163,6 +170,8 @@ class ValueLookaheadPolicy(BasePolicy):
             features_extractor_kwargs=self.features_extractor_kwargs,
             lookahead_dtype=self.lookahead_dtype,
         )
+        if self.obstacles is not None:
+            data["obstacles"] = self.obstacles
         return data
 
     # ------------------------------------------------------------------ values
@@ -181,19 +190,24 @@ class ValueLookaheadPolicy(BasePolicy):
         ``net`` replaces V (``self.value_net``) by another network of the same architecture (APGValue's acting copy).
         """
         net = self.value_net if net is None else net
-        prop = self.propagation(observation["robot"], observation["humans"], observation["humans_mask"])
+        static = {k: observation[k] for k in STATIC_KEYS if k in observation}
+        prop = self.propagation(observation["robot"], observation["humans"], observation["humans_mask"], static)
         b = prop.reward.shape[0]
         robot = prop.robot.reshape(b * N_ACTIONS, -1).astype(np.float32)
         humans = np.repeat(prop.humans.astype(np.float32), N_ACTIONS, axis=0)  # the same under every action
         mask = np.repeat(prop.humans_mask, N_ACTIONS, axis=0)
+        tensors = self._as_tensors(robot, humans, mask)
+        for key, value in prop.static.items():  # the warehouse: segments the same under every action, waypoints not
+            flat = value.reshape(b * N_ACTIONS, -1) if value.ndim == 3 else np.repeat(value, N_ACTIONS, axis=0)
+            tensors[key] = th.as_tensor(flat, dtype=th.float32, device=self.device)
         with th.inference_mode():  # a little cheaper than no_grad; the values leave as numpy
-            v = net(self._as_tensors(robot, humans, mask)).reshape(b, N_ACTIONS).cpu().numpy()
+            v = net(tensors).reshape(b, N_ACTIONS).cpu().numpy()
         q = prop.reward + prop.discount[:, None] * np.where(prop.terminal, 0.0, v)
         return q, prop
 
     def action_values(self, observation: dict[str, np.ndarray], net: nn.Module | None = None) -> np.ndarray:
         """Lookahead value of each of the 80 actions, (B, 80) (Fig. 11's action-value map); ``net`` as in lookahead."""
-        obs = {k: np.asarray(observation[k]) for k in OBS_KEYS}
+        obs = {k: np.asarray(observation[k]) for k in (*OBS_KEYS, *STATIC_KEYS) if k in observation}
         if obs["robot"].ndim == 1:
             obs = {k: v[None] for k, v in obs.items()}
         return self.lookahead(obs, net)[0]

@@ -13,14 +13,16 @@ network runs in torch, on the (B x 80) propagated states in one forward pass.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from sb3_crowdnav.sim.actions import N_ACTIONS, action_table, apply_action
 from sb3_crowdnav.sim.config import RewardConfig
+from sb3_crowdnav.sim.geometry import SEGMENT_DIM, swept_clearance
 from sb3_crowdnav.sim.observation import HUMAN_DIM, Human, ObservationSchema, Robot
-from sb3_crowdnav.sim.rewards import compute_reward, walking_direction
+from sb3_crowdnav.sim.rewards import compute_reward, walking_direction, with_obstacle_collision
+from sb3_crowdnav.sim.warehouse.simulator import next_waypoints
 
 
 @dataclass(frozen=True)
@@ -33,6 +35,7 @@ class Propagated:
     reward: np.ndarray  # (B, 80)
     terminal: np.ndarray  # (B, 80) collision or success
     discount: np.ndarray  # (B,) γ^(Δt·v_pref)
+    static: dict[str, np.ndarray] = field(default_factory=dict)  # the warehouse's keys, per action (B, 80, ...)
 
 
 class PropagationModel:
@@ -47,7 +50,9 @@ class PropagationModel:
     """
 
     def __init__(self, time_step: float, kinematics: str, rotation_range: float, reward: RewardConfig,
-                 history_length: int, gamma: float) -> None:
+                 history_length: int, gamma: float, obstacles: dict[str, float] | None = None) -> None:
+        """:param obstacles: the warehouse's ``{"penalty": ..., "waypoint_radius": ...}`` (None: the open floor)"""
+        self.obstacles = obstacles
         self.time_step = time_step
         self.kinematics = kinematics
         self.reward = reward
@@ -56,8 +61,10 @@ class PropagationModel:
         speeds, self.directions = action_table(1.0, rotation_range)
         self.speed_fractions = speeds  # speeds at v_pref = 1, scaled per state
 
-    def __call__(self, robot: np.ndarray, humans: np.ndarray, mask: np.ndarray) -> Propagated:
-        """:param robot: (B, 9); :param humans: (B, T*M*5); :param mask: (B, M)."""
+    def __call__(self, robot: np.ndarray, humans: np.ndarray, mask: np.ndarray,
+                 static: dict[str, np.ndarray] | None = None) -> Propagated:
+        """:param robot: (B, 9); :param humans: (B, T*M*5); :param mask: (B, M); :param static: the warehouse's
+        ``obstacles`` (B, S*4), ``obstacles_mask`` (B, S) and ``waypoints`` (B, K*2), when the observation has them."""
         robot = np.asarray(robot, dtype=np.float64)
         humans = np.asarray(humans, dtype=np.float64)
         mask = np.asarray(mask) > 0.5
@@ -97,6 +104,18 @@ class PropagationModel:
             np.broadcast_to(hpos0[:, None], (*full, m, 2)), np.broadcast_to(hpos1[:, None], (*full, m, 2)), dirs,
             np.broadcast_to(latest[:, None, :, Human.RADIUS], (*full, m)), np.broadcast_to(mask[:, None], (*full, m)),
         )
+        propagated_static: dict[str, np.ndarray] = {}
+        if static and self.obstacles is not None:  # the same segment geometry as the env, the same waypoint rule
+            segments = np.asarray(static["obstacles"], dtype=np.float64).reshape(b, 1, -1, SEGMENT_DIM)
+            seg_mask = np.asarray(static["obstacles_mask"]).reshape(b, 1, -1)
+            hit = swept_clearance(np.broadcast_to(pos0[:, None, :], (*full, 2)), new_pos, segments, seg_mask) \
+                < radius[:, None]
+            terms = with_obstacle_collision(terms, hit, self.obstacles["penalty"])
+            waypoints = np.asarray(static["waypoints"], dtype=np.float64).reshape(b, 1, -1, 2)
+            moved = next_waypoints(np.broadcast_to(waypoints, (*full, waypoints.shape[2], 2)), new_pos,
+                                   self.obstacles["waypoint_radius"])
+            propagated_static = {"obstacles": np.asarray(static["obstacles"]), "obstacles_mask": seg_mask[:, 0],
+                                 "waypoints": moved.reshape(b, N_ACTIONS, -1)}
         new_robot = np.repeat(robot[:, None, :], N_ACTIONS, axis=1)
         new_robot[:, :, Robot.POS] = new_pos
         new_robot[:, :, Robot.VEL] = vel
@@ -108,4 +127,5 @@ class PropagationModel:
             reward=terms.reward,
             terminal=terms.success | terms.collision,
             discount=self.gamma ** (self.time_step * v_pref),
+            static=propagated_static,
         )

@@ -1,0 +1,75 @@
+"""The lookahead knows the walls: propagation and env agree on obstacle collisions, rewards and waypoints."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import sb3_crowdnav  # noqa: F401
+from sb3_crowdnav.apg_value.checks import lookahead_settings
+from sb3_crowdnav.apg_value.propagation import PropagationModel
+from sb3_crowdnav.sim.observation import OBSTACLE_KEYS, WAYPOINT_KEY
+
+
+def _model(env) -> PropagationModel:
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    settings = lookahead_settings(DummyVecEnv([lambda: env]))
+    scene, reward = env.unwrapped.scene, env.unwrapped.reward_config
+    return PropagationModel(scene.time_step, scene.kinematics, scene.rotation_range, reward, scene.history_length,
+                            0.9, settings["obstacles"])
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_env_and_propagation_agree_on_random_warehouse_transitions(seed):
+    env = gym.make("CrowdNavWarehouse-v0", num_humans=0)  # the robot and the static world alone
+    model = _model(env)
+    rng = np.random.default_rng(seed)
+    obs, _ = env.reset(seed=seed)
+    checked = hits = 0
+    for _ in range(400):
+        action = int(rng.integers(80))
+        batch = {k: v[None] for k, v in obs.items()}
+        prop = model(batch["robot"], batch["humans"], batch["humans_mask"],
+                     {k: batch[k] for k in (*OBSTACLE_KEYS, WAYPOINT_KEY)})
+        replans = env.unwrapped.sim.replans
+        obs, reward, terminated, truncated, info = env.step(action)
+        assert prop.reward[0, action] == pytest.approx(reward, abs=1e-9)
+        assert bool(prop.terminal[0, action]) == terminated
+        hits += info.get("collision_with") == "obstacle"
+        if not (terminated or truncated) and env.unwrapped.sim.replans == replans:
+            # the current waypoint is the env's; a route point beyond the K observed ones it cannot know
+            predicted, actual = prop.static["waypoints"][0, action].reshape(-1, 2), obs["waypoints"].reshape(-1, 2)
+            passed = not np.allclose(predicted, batch["waypoints"][0].reshape(-1, 2))
+            n = 1 if passed else len(predicted)  # all of them while no waypoint is passed
+            np.testing.assert_allclose(predicted[:n], actual[:n], atol=1e-5)
+        checked += 1
+        if terminated or truncated:
+            obs, _ = env.reset()
+    assert checked == 400 and hits > 0  # obstacle collisions happened and were foreseen
+
+
+def test_open_floor_models_are_unchanged():
+    """On CrowdNav-v0 the settings, and so the shipped models' policy kwargs, have no obstacle entry."""
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    assert "obstacles" not in lookahead_settings(DummyVecEnv([lambda: gym.make("CrowdNav-v0")]))
+    from sb3_crowdnav import pretrained
+
+    assert pretrained("apg_rl").policy.obstacles is None
+
+
+def test_apg_value_acts_in_the_warehouse_with_the_walls_in_its_lookahead():
+    from sb3_crowdnav import APGValue
+
+    model = APGValue("ApgPolicy", "CrowdNavWarehouse-v0", imitation_episodes=0, seed=0)
+    assert model.policy.obstacles == {"penalty": -0.25, "waypoint_radius": 0.6}
+    env = gym.make("CrowdNavWarehouse-v0", num_humans=0)
+    obs, _ = env.reset(seed=3)
+    values = model.policy.action_values(obs)[0]
+    batch = {k: v[None] for k, v in obs.items()}
+    prop = model.policy.propagation(batch["robot"], batch["humans"], batch["humans_mask"],
+                                    {k: batch[k] for k in (*OBSTACLE_KEYS, WAYPOINT_KEY)})
+    hit = prop.terminal[0] & (prop.reward[0] == -0.25)
+    np.testing.assert_allclose(values[hit], -0.25)  # a collision's value is its penalty, nothing after it
