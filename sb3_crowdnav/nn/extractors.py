@@ -26,6 +26,7 @@ from torch import nn
 
 from sb3_crowdnav.nn.interactions import angular_pedestrian_grid, local_occupancy_map, social_forces
 from sb3_crowdnav.nn.layers import check_arch, linear, lstm_last_state, masked_softmax, mlp, sort_farthest_first
+from sb3_crowdnav.nn.static_world import StaticWorldEncoder
 from sb3_crowdnav.nn.transforms import (
     HUMAN_FEATURE_DIM,
     ROBOT_FEATURE_DIM,
@@ -35,21 +36,33 @@ from sb3_crowdnav.nn.transforms import (
     robot_centric,
     split_observation,
 )
-from sb3_crowdnav.sim.observation import Human, Robot
+from sb3_crowdnav.sim.observation import Human, ObservationSchema, Robot
+
+
+def _append_static_world(module: CrowdFeaturesExtractor, args: tuple, output: th.Tensor) -> th.Tensor:
+    """Forward hook of an extractor with a static-world branch: its output gains the segments and the route."""
+    return th.cat((output, module.static_world(args[0])), dim=1)
 
 
 class CrowdFeaturesExtractor(BaseFeaturesExtractor):
     """Base class: observation-space validation and the robot-centric transform.
 
-    :param observation_space: the env's ``Dict`` space (keys ``robot``, ``humans``, ``humans_mask``)
-    :param features_dim: size of the output features
+    :param observation_space: the env's ``Dict`` space (keys ``robot``, ``humans``, ``humans_mask``; in the
+        warehouse also the static world's, which add a :class:`~sb3_crowdnav.nn.static_world.StaticWorldEncoder`
+        branch appended to the features)
+    :param features_dim: size of the crowd features (the static world's size is added to it)
     """
 
     def __init__(self, observation_space: spaces.Dict, features_dim: int) -> None:
         history_length, max_humans = parse_observation_space(observation_space)
-        super().__init__(observation_space, features_dim)
+        schema = ObservationSchema.from_space(observation_space)
+        static = StaticWorldEncoder(schema) if schema.max_obstacles and schema.num_waypoints else None
+        super().__init__(observation_space, features_dim + (static.features_dim if static is not None else 0))
         self.history_length = history_length
         self.max_humans = max_humans
+        if static is not None:  # the warehouse: its segments and route appended to the crowd features
+            self.static_world = static
+            self.register_forward_hook(_append_static_world)
 
     def _robot_centric(
         self, observations: dict[str, th.Tensor], latest_only: bool = False
