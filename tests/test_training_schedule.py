@@ -235,3 +235,14 @@ def test_a_kill_at_any_save_point_resumes_into_a_consistent_run(tmp_path, kill_a
     assert progress["finished"] and progress["episodes"] == 4 and progress["validated"] == [2, 4]
     assert sorted(p.name for p in out.glob("replay_buffer_*.npz")) == ["replay_buffer_4.npz"]
     assert not list(out.glob(".*.tmp*")) and not (out / "run.lock").exists()
+
+
+def test_warehouse_variant_trains_in_the_warehouse(tmp_path, monkeypatch):
+    out = tmp_path / "warehouse"
+    _run(monkeypatch, "--variant", "apg_warehouse", "--out", str(out), "--il-episodes", "2", "--il-epochs", "1",
+         "--num-humans", "2", "--rl-episodes", "2", "--checkpoint-episodes", "2", "--eval-episodes", "1")
+    config = json.loads((out / "config.json").read_text())
+    assert config["variant"] == "apg_warehouse"
+    model = APGValue.load(out / "final.zip")
+    assert model.policy.obstacles is not None  # the lookahead charges the walls
+    assert any("static_world" in n for n, _ in model.policy.named_parameters())  # and V sees them

@@ -87,6 +87,7 @@ VARIANTS = {
     "lm_rl": Variant("LmPolicy"),
     "lstm_rl": Variant("LstmRlPolicy"),
     "sarl": Variant("SarlPolicy"),
+    "apg_warehouse": Variant("ApgPolicy", env_id="CrowdNavWarehouse-v0"),  # the paper's method among racks
 }
 OPTIMIZERS = {"adam": (th.optim.Adam, {}), "sgd": (th.optim.SGD, {"momentum": 0.9})}
 LOOKAHEAD_DTYPES = ValueLookaheadPolicy.LOOKAHEAD_DTYPES
