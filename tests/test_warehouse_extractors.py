@@ -195,3 +195,19 @@ def test_apg_value_saves_and_loads_its_static_branch(tmp_path):
     env = gym.make("CrowdNavWarehouse-v0")
     obs, _ = env.reset(seed=2)
     np.testing.assert_allclose(loaded.policy.action_values(obs), model.policy.action_values(obs), atol=1e-6)
+
+
+def test_shipped_open_floor_model_is_unchanged_and_its_encoder_is_the_warehouse_crowd_part(warehouse):
+    """apg_rl loads strictly (no new parameter), and its weights give the warehouse extractor the same crowd features."""
+    from sb3_crowdnav import pretrained
+
+    space, batch = warehouse
+    plain = pretrained("apg_rl").policy.value_net.features_extractor.eval()
+    assert not hasattr(plain, "static_world")
+    th.manual_seed(0)
+    model = EXTRACTORS["apg"](space).eval()
+    missing, unexpected = model.load_state_dict(plain.state_dict(), strict=False)
+    assert not unexpected and missing and all(k.startswith("static_world.") for k in missing)
+    crowd = {k: batch[k] for k in ("robot", "humans", "humans_mask")}
+    with th.no_grad():
+        th.testing.assert_close(model(batch)[:, : plain.features_dim], plain(crowd))
