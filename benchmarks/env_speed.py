@@ -55,19 +55,19 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3, help="best of this many runs is reported")
     parser.add_argument("--reward", default="crowdnav", choices=["crowdnav", "comfort", "comfort_angular"])
     parser.add_argument("--num-humans", type=int, default=6)
-    parser.add_argument("--profile", action="store_true", help="print a cProfile of the fixed-action run instead")
+    parser.add_argument("--profile", action="store_true", help="cProfile the warehouse's random x 8 run instead")
     args = parser.parse_args()
 
     env = gym.make("CrowdNav-v0", num_humans=args.num_humans, reward=args.reward).unwrapped
+    warehouse = gym.make("CrowdNavWarehouse-v0", num_humans=args.num_humans, reward=args.reward).unwrapped
     if args.profile:
         import cProfile
         import pstats
 
         prof = cProfile.Profile()
-        prof.runcall(run, env, args.steps, None)
-        pstats.Stats(prof).sort_stats("tottime").print_stats(25)
+        prof.runcall(run, warehouse, args.steps, RANDOM)
+        pstats.Stats(prof).sort_stats("cumulative").print_stats(30)
         return
-    warehouse = gym.make("CrowdNavWarehouse-v0", num_humans=args.num_humans, reward=args.reward).unwrapped
     print(f"{args.num_humans} pedestrians/pickers, reward={args.reward!r}, best of {args.repeats} runs, resets included")
     print(f"{'robot':<14}{'CrowdNav-v0':>16}{'CrowdNavWarehouse-v0':>24}{'ratio':>8}")
     for label, steps, make in (("fixed action", args.steps, lambda e: None),
