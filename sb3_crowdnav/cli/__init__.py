@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 
 from sb3_crowdnav.cli import evaluate, train
-from sb3_crowdnav.cli.common import Parser, UsageError, common_options, env_options
+from sb3_crowdnav.cli.common import DEFAULT_ENV_ID, Parser, UsageError, common_options, env_options
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -36,6 +36,8 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``sb3-crowdnav`` console script."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    if "env" in args and args.env is None and getattr(args, "variant", None) is None:  # --variant: its own env
+        args.env = DEFAULT_ENV_ID
 
     from sb3_crowdnav.nn import configure_cpu
 

@@ -40,7 +40,7 @@ nonneg_int = _int_at_least(0, "an integer >= 0")
 def env_options() -> argparse.ArgumentParser:
     p = Parser(add_help=False)
     g = p.add_argument_group("environment")
-    g.add_argument("--env", default=DEFAULT_ENV_ID, help="Gymnasium env id (default: %(default)s)")
+    g.add_argument("--env", help=f"Gymnasium env id (default: {DEFAULT_ENV_ID}; train --variant: the variant's env)")
     g.add_argument("--humans", "--num-humans", dest="humans", type=nonneg_int, metavar="N",
                    help="number of pedestrians (env default: 6)")
     g.add_argument("--max-humans", type=positive_int, metavar="N",

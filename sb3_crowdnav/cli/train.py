@@ -98,7 +98,7 @@ def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
     g.add_argument("--timesteps", type=common.positive_int, help="total timesteps (default: n_timesteps of the file)")
     g.add_argument("--checkpoint-freq", type=common.nonneg_int,
                    help="save DIR/checkpoints/ every this many env steps (default: 0, only the final model)")
-    p.set_defaults(func=cmd_train, env=None)  # --variant: the variant's env; --hyperparams: CrowdNav-v0
+    p.set_defaults(func=cmd_train)
 
 
 def _refuse(args: argparse.Namespace, flags: dict[str, str], mode: str) -> None:
@@ -112,7 +112,6 @@ def cmd_train(args: argparse.Namespace) -> int:
         _refuse(args, HYPERPARAMS_FLAGS, "--variant (it is for --hyperparams runs)")
         return _train_variant(args)
     _refuse(args, SCHEDULE_FLAGS, "--hyperparams (it is for --variant runs)")
-    args.env = args.env or common.DEFAULT_ENV_ID
     if args.algo is None:
         raise UsageError(f"--hyperparams needs --algo, one of {', '.join(ALGOS)}")
     return _train_hyperparams(args)
