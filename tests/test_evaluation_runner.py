@@ -199,3 +199,19 @@ def test_stochastic_evaluation_is_the_same_with_one_or_two_workers(spec):
     assert one == two
     again = run_episodes(spec, workers=1, **{**kwargs, "seeds": kwargs["seeds"][::-1]})
     assert one == again[::-1]  # nor does their order
+
+
+@pytest.mark.parametrize("env_id", ["CrowdNav-v0", "CrowdNavWarehouse-v0"])
+def test_trajectory_legend_fits_a_single_panel(env_id, tmp_path, monkeypatch):
+    from sb3_crowdnav.evaluation import plots
+
+    figures = []
+    monkeypatch.setattr(plots, "_save", lambda fig, path, **kw: figures.append(fig) or path)
+    record = run_episodes("orca", 1, {"num_humans": 2}, env_id=env_id, keep_trajectories=True)[0]
+    plot_trajectories({"ORCA robot": record}, tmp_path / "one.png")
+    fig = figures[0]
+    renderer = fig.canvas.get_renderer()
+    box, legend = fig.bbox, fig.legends[0].get_window_extent(renderer)
+    assert box.x0 <= legend.x0 and legend.x1 <= box.x1 and box.y0 <= legend.y0, (legend, box)
+    for ax in fig.axes:  # and the panel does not sit on the legend
+        assert ax.get_tightbbox(renderer).y0 >= legend.y1 - 1

@@ -86,8 +86,8 @@ def _draw_trajectory(ax, traj: Trajectory, stamp_every: int, cmap) -> None:
         ax.plot(g[0], g[1], marker="x", color=cmap(i % 10), ms=4, alpha=0.6)
 
 
-def _trajectory_legend(fig, stamp_interval: float, obstacles: bool) -> None:
-    """What the marks mean, under the panels."""
+def _trajectory_legend(fig, stamp_interval: float, obstacles: bool, ncol: int = 4) -> None:
+    """What the marks mean, under the panels (``ncol`` entries per row: 2 under a single panel, so it fits)."""
     from matplotlib.lines import Line2D
 
     handles = [
@@ -100,7 +100,7 @@ def _trajectory_legend(fig, stamp_interval: float, obstacles: bool) -> None:
         handles.append(Line2D([], [], marker="s", color="0.6", ls="none", ms=8, label="rack / wall"))
     else:
         handles.append(Line2D([], [], marker="x", color="tab:blue", ls="none", label="pedestrian goal"))
-    fig.legend(handles=handles, loc="lower center", ncol=len(handles), fontsize=7, frameon=False)
+    fig.legend(handles=handles, loc="lower center", ncol=ncol, fontsize=7, frameon=False)
 
 
 def plot_trajectories(episodes: Mapping[str, EpisodeRecord | Trajectory], path: str | Path,
@@ -143,8 +143,9 @@ def plot_trajectories(episodes: Mapping[str, EpisodeRecord | Trajectory], path: 
         ax.set_visible(False)
     if title:
         fig.suptitle(title)
-    fig.tight_layout(rect=(0, 0.06, 1, 1))
-    _trajectory_legend(fig, stamp_interval, any(traj.obstacles for _, traj, _ in items))
+    narrow = cols == 1  # one panel: the legend in two rows
+    fig.tight_layout(rect=(0, 0.1 if narrow else 0.06, 1, 1))
+    _trajectory_legend(fig, stamp_interval, any(traj.obstacles for _, traj, _ in items), ncol=2 if narrow else 4)
     return _save(fig, path)
 
 
