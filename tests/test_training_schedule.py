@@ -246,3 +246,16 @@ def test_warehouse_variant_trains_in_the_warehouse(tmp_path, monkeypatch):
     model = APGValue.load(out / "final.zip")
     assert model.policy.obstacles is not None  # the lookahead charges the walls
     assert any("static_world" in n for n, _ in model.policy.named_parameters())  # and V sees them
+
+
+def test_a_variant_brings_its_env_settings_and_schedule_and_a_run_overrides_them():
+    from sb3_crowdnav.training.schedule import ScheduleConfig
+
+    paper, warehouse = ScheduleConfig(variant="apg_rl"), ScheduleConfig(variant="apg_warehouse")
+    assert (paper.rl_episodes, paper.exploration_episodes) == (10_000, 5_000)
+    assert (warehouse.rl_episodes, warehouse.exploration_episodes) == (6_000, 3_000)
+    assert "progress_reward" not in paper.training_env_kwargs
+    assert warehouse.training_env_kwargs["progress_reward"] == 0.1
+    unshaped = ScheduleConfig(variant="apg_warehouse", env_kwargs={"progress_reward": 0.0}, rl_episodes=10_000)
+    assert unshaped.training_env_kwargs["progress_reward"] == 0.0 and unshaped.rl_episodes == 10_000
+    assert unshaped.exploration_episodes == 3_000

@@ -21,9 +21,10 @@ def _model(env) -> PropagationModel:
                             0.9, settings["obstacles"])
 
 
-@pytest.mark.parametrize("seed", range(6))
-def test_env_and_propagation_agree_on_random_warehouse_transitions(seed):
-    env = gym.make("CrowdNavWarehouse-v0", num_humans=0)  # the robot and the static world alone
+@pytest.mark.parametrize("seed, progress_reward", [(s, 0.0) for s in range(4)] + [(s, 0.1) for s in range(4, 6)])
+def test_env_and_propagation_agree_on_random_warehouse_transitions(seed, progress_reward):
+    # the robot and the static world alone; with the route-progress shaping in two seeds
+    env = gym.make("CrowdNavWarehouse-v0", num_humans=0, progress_reward=progress_reward)
     model = _model(env)
     rng = np.random.default_rng(seed)
     obs, _ = env.reset(seed=seed)
@@ -35,7 +36,8 @@ def test_env_and_propagation_agree_on_random_warehouse_transitions(seed):
                      {k: batch[k] for k in (*OBSTACLE_KEYS, WAYPOINT_KEY)})
         replans = env.unwrapped.sim.replans
         obs, reward, terminated, truncated, info = env.step(action)
-        assert prop.reward[0, action] == pytest.approx(reward, abs=1e-9)
+        # the observation is float32: the shaping sees positions rounded to ~1e-6 m
+        assert prop.reward[0, action] == pytest.approx(reward, abs=1e-6 if progress_reward else 1e-9)
         assert bool(prop.terminal[0, action]) == terminated
         hits += info.get("collision_with") == "obstacle"
         if not (terminated or truncated) and env.unwrapped.sim.replans == replans:
@@ -64,7 +66,7 @@ def test_apg_value_acts_in_the_warehouse_with_the_walls_in_its_lookahead():
     from sb3_crowdnav import APGValue
 
     model = APGValue("ApgPolicy", "CrowdNavWarehouse-v0", imitation_episodes=0, seed=0)
-    assert model.policy.obstacles == {"penalty": -0.25, "waypoint_radius": 0.6}
+    assert model.policy.obstacles == {"penalty": -0.25, "waypoint_radius": 0.6, "progress_reward": 0.0}
     env = gym.make("CrowdNavWarehouse-v0", num_humans=0)
     obs, _ = env.reset(seed=3)
     values = model.policy.action_values(obs)[0]
@@ -73,3 +75,38 @@ def test_apg_value_acts_in_the_warehouse_with_the_walls_in_its_lookahead():
                                     {k: batch[k] for k in (*OBSTACLE_KEYS, WAYPOINT_KEY)})
     hit = prop.terminal[0] & (prop.reward[0] == -0.25)
     np.testing.assert_allclose(values[hit], -0.25)  # a collision's value is its penalty, nothing after it
+
+
+def test_route_progress_shaping_is_the_metres_gained_on_the_current_waypoint():
+    """``progress_reward`` k: each step earns k x (distance to the current waypoint before - after), zero on terminal
+    steps; with k = 0 (the default, the paper's reward) the term is absent."""
+    k = 0.1
+    shaped = gym.make("CrowdNavWarehouse-v0", num_humans=0, progress_reward=k)
+    plain = gym.make("CrowdNavWarehouse-v0", num_humans=0)
+    rng = np.random.default_rng(3)
+    for seed in range(3):
+        obs, _ = shaped.reset(seed=seed)
+        plain.reset(seed=seed)
+        gains = []
+        for _ in range(300):
+            action = int(rng.integers(80))
+            waypoint, pos0 = obs["waypoints"][:2].astype(float), obs["robot"][:2].astype(float)
+            obs, reward, terminated, truncated, info = shaped.step(action)
+            _, plain_reward, *_, plain_info = plain.step(action)
+            assert plain_info["reward_progress"] == 0.0
+            if terminated:
+                assert info["reward_progress"] == 0.0 and reward == plain_reward
+                break
+            gained = np.linalg.norm(pos0 - waypoint) - np.linalg.norm(obs["robot"][:2] - waypoint)
+            assert info["reward_progress"] == pytest.approx(k * gained, abs=1e-5)
+            assert reward == pytest.approx(plain_reward + info["reward_progress"], abs=1e-12)
+            gains.append(info["reward_progress"])
+            if truncated:
+                break
+        assert any(g > 0 for g in gains) and any(g < 0 for g in gains)  # random actions go both ways
+
+
+def test_progress_reward_is_checked_at_construction():
+    for bad, error in ((-0.1, ValueError), (11.0, ValueError), (float("nan"), ValueError), ("0.1", TypeError)):
+        with pytest.raises(error, match="progress_reward"):
+            gym.make("CrowdNavWarehouse-v0", progress_reward=bad)

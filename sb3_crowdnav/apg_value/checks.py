@@ -51,7 +51,8 @@ def lookahead_settings(env: VecEnv | None) -> dict[str, Any]:
         warehouse = env.get_attr("warehouse")[0]
     except AttributeError:
         return settings
-    settings["obstacles"] = {"penalty": warehouse.obstacle_collision_penalty, "waypoint_radius": warehouse.waypoint_radius}
+    settings["obstacles"] = {"penalty": warehouse.obstacle_collision_penalty, "waypoint_radius": warehouse.waypoint_radius,
+                             "progress_reward": warehouse.progress_reward}
     return settings
 
 

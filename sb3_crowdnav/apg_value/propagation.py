@@ -21,7 +21,7 @@ from sb3_crowdnav.sim.actions import N_ACTIONS, action_table, apply_action
 from sb3_crowdnav.sim.config import RewardConfig
 from sb3_crowdnav.sim.geometry import SEGMENT_DIM, swept_clearance
 from sb3_crowdnav.sim.observation import HUMAN_DIM, Human, ObservationSchema, Robot
-from sb3_crowdnav.sim.rewards import compute_reward, walking_direction, with_obstacle_collision
+from sb3_crowdnav.sim.rewards import compute_reward, walking_direction, with_obstacle_collision, with_route_progress
 from sb3_crowdnav.sim.warehouse.simulator import next_waypoints
 
 
@@ -51,7 +51,8 @@ class PropagationModel:
 
     def __init__(self, time_step: float, kinematics: str, rotation_range: float, reward: RewardConfig,
                  history_length: int, gamma: float, obstacles: dict[str, float] | None = None) -> None:
-        """:param obstacles: the warehouse's ``{"penalty": ..., "waypoint_radius": ...}`` (None: the open floor)"""
+        """:param obstacles: the warehouse's ``{"penalty": ..., "waypoint_radius": ..., "progress_reward": ...}``
+            (None: the open floor; a missing ``progress_reward`` is 0, models saved before it existed)"""
         self.obstacles = obstacles
         self.time_step = time_step
         self.kinematics = kinematics
@@ -112,6 +113,8 @@ class PropagationModel:
                 < radius[:, None]
             terms = with_obstacle_collision(terms, hit, self.obstacles["penalty"])
             waypoints = np.asarray(static["waypoints"], dtype=np.float64).reshape(b, 1, -1, 2)
+            terms = with_route_progress(terms, np.broadcast_to(pos0[:, None, :], (*full, 2)), new_pos,
+                                        waypoints[:, :, 0], self.obstacles.get("progress_reward", 0.0))
             moved = next_waypoints(np.broadcast_to(waypoints, (*full, waypoints.shape[2], 2)), new_pos,
                                    self.obstacles["waypoint_radius"])
             propagated_static = {"obstacles": np.asarray(static["obstacles"]), "obstacles_mask": seg_mask[:, 0],

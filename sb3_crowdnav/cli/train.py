@@ -68,7 +68,8 @@ def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
                    help="learning rate of the imitation (default: 0.01 with --variant, Table 1; 0.001 with --hyperparams)")
 
     g = p.add_argument_group("the paper's schedule (--variant)")
-    g.add_argument("--rl-episodes", type=common.positive_int, help="RL episodes in total (default: 10000)")
+    g.add_argument("--rl-episodes", type=common.positive_int,
+                   help="RL episodes in total (default: the variant's: 10000, apg_warehouse 6000)")
     g.add_argument("--n-envs", type=common.positive_int, help="training envs, one batched lookahead (default: 1)")
     g.add_argument("--learning-rate", type=_positive_float, help="RL learning rate (default: 0.001, Table 1)")
     g.add_argument("--train-freq", type=common.positive_int, help="one gradient step every this many env steps (default: 4)")
@@ -80,7 +81,7 @@ def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
     g.add_argument("--no-bootstrap-timeouts", dest="bootstrap_timeouts", action="store_const", const=False,
                    help="end timed-out episodes with zero future value (the field's reference code)")
     g.add_argument("--exploration-episodes", type=common.positive_int,
-                   help="RL episodes of the ε decay 0.5 -> 0.1 (default: 5000)")
+                   help="RL episodes of the ε decay 0.5 -> 0.1 (default: the variant's: 5000, apg_warehouse 3000)")
     g.add_argument("--select-by", choices=SELECT_BY,
                    help="best.zip: highest validation success then shortest time (default), or highest return under "
                         "the variant's own reward (use for apg_crl / apg_carl)")
@@ -90,7 +91,8 @@ def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
     g.add_argument("--overlap", action="store_const", const=True,
                    help="gradient steps on the second core while acting (APGValue overlap_training)")
     g.add_argument("--refill-steps", type=common.nonneg_int,
-                   help="resuming without OUT/replay_buffer.pkl: env steps collected before training again (default: 5000)")
+                   help="resuming without OUT/replay_buffer_<N>.npz: env steps collected before training again "
+                        "(default: 5000)")
     g.add_argument("--lookahead-dtype", choices=LOOKAHEAD_DTYPES, help="precision of the acting lookahead (default: float32)")
 
     g = p.add_argument_group("hyperparameter files (--hyperparams)")

@@ -147,6 +147,7 @@ class CrowdNavWarehouseEnv(CrowdNavEnv):
 
     def step(self, action):
         obs, reward, terminated, truncated, info = super().step(action)
+        info["reward_progress"] = self.sim.progress_term
         if "episode_stats" in info:
             info["episode_stats"].update(route_length=self.sim.route_length, replans=self.sim.replans)
         return obs, reward, terminated, truncated, info

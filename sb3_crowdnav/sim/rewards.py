@@ -53,6 +53,7 @@ class RewardTerms(NamedTuple):
     angular_term: np.ndarray
     min_distance: np.ndarray  # minimum surface distance to any present pedestrian during the step [m]
     in_comfort_zone: np.ndarray  # the robot is inside at least one comfort ellipse at the end of the step
+    progress_term: np.ndarray | float = 0.0  # the warehouse's route-progress shaping (:func:`with_route_progress`)
 
 
 def closest_approach(
@@ -298,4 +299,22 @@ def with_obstacle_collision(terms: RewardTerms, hit: np.ndarray, penalty: float)
         angular_term=np.where(keep, terms.angular_term, zero),
         min_distance=terms.min_distance,
         in_comfort_zone=terms.in_comfort_zone,
+        progress_term=np.where(keep, terms.progress_term, zero),
     )
+
+
+def with_route_progress(terms: RewardTerms, pos0: np.ndarray, pos1: np.ndarray, waypoint: np.ndarray,
+                        coefficient: float) -> RewardTerms:
+    """``terms`` plus the route-progress shaping of the warehouse (off when ``coefficient`` is 0, the paper's reward).
+
+    ``coefficient x (|pos0 - waypoint| - |pos1 - waypoint|)``: the metres the step gained on the route's current
+    waypoint (the one observed at the start of the step), positive towards it, negative away; zero on a terminal
+    step like every shaping term. Broadcasts like :func:`compute_reward` (positions (..., 2)); the env and the
+    lookahead both use it, so the value's one-step reward equals the env's.
+    """
+    if coefficient == 0:
+        return terms
+    gained = np.linalg.norm(pos0 - waypoint, axis=-1) - np.linalg.norm(pos1 - waypoint, axis=-1)
+    terminal = np.asarray(terms.success, dtype=bool) | np.asarray(terms.collision, dtype=bool)
+    progress = np.where(terminal, 0.0, coefficient * gained)
+    return terms._replace(reward=terms.reward + progress, progress_term=progress)

@@ -71,11 +71,20 @@ from sb3_crowdnav.training.run_folder import (
 
 @dataclass(frozen=True)
 class Variant:
-    """A row of the paper's tables: the value network (a policy alias of APGValue), its env and reward."""
+    """A row of the paper's tables: the value network (a policy alias of APGValue), its env and reward.
+
+    :param env_kwargs: the variant's env settings (a run's own ``env_kwargs`` override them)
+    :param schedule: the variant's defaults of :class:`ScheduleConfig` fields left None
+    """
 
     policy: str
     reward: str = "crowdnav"
     env_id: str = "CrowdNav-v0"
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
+    schedule: dict[str, Any] = field(default_factory=dict)
+
+
+PAPER_SCHEDULE = {"rl_episodes": 10_000, "exploration_episodes": 5_000}  # §3: ε from 0.5 to 0.1 over 5,000 episodes
 
 
 VARIANTS = {
@@ -87,7 +96,9 @@ VARIANTS = {
     "lm_rl": Variant("LmPolicy"),
     "lstm_rl": Variant("LstmRlPolicy"),
     "sarl": Variant("SarlPolicy"),
-    "apg_warehouse": Variant("ApgPolicy", env_id="CrowdNavWarehouse-v0"),  # the paper's method among racks
+    # the paper's method among racks, with route-progress shaping (progress_reward=0: the paper's reward)
+    "apg_warehouse": Variant("ApgPolicy", env_id="CrowdNavWarehouse-v0", env_kwargs={"progress_reward": 0.1},
+                             schedule={"rl_episodes": 6_000, "exploration_episodes": 3_000}),
 }
 OPTIMIZERS = {"adam": (th.optim.Adam, {}), "sgd": (th.optim.SGD, {"momentum": 0.9})}
 LOOKAHEAD_DTYPES = ValueLookaheadPolicy.LOOKAHEAD_DTYPES
@@ -99,13 +110,14 @@ class ScheduleConfig:
     """The paper's schedule (Table 1 and §3) and the knobs of a run; every value is checked at construction.
 
     :param variant: a key of :data:`VARIANTS`
-    :param rl_episodes: RL episodes in total (the paper: 10,000)
+    :param rl_episodes: RL episodes in total (None: the variant's; the paper: 10,000; ``apg_warehouse``: 6,000)
     :param imitation_episodes: ORCA-robot episodes collected before RL (3,000)
     :param imitation_epochs: passes of the imitation regression
     :param imitation_learning_rate: its learning rate (Table 1: 0.01)
     :param n_envs: training envs (one batched lookahead)
     :param num_humans: pedestrians of the training and validation episodes (6), or a (min, max) range
-    :param env_kwargs: more keyword arguments of the env (the variant's reward and ``num_humans`` are set here)
+    :param env_kwargs: more keyword arguments of the env, over the variant's own (its reward and ``num_humans``
+        are set here)
     :param seed: training seed (envs ``seed, seed + 1, ...``)
     :param learning_rate: RL learning rate (Table 1: 0.001)
     :param train_freq: one gradient step every this many env steps
@@ -115,7 +127,8 @@ class ScheduleConfig:
     :param select_by: ``"success"`` (then shortest time) or ``"return"`` under the variant's own reward
         (use it for the comfort variants)
     :param bootstrap_timeouts: see :class:`~sb3_crowdnav.apg_value.APGValue`
-    :param exploration_episodes: RL episodes over which ε decays from 0.5 to 0.1 (5,000)
+    :param exploration_episodes: RL episodes over which ε decays from 0.5 to 0.1 (None: the variant's; the
+        paper: 5,000; ``apg_warehouse``: 3,000)
     :param optimizer: RL optimiser, ``"adam"`` (APGValue's default) or ``"sgd"`` (momentum 0.9, the field's code)
     :param value_target: see :class:`~sb3_crowdnav.apg_value.APGValue`
     :param overlap: ``APGValue(overlap_training=True)``: gradient steps on the second core while acting
@@ -124,7 +137,7 @@ class ScheduleConfig:
     """
 
     variant: str = "apg_rl"
-    rl_episodes: int = 10_000
+    rl_episodes: int | None = None
     imitation_episodes: int = 3_000
     imitation_epochs: int = 10
     imitation_learning_rate: float = 0.01
@@ -140,7 +153,7 @@ class ScheduleConfig:
     checkpoint_episodes: int = 500
     eval_episodes: int = 100
     bootstrap_timeouts: bool = True
-    exploration_episodes: int = 5_000
+    exploration_episodes: int | None = None
     refill_steps: int = 5_000
     select_by: Literal["success", "return"] = "success"
     overlap: bool = False
@@ -150,6 +163,9 @@ class ScheduleConfig:
         for name, allowed in (("variant", tuple(VARIANTS)), ("select_by", SELECT_BY), ("optimizer", tuple(OPTIMIZERS)),
                               ("value_target", VALUE_TARGETS), ("lookahead_dtype", LOOKAHEAD_DTYPES)):
             check_choice(name, getattr(self, name), allowed)
+        for name, default in {**PAPER_SCHEDULE, **self.spec.schedule}.items():
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, default)
         for name, minimum in (("rl_episodes", 1), ("imitation_episodes", 0), ("imitation_epochs", 0), ("n_envs", 1),
                               ("seed", 0), ("train_freq", 1), ("buffer_size", 1),
                               ("checkpoint_episodes", 1), ("eval_episodes", 0), ("exploration_episodes", 1),
@@ -176,7 +192,7 @@ class ScheduleConfig:
     @property
     def training_env_kwargs(self) -> dict[str, Any]:
         """Keyword arguments of the training and validation envs."""
-        return {"reward": self.spec.reward, "num_humans": self.num_humans,
+        return {"reward": self.spec.reward, "num_humans": self.num_humans, **self.spec.env_kwargs,
                 **{k: v for k, v in self.env_kwargs.items() if k != "reward"}}
 
 

@@ -11,7 +11,7 @@ from shapely.geometry import LineString
 from sb3_crowdnav.sim.config import RewardConfig, SceneConfig
 from sb3_crowdnav.sim.geometry import SEGMENT_DIM, polygon_segments, segment_distance
 from sb3_crowdnav.sim.observation import HUMAN_DIM, ROBOT_DIM, Human, Robot
-from sb3_crowdnav.sim.rewards import RewardTerms, with_obstacle_collision
+from sb3_crowdnav.sim.rewards import RewardTerms, with_obstacle_collision, with_route_progress
 from sb3_crowdnav.sim.simulator import CrowdSimulator
 from sb3_crowdnav.sim.warehouse.config import WarehouseConfig, check_feasible
 from sb3_crowdnav.sim.warehouse.layout import Roadmap, WarehouseLayout, generate_layout
@@ -60,6 +60,7 @@ class WarehouseSimulator(CrowdSimulator):
         self.route_index = 0
         self.route_length = 0.0
         self.replans = 0
+        self.progress_term = 0.0
 
     # ------------------------------------------------------------------ reset
     def _maps(self, layout: WarehouseLayout) -> tuple[Roadmap, Roadmap, np.ndarray]:
@@ -197,6 +198,7 @@ class WarehouseSimulator(CrowdSimulator):
         :attr:`hit_obstacle` tells whether this step's collision was with a rack or a wall.
         """
         pos0 = self.robot[Robot.POS].copy()
+        waypoint = self.route[self.route_index]  # the observed current waypoint (replanning replaces the array)
         terms = super().step(action)
         pos1 = self.robot[Robot.POS]
         self._seg_dist = self._distances(pos1)
@@ -204,6 +206,8 @@ class WarehouseSimulator(CrowdSimulator):
         hit = self._blocked(pos0, pos1, self._seg_dist < self.scene.robot_radius + step_length)
         terms = with_obstacle_collision(terms, np.bool_(hit), self.config.obstacle_collision_penalty)
         self.hit_obstacle = hit and not bool(terms.min_distance < 0)
+        terms = with_route_progress(terms, pos0, pos1, waypoint, self.config.progress_reward)
+        self.progress_term = float(terms.progress_term)
         if not (terms.collision or terms.success):
             self._advance_route()
         return terms
