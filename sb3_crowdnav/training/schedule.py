@@ -339,5 +339,7 @@ def _train(out: Path, config: ScheduleConfig, from_imitation: str | Path | None,
 
 
 def config_dict(config: ScheduleConfig) -> dict[str, Any]:
-    """The config as plain JSON-able values (written to ``OUT/config.json`` by the CLI)."""
-    return dataclasses.asdict(config)
+    """The config as plain JSON-able values (written to ``OUT/config.json`` by the CLI), with the env's keyword
+    arguments as the run uses them (the variant's own settings included) under ``training_env_kwargs``."""
+    return {**dataclasses.asdict(config), "env_id": config.spec.env_id,
+            "training_env_kwargs": config.training_env_kwargs}
