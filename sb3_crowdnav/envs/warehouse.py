@@ -62,7 +62,9 @@ class CrowdNavWarehouseEnv(CrowdNavEnv):
 
     As ``CrowdNav-v0`` (``reward="crowdnav"``, ``"comfort"``, ``"comfort_angular"``), plus
     ``obstacle_collision_penalty`` (-0.25) when the robot's swept disc touches a rack or a wall
-    during the step. ``info`` reports every term.
+    during the step, and, when ``progress_reward`` k > 0 (default 0: the paper's reward, no shaping), the
+    route-progress shaping k x (metres gained on the current waypoint during the step), zero on terminal steps.
+    ``info`` reports every term (``reward_progress`` the shaping).
 
     ## Starting State
 
@@ -86,7 +88,7 @@ class CrowdNavWarehouseEnv(CrowdNavEnv):
     :class:`~sb3_crowdnav.sim.warehouse.config.WarehouseConfig` (``layout``, ``layout_ranges``,
     ``max_obstacles``, ``sensor_range``, ``num_waypoints``, ``waypoint_radius``, ``replan_distance``,
     ``dwell_time``, ``min_route_distance``, ``obstacle_collision_penalty``, ``time_limit_factor``,
-    ``time_limit_slack``).
+    ``time_limit_slack``, ``progress_reward``).
 
     ## Version History
 

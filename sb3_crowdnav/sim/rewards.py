@@ -193,6 +193,7 @@ def compute_reward(
         angular_term=angular_term,
         min_distance=min_distance,
         in_comfort_zone=inside,
+        progress_term=zero,
     )
 
 
@@ -273,6 +274,7 @@ def _compute_reward_single(cfg, time_step, robot_pos0, robot_pos1, heading0, hea
         angular_term=f64(angular_term),
         min_distance=f64(min_distance),
         in_comfort_zone=b_(inside_any),
+        progress_term=f64(0.0),
     )
 
 

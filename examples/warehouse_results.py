@@ -1,0 +1,84 @@
+"""Regenerate the warehouse results of the README: ORCA, PPO and APG in ``CrowdNavWarehouse-v0``.
+
+    python examples/warehouse_results.py [--episodes 500] [--out paper_results/warehouse] [--workers 2]
+
+Three ``sb3-crowdnav benchmark`` runs on the test seeds (1,000,000 + i: layouts the generator never drew in
+training, which used the env's own stream from seed 0, nor in validation, seeds 2,000,000 + i):
+
+* ``OUT/generated``: generated layouts, 6 pickers: ``pretrained:apg_warehouse``, ``pretrained:ppo_warehouse``,
+  the ORCA robot (``orca``, and ``orca-constrained``: ORCA's velocity mapped onto the robot's 80 actions), with
+  95 % Wilson intervals, trajectories over the layout and a GIF per policy; and the sweep of ``apg_warehouse``
+  over 2, 4, 6, 8 and 10 pickers;
+* ``OUT/layout_file``: the same policies in the fixed layout of ``examples/warehouse_layout.yaml``;
+* ``OUT/unshaped``: with ``--unshaped ZIP``, a model trained without the route-progress shaping.
+
+``OUT/summary.md`` collects the tables (the README's warehouse section is copied from it) and, with ``--runs
+DIR``, the training wall times read from the run folders ``DIR/apg_warehouse`` and ``DIR/ppo_warehouse``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from sb3_crowdnav.cli import main as cli
+
+ENV = "CrowdNavWarehouse-v0"
+LAYOUT_FILE = Path(__file__).with_name("warehouse_layout.yaml")
+POLICIES = ("pretrained:apg_warehouse", "pretrained:ppo_warehouse", "orca", "orca-constrained")
+SWEEP = ("2", "4", "6", "8", "10")
+
+
+def benchmark(out: Path, policies, episodes: int, workers: int, extra=()) -> None:
+    args = ["benchmark", "--env", ENV, "--episodes", str(episodes), "--workers", str(workers), "--out", str(out),
+            "--no-progress", *extra]
+    for policy in policies:
+        args += ["--policy", policy]
+    code = cli(args)
+    if code:
+        raise SystemExit(f"sb3-crowdnav {' '.join(args)} exited with {code}")
+
+
+def run_wall_time(folder: Path) -> str:
+    """The wall time of a finished run folder: ``config.json`` written at its start, the last file at its end."""
+    if not folder.is_dir():
+        return "–"
+    config = json.loads((folder / "config.json").read_text())
+    if "wall_time_s" in config:  # an --algo run records its own
+        return f"{config['wall_time_s'] / 60:.0f} min"
+    start = (folder / "config.json").stat().st_mtime
+    curve = [json.loads(line) for line in (folder / "eval_curve.jsonl").read_text().splitlines() if line]
+    end = max(row["wall"] for row in curve)
+    return f"{(end - start) / 60:.0f} min (to the last validation, {curve[-1]['episodes']} RL episodes)"
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--episodes", type=int, default=500)
+    p.add_argument("--workers", type=int, default=2)
+    p.add_argument("--out", type=Path, default=Path("paper_results/warehouse"))
+    p.add_argument("--unshaped", metavar="ZIP", help="also evaluate this model trained without progress shaping")
+    p.add_argument("--runs", type=Path, help="folder holding the run folders apg_warehouse and ppo_warehouse")
+    args = p.parse_args()
+
+    benchmark(args.out / "generated", POLICIES, args.episodes, args.workers, ["--sweep", *SWEEP])
+    benchmark(args.out / "layout_file", POLICIES, args.episodes, args.workers,
+              ["--env-kwargs", f"dict(layout={str(LAYOUT_FILE)!r})", "--no-gif"])
+    sections = [("Generated layouts, 6 pickers", args.out / "generated" / "results.md"),
+                ("apg_warehouse with 2-10 pickers", args.out / "generated" / "sweep.md"),
+                (f"The layout file {LAYOUT_FILE.name}, 6 pickers", args.out / "layout_file" / "results.md")]
+    if args.unshaped:
+        benchmark(args.out / "unshaped", [args.unshaped], args.episodes, args.workers, ["--no-gif"])
+        sections.append(("Trained without the progress shaping", args.out / "unshaped" / "results.md"))
+    text = [f"# CrowdNavWarehouse-v0, {args.episodes} test episodes per row (seeds 1,000,000 + i)\n"]
+    text += [f"## {title}\n\n{path.read_text().strip()}\n" for title, path in sections]
+    if args.runs:
+        text.append("## Training wall time (2 cores)\n")
+        text += [f"- {name}: {run_wall_time(args.runs / name)}" for name in ("apg_warehouse", "ppo_warehouse")]
+    (args.out / "summary.md").write_text("\n".join(text) + "\n")
+    print((args.out / "summary.md").read_text())
+
+
+if __name__ == "__main__":
+    main()
