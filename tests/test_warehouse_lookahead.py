@@ -5,6 +5,7 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 import pytest
+import torch as th
 
 import sb3_crowdnav  # noqa: F401
 from sb3_crowdnav.apg_value.checks import lookahead_settings
@@ -110,3 +111,48 @@ def test_progress_reward_is_checked_at_construction():
     for bad, error in ((-0.1, ValueError), (11.0, ValueError), (float("nan"), ValueError), ("0.1", TypeError)):
         with pytest.raises(error, match="progress_reward"):
             gym.make("CrowdNavWarehouse-v0", progress_reward=bad)
+
+
+@pytest.mark.parametrize("k", [0.1, 1.0])
+def test_value_ceiling_bounds_every_return_and_caps_the_lookahead(k):
+    """No discounted return of the shaped warehouse exceeds ``value_ceiling`` (measured on random episodes, each
+    state's return to the episode's end); the lookahead caps V(s') there, so an overestimating V cannot outbid a
+    success action."""
+    from sb3_crowdnav.apg_value import APGValue
+    from sb3_crowdnav.sim.observation import Robot
+
+    env = gym.make("CrowdNavWarehouse-v0", num_humans=2, progress_reward=k)
+    model = APGValue("ApgPolicy", env, imitation_episodes=0, seed=0)
+    policy = model.policy
+    gamma, dt = policy.gamma, policy.time_step
+    ceiling = float(policy.value_ceiling(np.array([1.0]))[0])
+    assert ceiling == pytest.approx(max(1.0, k * dt / (1 - gamma**dt)))
+    rng = np.random.default_rng(0)
+    best = -np.inf
+    for seed in range(6):
+        obs, _ = env.reset(seed=seed)
+        rewards, done = [], False
+        while not done:  # a forward-driving random robot: gains on its waypoints, sometimes reaches the goal
+            action = int(rng.choice([64, 65, 79, 48])) if rng.random() < 0.8 else int(rng.integers(80))
+            obs, reward, terminated, truncated, _ = env.step(action)
+            rewards.append(reward)
+            done = terminated or truncated
+        ret = 0.0
+        for r in reversed(rewards):
+            ret = r + gamma**dt * ret
+            best = max(best, ret)
+    assert best <= ceiling + 1e-9
+    # an overestimating V (its output bias raised by 20): the lookahead still values no action above R + γ'·ceiling
+    with th.no_grad():
+        list(policy.value_net.parameters())[-1].add_(20.0)
+    obs, _ = env.reset(seed=0)
+    q, prop = policy.lookahead({key: value[None] for key, value in obs.items()})
+    discount = gamma ** (dt * obs["robot"][Robot.V_PREF])
+    assert np.all(q <= prop.reward + discount * ceiling + 1e-6)
+    assert np.any(q > prop.reward + discount * (ceiling - 1e-3))  # capped, not zeroed
+
+
+def test_open_floor_policies_have_no_value_ceiling():
+    from sb3_crowdnav import pretrained
+
+    assert pretrained("apg_rl").policy.value_ceiling(np.array([1.0])) is None

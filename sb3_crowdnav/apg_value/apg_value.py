@@ -251,6 +251,9 @@ class APGValue(OffPolicyAlgorithm):
                    dones: th.Tensor) -> th.Tensor:
         with th.no_grad():
             v_next = self.policy.values(next_obs, target=True)
+            ceiling = self.policy.value_ceiling(obs["robot"][:, Robot.V_PREF])
+            if ceiling is not None:  # the warehouse: no return exceeds it (ValueLookaheadPolicy.value_ceiling)
+                v_next = th.minimum(v_next, ceiling)
             discount = self.gamma ** (self.policy.time_step * obs["robot"][:, Robot.V_PREF])
             return rewards + discount * (1.0 - dones) * v_next
 

@@ -18,7 +18,7 @@ from sb3_crowdnav.nn import ApgExtractor, CadrlExtractor, LmExtractor, LstmRlExt
 from sb3_crowdnav.nn.layers import bfloat16_supported
 from sb3_crowdnav.sim.actions import N_ACTIONS
 from sb3_crowdnav.sim.config import KINEMATICS, RewardConfig
-from sb3_crowdnav.sim.observation import OBS_KEYS, OBSTACLE_KEYS, WAYPOINT_KEY, ObservationSchema
+from sb3_crowdnav.sim.observation import OBS_KEYS, OBSTACLE_KEYS, WAYPOINT_KEY, ObservationSchema, Robot
 
 STATIC_KEYS = (*OBSTACLE_KEYS, WAYPOINT_KEY)  # the warehouse's, propagated when the observation has them
 
@@ -184,6 +184,23 @@ class ValueLookaheadPolicy(BasePolicy):
         net = self.value_net_target if target else self.value_net
         return net(observation)
 
+    def value_ceiling(self, v_pref: Any) -> Any:
+        """The largest return any state can have in the warehouse, per state (numpy or torch like ``v_pref``);
+        None on the open floor, where no ceiling is applied (the shipped models act as trained).
+
+        Every reward term is <= 0 but the success reward S and the route-progress shaping, and one step gains at
+        most its length ``v_pref·Δt`` on any waypoint: a return is at most ``max(S, k·v_pref·Δt / (1 - γ'))``
+        with ``γ' = γ^(Δt·v_pref)`` (S = 1 for k = 0.1, v_pref = 1). The lookahead and the TD targets take
+        ``min(V(s'), ceiling)``: V's overestimates beyond it (which, next to the goal, outbid the success action
+        and kept the robot circling there) are cut, and no true value is.
+        """
+        if self.obstacles is None or self.gamma >= 1:
+            return None
+        step = self.time_step * v_pref
+        shaping = self.obstacles.get("progress_reward", 0.0) * step / (1 - self.gamma**step)
+        success = self.reward_config.success_reward
+        return shaping.clamp(min=success) if isinstance(shaping, th.Tensor) else np.maximum(shaping, success)
+
     def lookahead(self, observation: dict[str, np.ndarray], net: nn.Module | None = None) -> tuple[np.ndarray, Propagated]:
         """R + γ^(Δt·v_pref)·V(s') for every action of a batch of numpy observations: (B, 80).
 
@@ -202,6 +219,9 @@ class ValueLookaheadPolicy(BasePolicy):
             tensors[key] = th.as_tensor(flat, dtype=th.float32, device=self.device)
         with th.inference_mode():  # a little cheaper than no_grad; the values leave as numpy
             v = net(tensors).reshape(b, N_ACTIONS).cpu().numpy()
+        ceiling = self.value_ceiling(np.asarray(observation["robot"], dtype=np.float64)[:, Robot.V_PREF])
+        if ceiling is not None:
+            v = np.minimum(v, ceiling[:, None])
         q = prop.reward + prop.discount[:, None] * np.where(prop.terminal, 0.0, v)
         return q, prop
 
@@ -218,7 +238,7 @@ class ValueLookaheadPolicy(BasePolicy):
 
     def _predict(self, observation: PyTorchObs, deterministic: bool = True) -> th.Tensor:
         assert isinstance(observation, dict)
-        q = self.action_values({k: observation[k].cpu().numpy() for k in OBS_KEYS})
+        q = self.action_values({k: value.cpu().numpy() for k, value in observation.items()})
         return th.as_tensor(q.argmax(axis=1), device=self.device)
 
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = False):
