@@ -38,7 +38,8 @@ def main() -> None:
     out = WEIGHTS_DIR / f"{args.name}.zip"
     model.save(out)
     world = read_world(args.checkpoint)
-    env = gym.make("CrowdNav-v0", **(world or {}))  # the world it was trained in, recorded with its spaces
+    env_id = "CrowdNavWarehouse-v0" if "obstacles" in model.observation_space.spaces else "CrowdNav-v0"
+    env = gym.make(env_id, **(world or {}))  # the world it was trained in, recorded with its spaces
     write_spaces(out, model.observation_space, model.action_space, env)
     print(f"wrote {out} ({out.stat().st_size / 1e6:.2f} MB); PRETRAINED_SHA256[{args.name!r}] = "
           f"{hashlib.sha256(out.read_bytes()).hexdigest()!r}")

@@ -35,6 +35,8 @@ PRETRAINED = {
     "lm_rl": "apg_value",
     "ppo_apg": "ppo",
     "dqn_apg": "dqn",
+    "apg_warehouse": "apg_value",
+    "ppo_warehouse": "ppo",
 }
 # name -> SHA-256 of weights/<name>.zip, checked before every load (examples/ship_model.py prints it)
 PRETRAINED_SHA256 = {
@@ -46,6 +48,7 @@ PRETRAINED_SHA256 = {
     "lm_rl": "bb3b01d8d88c503423562d865c2e807def4f314a635fd2f1ea0866d336ed1cab",
     "ppo_apg": "b94d155294700d0b283f655d846783022276dcf9290edcf6dd5c1b6b96154d2f",
     "dqn_apg": "4002a0bdffcb70e967655d430a72a5d1f45a04918dacf247f0c87c78d7ebf94e",
+    "ppo_warehouse": "e71d387a6b327616c7d26df7b92ed14f7166616286530fcc8ed31c5a293df208",
 }
 
 

@@ -21,10 +21,13 @@ def test_unknown_or_missing_pretrained_name_raises():
 
 
 def test_every_shipped_model_loads_and_drives():
-    env = gym.make("CrowdNav-v0")
-    obs, _ = env.reset(seed=1_000_000)
+    envs = {env_id: gym.make(env_id) for env_id in ("CrowdNav-v0", "CrowdNavWarehouse-v0")}
+    observations = {env_id: env.reset(seed=1_000_000)[0] for env_id, env in envs.items()}
     for name in sb3_crowdnav.available_pretrained():
         model = sb3_crowdnav.pretrained(name)
+        env_id = "CrowdNavWarehouse-v0" if "obstacles" in model.observation_space.spaces else "CrowdNav-v0"
+        env, obs = envs[env_id], observations[env_id]
+        assert (name.endswith("_warehouse")) == (env_id == "CrowdNavWarehouse-v0")
         action, _ = model.predict(obs, deterministic=True)
         assert 0 <= int(action) < 80
         assert policy_label(f"pretrained:{name}") == name.upper()
