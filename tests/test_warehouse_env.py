@@ -231,3 +231,32 @@ def test_a_picker_pressed_into_a_rack_is_pushed_out_to_its_radius():
         assert not rack.contains(Point(out))
         assert rack.exterior.distance(Point(out)) == pytest.approx(0.3 + 1e-3, abs=1e-6)
     assert sim.pickers._outside(np.array(sim.pickers.slots[0])) is None  # a pick slot is clear of every rack
+
+
+def test_the_fast_geometric_tests_of_a_step_agree_with_shapely_and_numpy():
+    """The robot's line of sight, the pickers' overlap guard and the swept-disc hit test, in floats or on boxes,
+    give what the shapely predicates and :func:`segment_distance` give."""
+    from shapely.geometry import LineString
+
+    from sb3_crowdnav.sim.config import RewardConfig, SceneConfig
+    from sb3_crowdnav.sim.warehouse.config import WarehouseConfig
+    from sb3_crowdnav.sim.warehouse.simulator import WarehouseSimulator, _segment_distance
+
+    sim = WarehouseSimulator(SceneConfig(num_humans=4, scenario="warehouse"), RewardConfig(), WarehouseConfig())
+    rng = np.random.default_rng(0)
+    for _ in range(3):
+        sim.reset(rng)
+        layout, r = sim.layout, sim.scene.robot_radius
+        sight = layout.free_space(r).buffer(1e-6)
+        room = layout.free_space(sim.scene.human_radius - 1e-6)
+        w, h = layout.width / 2, layout.height / 2
+        points = rng.uniform((-w, -h), (w, h), (400, 2))
+        starts = points[[sight.contains(Point(p)) for p in points]]
+        for a, b in zip(starts[:-1], points[1 : len(starts)], strict=True):
+            assert sim._in_sight(a, b) == sight.covers(LineString([a, b]))
+        for group in points.reshape(-1, 4, 2):
+            np.testing.assert_array_equal(sim.pickers._pressed(group), [not room.contains(Point(p)) for p in group])
+        for p0, p1, seg in zip(points[:-1:2], points[1::2], sim.segments[rng.integers(len(sim.segments), size=200)],
+                               strict=False):
+            assert _segment_distance(p0.tolist(), p1.tolist(), seg[:2].tolist(), seg[2:].tolist()) == \
+                float(segment_distance(p0, p1, seg[:2], seg[2:]))

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from shapely.geometry import LineString
+from shapely.geometry import LineString, Polygon
 
 from sb3_crowdnav.sim.warehouse import LayoutRanges, Roadmap, WarehouseLayout, generate_layout
 
@@ -114,3 +114,83 @@ def test_no_route_between_disconnected_regions():
     roadmap = Roadmap(split, ROBOT_RADIUS)
     with pytest.raises(ValueError, match="no route"):
         roadmap.route((0, -3), (0, 3))
+
+
+# ---------------------------------------------------------------------- the fast geometry of box racks
+def _as_polygons(layout):
+    """The same layout with a midpoint added to every rack's first edge: not boxes, so every test goes to shapely."""
+    return WarehouseLayout(layout.width, layout.height,
+                           tuple(np.insert(r, 1, (r[0] + r[1]) / 2, axis=0) for r in layout.racks))
+
+
+def _points(rng, layout, n):
+    """Points anywhere in the hall, and some on the racks' grown corners and sides (the boundary cases)."""
+    w, h = layout.width / 2, layout.height / 2
+    near = [c + rng.normal(0, 1e-3, 2) for r in layout.racks for c in r + np.sign(r - r.mean(axis=0)) * 0.32]
+    return np.concatenate([rng.uniform((-w, -h), (w, h), (n, 2)), near])
+
+
+@pytest.mark.parametrize("seed", range(8))
+@pytest.mark.parametrize("clearance", [ROBOT_RADIUS + 0.1, ROBOT_RADIUS + 0.02])
+def test_the_box_roadmap_routes_as_the_shapely_one(seed, clearance):
+    """Generated racks are boxes: corners from their buffers, visibility by clipping, only bitangent edges. Same
+    corners, a subgraph of the full visibility graph with the same weights, routes of the same length."""
+    rng = np.random.default_rng(seed)
+    layout = generate_layout(rng)
+    fast, slow = Roadmap(layout, clearance), Roadmap(_as_polygons(layout), clearance)
+    assert fast.grown is not None and slow.grown is None
+    corners = [tuple(c) for c in fast.corners.tolist()]
+    assert set(corners) == {tuple(c) for c in slow.corners.tolist()}
+    index = {c: k for k, c in enumerate(tuple(c) for c in slow.corners.tolist())}
+    full = {frozenset((index[corners[u]], index[corners[v]])): d for u, v, d in fast.graph.edges(data="weight")}
+    assert all(slow.graph.edges[tuple(e)]["weight"] == d for e, d in full.items())
+    points = _points(rng, layout, 30)
+    free = slow.free.buffer(1e-9)
+    for a, b in itertools.pairwise(points):
+        assert fast.is_free(a) == slow.is_free(a)
+        assert fast._visible_one(a, b) == bool(slow._visible(a[None], b[None])[0])
+        ours, theirs = fast.route(a, b), slow.route(a, b)
+        assert Roadmap.route_length(ours) == pytest.approx(Roadmap.route_length(theirs), abs=1e-9)
+        assert (ours[0] == a).all() and (ours[-1] == b).all()
+        if fast.is_free(a) and fast.is_free(b):
+            assert all(free.covers(LineString(s)) for s in itertools.pairwise(ours))
+    ours = [fast.route(a, b) for a, b in itertools.pairwise(points)]  # the joins are remembered now
+    again = Roadmap(layout, clearance)
+    assert all((r == again.route(a, b)).all() for r, (a, b) in zip(ours, itertools.pairwise(points), strict=True))
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_free_space_tests_of_boxes_agree_with_shapely(seed):
+    import shapely
+
+    from sb3_crowdnav.sim.warehouse.boxes import in_free_space, points_clearance, segment_clearance
+
+    rng = np.random.default_rng(seed)
+    layout = generate_layout(rng)
+    points = _points(rng, layout, 300)
+    obstacles = shapely.union_all([*layout.rack_polygons, layout.hall.exterior])
+    exact = shapely.distance(obstacles, shapely.points(points))
+    exact[~shapely.contains_xy(layout.hall, points[:, 0], points[:, 1])] = 0.0
+    exact[shapely.contains_xy(shapely.union_all(layout.rack_polygons), points[:, 0], points[:, 1])] = 0.0
+    hall = (layout.width / 2, layout.height / 2)
+    np.testing.assert_allclose(np.maximum(points_clearance(points, layout.boxes, hall), 0.0), exact, atol=1e-12)
+    for clearance in (0.3 - 1e-6, 0.301, 0.3):
+        free = layout.free_space(clearance)
+        assert (in_free_space(layout, points, clearance) == shapely.contains_xy(free, points[:, 0], points[:, 1])).all()
+    boxes, racks = layout.boxes.tolist(), shapely.union_all(layout.rack_polygons)
+    for a, b in itertools.pairwise(points):
+        segment = LineString([a, b])
+        if layout.hall.covers(segment):
+            expected = 0.0 if racks.intersects(segment) else shapely.distance(obstacles, segment)
+            assert segment_clearance(a.tolist(), b.tolist(), boxes, hall, cap=100.0) == pytest.approx(expected, abs=1e-9)
+
+
+def test_polygons_are_oriented_as_shapely_orients_them():
+    import shapely
+
+    clockwise = _rect(-2, -1, 2, 1)[::-1]
+    closed = np.concatenate([_rect(3, -1, 4, 1), _rect(3, -1, 4, 1)[:1]])
+    layout = WarehouseLayout(12, 6, (clockwise, closed, _rect(-5, -1, -4, 1)))
+    for ours, rack in zip(layout.polygons, layout.racks, strict=False):
+        np.testing.assert_array_equal(ours, np.asarray(shapely.geometry.polygon.orient(Polygon(rack)).exterior.coords)[:-1])
+    assert layout.boxes is None  # the closed ring has five vertices: not a box

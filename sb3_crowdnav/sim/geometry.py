@@ -56,7 +56,11 @@ def polygon_segments(polygons: list[np.ndarray]) -> np.ndarray:
     """The edges of closed polygons ((k, 2) vertex arrays) as (total, 4) segments."""
     if not polygons:
         return np.zeros((0, SEGMENT_DIM))
-    return np.concatenate([np.concatenate([p, np.roll(p, -1, axis=0)], axis=1) for p in polygons])
+    vertices, sizes = np.concatenate(polygons), [len(p) for p in polygons]
+    following = np.arange(1, len(vertices) + 1)  # each vertex's successor along its ring (one call per list)
+    ends = np.cumsum(sizes) - 1
+    following[ends] = ends + 1 - np.asarray(sizes)
+    return np.concatenate([vertices, vertices[following]], axis=1)
 
 
 def nearest_segments(position: np.ndarray, segments: np.ndarray, max_count: int,

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import functools
 import json
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -32,6 +33,7 @@ import shapely
 from shapely.geometry import LineString, Point, Polygon, box
 
 from sb3_crowdnav.sim.config import check_int, check_number
+from sb3_crowdnav.sim.warehouse.boxes import rack_boxes, segment_meets_box, segments_miss_boxes, separated
 
 
 @dataclass(frozen=True)
@@ -104,6 +106,11 @@ class WarehouseLayout:
         return box(-self.width / 2, -self.height / 2, self.width / 2, self.height / 2)
 
     @property
+    def hall_vertices(self) -> np.ndarray:
+        """The hall's (4, 2) vertices, counter-clockwise, as ``np.asarray(hall.exterior.coords)[:-1]`` gives them."""
+        return _box_vertices(-self.width / 2, -self.height / 2, self.width / 2, self.height / 2)
+
+    @property
     def rack_polygons(self) -> list[Polygon]:
         return [Polygon(r) for r in self.racks]
 
@@ -112,13 +119,25 @@ class WarehouseLayout:
         """The four outer walls as thin rectangles (0.2 m) outside the hall, (4, 2) vertices each."""
         w, h, t = self.width / 2, self.height / 2, 0.2
         rects = ((-w - t, -h - t, w + t, -h), (-w - t, h, w + t, h + t), (-w - t, -h, -w, h), (w, -h, w + t, h))
-        return [np.asarray(box(*r).exterior.coords)[:-1] for r in rects]
+        return [_box_vertices(*r) for r in rects]
 
     @functools.cached_property
     def polygons(self) -> list[np.ndarray]:
-        """Every static obstacle (the racks, then the four walls) as a (k, 2) vertex array, counter-clockwise."""
-        return [np.asarray(shapely.geometry.polygon.orient(Polygon(v)).exterior.coords)[:-1]
-                for v in (*self.racks, *self.wall_polygons)]
+        """Every static obstacle (the racks, then the four walls) as a (k, 2) vertex array, counter-clockwise
+        (a clockwise one reversed as shapely's ``orient`` does: the first vertex kept, the others backwards)."""
+        out = []
+        for v in self.racks:
+            v = v[:-1] if len(v) > 3 and (v[0] == v[-1]).all() else v  # a closed ring: shapely drops the repeat
+            p = v.tolist()
+            clockwise = sum(x0 * y1 - x1 * y0 for (x0, y0), (x1, y1) in zip(p, p[1:] + p[:1], strict=True)) < 0
+            out.append(np.concatenate([v[:1], v[:0:-1]]) if clockwise else np.array(v))
+        return out + self.wall_polygons  # counter-clockwise already
+
+    @functools.cached_property
+    def boxes(self) -> np.ndarray | None:
+        """(B, 4) ``[xmin, ymin, xmax, ymax]`` of the racks when all are axis-aligned rectangles (every generated
+        layout), else None: the fast geometry of :mod:`~sb3_crowdnav.sim.warehouse.boxes` applies."""
+        return rack_boxes(self.racks)
 
     @functools.cached_property
     def open_floor(self) -> Any:
@@ -213,6 +232,11 @@ class WarehouseLayout:
         return cls.from_dict(data, name=f"layout {path.name}")
 
 
+def _box_vertices(x0: float, y0: float, x1: float, y1: float) -> np.ndarray:
+    """The (4, 2) counter-clockwise vertices of a box, in the order of shapely's ``box(...).exterior.coords[:-1]``."""
+    return np.array([[x1, y0], [x1, y1], [x0, y1], [x0, y0]], dtype=np.float64)
+
+
 def generate_layout(rng: np.random.Generator, ranges: LayoutRanges | None = None) -> WarehouseLayout:
     """Draw a layout of rows of racks from ``ranges`` with ``rng`` (see the module docstring)."""
     r = LayoutRanges() if ranges is None else ranges
@@ -233,8 +257,14 @@ def layout_from_sizes(rows: int, segments: int, rack_length: float, rack_depth: 
         y0 = -height / 2 + aisle_width + row * (rack_depth + aisle_width)
         for seg in range(segments):
             x0 = -width / 2 + cross_aisle_width + seg * (rack_length + cross_aisle_width)
-            racks.append(np.asarray(box(x0, y0, x0 + rack_length, y0 + rack_depth).exterior.coords)[:-1])
+            racks.append(_box_vertices(x0, y0, x0 + rack_length, y0 + rack_depth))
     return WarehouseLayout(width=width, height=height, racks=tuple(racks))
+
+
+@functools.lru_cache(maxsize=64)
+def _pairs(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """``np.triu_indices(n, k=1)``, remembered (a roadmap of n nodes is built every episode)."""
+    return np.triu_indices(n, k=1)
 
 
 class Roadmap:
@@ -242,71 +272,170 @@ class Roadmap:
 
     The nodes are the corners of the free space shrunk by ``clearance`` (racks grown with square, mitred
     corners, so every corner is a point the disc can reach); two corners are joined when the straight segment
-    between them stays in that free space (checked with ``shapely``, all pairs at once), weighted by its length.
-    A route adds the start and the goal to the graph, joined to the corners they see, and takes the A* path:
-    the shortest polygonal path around the obstacles. A start or goal outside the shrunk free space (a picker
-    pressed against a rack) is joined to its nearest corner.
+    between them stays in that free space (a segment along its boundary counts as inside), weighted by its
+    length. A route adds the start and the goal to the graph, joined to the corners they see, and takes the A*
+    path: the shortest polygonal path around the obstacles. A start or goal outside the shrunk free space (a
+    picker pressed against a rack) is joined to its nearest corner, from which the route goes on as from a start.
+
+    When the racks are boxes whose grown copies stay apart and off the walls (every generated layout), the free
+    space is the shrunk hall minus the grown boxes (shapely's own mitred buffers of the racks: the coordinates of
+    the buffered free space's corners), and the roadmap is built and queried without it
+    (:mod:`~sb3_crowdnav.sim.warehouse.boxes`). The graph then keeps only what a shortest path can use: the
+    racks' corners (a shortest path never bends at a corner of the hall) and the edges that pass each of their
+    ends on the outside of its rack (bitangents; a route's end is joined likewise): the same shortest routes, from
+    a graph of about a third of the edges. Otherwise every test is a shapely predicate on :attr:`free`.
     """
 
     def __init__(self, layout: WarehouseLayout, clearance: float) -> None:
         check_number("clearance", clearance, allow_zero=True)
         self.layout, self.clearance = layout, float(clearance)
-        self.free = layout.free_space(clearance, join_style="mitre")
-        self._cover = self.free.buffer(1e-6)  # segments along the boundary count as inside
-        shapely.prepare(self.free)
-        shapely.prepare(self._cover)
-        rings = [ring for poly in getattr(self.free, "geoms", [self.free]) if not poly.is_empty
-                 for ring in (poly.exterior, *poly.interiors)]
-        self.corners = np.concatenate([np.asarray(r.coords)[:-1] for r in rings]) if rings else np.zeros((0, 2))
+        w, h, c = layout.width / 2, layout.height / 2, self.clearance
+        self._hall = (-w + c, -h + c, w - c, h - c)  # the free space's outline (shapely's mitred buffer gives these)
+        self.grown = self._grown_racks()  # (B, 4) bounds of the racks grown by the clearance, or None (see above)
+        self._joins_of: dict[tuple[float, float], tuple[list[int], list[float]]] = {}
+        if self.grown is not None:
+            x0, y0, x1, y1 = self._hall
+            g = self.grown
+            racks = np.stack([g[:, [0, 1]], g[:, [2, 1]], g[:, [2, 3]], g[:, [0, 3]]], axis=1).reshape(-1, 2)
+            self.corners = np.concatenate([[(x0, y0), (x0, y1), (x1, y1), (x1, y0)], racks])
+            # a segment leaving a rack's corner along (dx, dy) passes it on the outside when side * dx * dy <= 0
+            self._sides = np.concatenate([np.zeros(4), np.tile([1.0, -1.0, 1.0, -1.0], len(g))])
+            self._nodes = np.arange(4, len(self.corners))
+            self._open = self.grown + np.array([1e-6, 1e-6, -1e-6, -1e-6])  # touching a grown rack is allowed
+            self._open_list, self._grown_list = self._open.tolist(), self.grown.tolist()
+            self._node_list, self._side_list = self.corners[4:].tolist(), self._sides[4:].tolist()
+        else:
+            self._cover = self.free.buffer(1e-6)  # segments along the boundary count as inside
+            shapely.prepare(self._cover)
+            rings = [ring for poly in getattr(self.free, "geoms", [self.free]) if not poly.is_empty
+                     for ring in (poly.exterior, *poly.interiors)]
+            self.corners = np.concatenate([np.asarray(r.coords)[:-1] for r in rings]) if rings else np.zeros((0, 2))
+            self._nodes = np.arange(len(self.corners))
         self.graph = nx.Graph()
-        self.graph.add_nodes_from(range(len(self.corners)))
-        i, j = np.triu_indices(len(self.corners), k=1)
-        visible = self._visible(self.corners[i], self.corners[j])
-        lengths = np.linalg.norm(self.corners[i] - self.corners[j], axis=1)
+        self.graph.add_nodes_from(self._nodes.tolist())
+        i, j = (self._nodes[k] for k in _pairs(len(self._nodes)))
+        a, b = self.corners[i], self.corners[j]
+        keep = self._outside(i, b - a) & self._outside(j, a - b)
+        i, j, a, b = i[keep], j[keep], a[keep], b[keep]
+        visible = self._visible(a, b)
+        lengths = np.linalg.norm(a - b, axis=1)
         self.graph.add_weighted_edges_from(zip(i[visible].tolist(), j[visible].tolist(), lengths[visible].tolist(),
                                                strict=True))
+
+    def _outside(self, corners: np.ndarray, direction: np.ndarray) -> np.ndarray:
+        """(n,) bool: a segment leaving corner ``corners[k]`` along ``direction[k]`` passes it on the outside of its
+        rack (both sides of the rack at the corner on one side of the segment), as each segment of a shortest route
+        does at a corner it bends around; always True without boxes."""
+        if self.grown is None:
+            return np.ones(len(corners), dtype=bool)
+        return self._sides[corners] * direction[:, 0] * direction[:, 1] <= 0
+
+    def _grown_racks(self) -> np.ndarray | None:
+        """(B, 4) bounds of the racks grown by the clearance (mitred), when they are boxes, apart and off the walls."""
+        boxes = self.layout.boxes
+        if boxes is None or not len(boxes):
+            return None
+        racks = shapely.polygons(np.stack(self.layout.racks))
+        grown = shapely.bounds(shapely.buffer(racks, self.clearance, join_style="mitre"))
+        return grown if separated(grown, self._hall) else None
+
+    @functools.cached_property
+    def free(self) -> Any:
+        """The free space of the disc (shapely, prepared; with boxes for racks built only when asked for)."""
+        free = self.layout.free_space(self.clearance, join_style="mitre")
+        shapely.prepare(free)
+        return free
 
     def _visible(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         """(n,) bool: the segments a[k]-b[k] lie in the free space."""
         if not len(a):
             return np.zeros(0, dtype=bool)
-        return shapely.covers(self._cover, shapely.linestrings(np.stack([a, b], axis=1)))
+        if self.grown is None:
+            return shapely.covers(self._cover, shapely.linestrings(np.stack([a, b], axis=1)))
+        x0, y0, x1, y1 = self._hall
+        lo, hi = np.array([x0 - 1e-6, y0 - 1e-6]), np.array([x1 + 1e-6, y1 + 1e-6])
+        in_hall = ((a >= lo) & (a <= hi) & (b >= lo) & (b <= hi)).all(axis=1)  # the hall is convex
+        return in_hall & segments_miss_boxes(a, b, self._open)
 
     def is_free(self, point: Sequence[float]) -> bool:
         """Whether a disc of radius ``clearance`` centred at ``point`` is in the free space."""
-        return bool(self.free.contains(Point(point)))
+        if self.grown is None:
+            return bool(self.free.contains(Point(point)))
+        (x, y), (x0, y0, x1, y1) = point, self._hall
+        return bool(x0 < x < x1 and y0 < y < y1 and not any(gx0 <= x <= gx1 and gy0 <= y <= gy1
+                                                            for gx0, gy0, gx1, gy1 in self._grown_list))
 
     def sample_free(self, rng: np.random.Generator) -> np.ndarray:
         """A point drawn uniformly from the free space (rejection sampling in the hall)."""
         w, h = self.layout.width / 2, self.layout.height / 2
         for _ in range(10_000):
             point = rng.uniform((-w, -h), (w, h))
-            if self.free.contains(Point(point)):
+            if self.is_free(point):
                 return point
         raise ValueError("the free space is empty for this clearance")
+
+    def _visible_one(self, a: np.ndarray, b: np.ndarray) -> bool:
+        """:meth:`_visible` of the one segment ``a``-``b`` (in floats when the racks are boxes)."""
+        if self.grown is None:
+            return bool(self._visible(a[None], b[None])[0])
+        (ax, ay), (bx, by), (x0, y0, x1, y1) = a.tolist(), b.tolist(), self._hall
+        inside = x0 - 1e-6 <= min(ax, bx) and max(ax, bx) <= x1 + 1e-6 and y0 - 1e-6 <= min(ay, by) and \
+            max(ay, by) <= y1 + 1e-6
+        return inside and self._misses_racks(ax, ay, bx, by)
+
+    def _misses_racks(self, ax: float, ay: float, bx: float, by: float) -> bool:
+        """Whether the segment enters none of the grown racks (floats; racks beside its bounding box skipped)."""
+        sx0, sx1, sy0, sy1 = min(ax, bx), max(ax, bx), min(ay, by), max(ay, by)
+        return not any(box[0] < sx1 and sx0 < box[2] and box[1] < sy1 and sy0 < box[3] and
+                       segment_meets_box(ax, ay, bx - ax, by - ay, box, interior=True) for box in self._open_list)
+
+    def _joins(self, point: np.ndarray) -> tuple[list[int], list[float]]:
+        """The graph's corners a route's end at ``point`` sees (and passes on the outside) and the edges' lengths;
+        none when ``point`` is outside the free space. Remembered per point (pick slots and goals recur)."""
+        key = (float(point[0]), float(point[1]))
+        joins = self._joins_of.get(key)
+        if joins is None and self.grown is None:
+            nodes = self._nodes[self._visible(np.broadcast_to(point, self.corners.shape), self.corners)]
+            joins = (nodes.tolist(), np.linalg.norm(self.corners[nodes] - point, axis=1).tolist())
+        elif joins is None:  # in floats: a dozen corners against a handful of racks
+            (px, py), (x0, y0, x1, y1), joins = key, self._hall, ([], [])
+            if x0 - 1e-6 <= px <= x1 + 1e-6 and y0 - 1e-6 <= py <= y1 + 1e-6:
+                for k, (cx, cy), side in zip(self._nodes.tolist(), self._node_list, self._side_list, strict=True):
+                    dx, dy = px - cx, py - cy
+                    if side * dx * dy <= 0 and self._misses_racks(px, py, cx, cy):
+                        joins[0].append(k)
+                        joins[1].append(math.sqrt(dx * dx + dy * dy))  # np.linalg.norm's value
+        if len(self._joins_of) >= 4096:  # a fixed layout's roadmap lives for many episodes
+            self._joins_of.clear()
+        self._joins_of[key] = joins
+        return joins
 
     def route(self, start: Sequence[float], goal: Sequence[float]) -> np.ndarray:
         """Waypoints (n, 2) from ``start`` to ``goal`` (both included) through the free space; ``ValueError`` when
         no route exists."""
         start, goal = np.asarray(start, dtype=np.float64), np.asarray(goal, dtype=np.float64)
-        if self._visible(start[None], goal[None])[0]:
+        if self._visible_one(start, goal):
             return np.stack([start, goal])
+        (from_start, start_lengths), (to_goal, goal_lengths) = self._joins(start), self._joins(goal)
+        if len(self.corners) and not (from_start and to_goal):  # an end outside the free space: via its nearest corner
+            if not from_start:
+                nearest = self.corners[np.argmin(np.linalg.norm(self.corners - start, axis=1))]
+                return np.concatenate([start[None], self.route(nearest, goal)])
+            nearest = self.corners[np.argmin(np.linalg.norm(self.corners - goal, axis=1))]
+            return np.stack([start, goal]) if (nearest == start).all() else \
+                np.concatenate([self.route(start, nearest), goal[None]])
         graph, n = self.graph, len(self.corners)
+        points = np.concatenate([self.corners, start[None], goal[None]])
+        remaining = np.linalg.norm(points - goal, axis=1).tolist()  # the A* heuristic of every node
         try:
-            for node, point in ((n, start), (n + 1, goal)):
-                seen = self._visible(np.broadcast_to(point, self.corners.shape), self.corners)
-                targets = np.flatnonzero(seen)
-                if not len(targets) and n:
-                    targets = [int(np.argmin(np.linalg.norm(self.corners - point, axis=1)))]
-                graph.add_weighted_edges_from((node, int(t), float(np.linalg.norm(self.corners[t] - point)))
-                                              for t in targets)
-            points = {**dict(enumerate(self.corners)), n: start, n + 1: goal}
-            path = nx.astar_path(graph, n, n + 1, heuristic=lambda u, v: float(np.linalg.norm(points[u] - points[v])))
+            graph.add_weighted_edges_from(zip([n] * len(from_start), from_start, start_lengths, strict=True))
+            graph.add_weighted_edges_from(zip([n + 1] * len(to_goal), to_goal, goal_lengths, strict=True))
+            path = nx.astar_path(graph, n, n + 1, heuristic=lambda u, _: remaining[u])
         except (nx.NetworkXNoPath, nx.NodeNotFound):
             raise ValueError(f"no route from {tuple(start)} to {tuple(goal)} in the free space") from None
         finally:
             graph.remove_nodes_from((n, n + 1))
-        return np.asarray([points[k] for k in path])
+        return points[path]
 
     @staticmethod
     def route_length(route: np.ndarray) -> float:

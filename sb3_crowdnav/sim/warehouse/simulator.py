@@ -3,16 +3,18 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 import shapely
 from shapely.geometry import LineString
 
 from sb3_crowdnav.sim.config import RewardConfig, SceneConfig
-from sb3_crowdnav.sim.geometry import SEGMENT_DIM, polygon_segments, segment_distance
+from sb3_crowdnav.sim.geometry import SEGMENT_DIM, polygon_segments
 from sb3_crowdnav.sim.observation import HUMAN_DIM, ROBOT_DIM, Human, Robot
 from sb3_crowdnav.sim.rewards import RewardTerms, with_obstacle_collision, with_route_progress
 from sb3_crowdnav.sim.simulator import CrowdSimulator
+from sb3_crowdnav.sim.warehouse.boxes import BAND, segment_clearance
 from sb3_crowdnav.sim.warehouse.config import WarehouseConfig, check_feasible
 from sb3_crowdnav.sim.warehouse.layout import Roadmap, WarehouseLayout, generate_layout
 from sb3_crowdnav.sim.warehouse.pickers import PickerCrowd, pick_slots
@@ -35,6 +37,28 @@ def next_waypoints(waypoints: np.ndarray, position: np.ndarray, radius: float) -
         shifted = np.concatenate([out[..., 1:, :], out[..., -1:, :]], axis=-2)
         out = np.where(reached[..., None, None], shifted, out)
     return out
+
+
+def _point_segment_distance(p: Sequence[float], a: Sequence[float], b: Sequence[float]) -> float:
+    """:func:`~sb3_crowdnav.sim.geometry.point_segment_distance` of one point and one segment, in floats (the same
+    operations in the same order, so the same value)."""
+    abx, aby = b[0] - a[0], b[1] - a[1]
+    length2 = abx * abx + aby * aby
+    t = ((p[0] - a[0]) * abx + (p[1] - a[1]) * aby) / (length2 if length2 > 1e-18 else 1.0)
+    t = min(max(t, 0.0), 1.0)
+    dx, dy = p[0] - (a[0] + t * abx), p[1] - (a[1] + t * aby)
+    return math.sqrt(dx * dx + dy * dy)
+
+
+def _segment_distance(p0: Sequence[float], p1: Sequence[float], q0: Sequence[float], q1: Sequence[float]) -> float:
+    """:func:`~sb3_crowdnav.sim.geometry.segment_distance` of two segments, in floats (the same value)."""
+    def cross(o, a, b):
+        return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
+
+    if cross(q0, q1, p0) * cross(q0, q1, p1) < 0 and cross(p0, p1, q0) * cross(p0, p1, q1) < 0:
+        return 0.0
+    return min(_point_segment_distance(p0, q0, q1), _point_segment_distance(p1, q0, q1),
+               _point_segment_distance(q0, p0, p1), _point_segment_distance(q1, p0, p1))
 
 
 class WarehouseSimulator(CrowdSimulator):
@@ -61,6 +85,7 @@ class WarehouseSimulator(CrowdSimulator):
         self.route_length = 0.0
         self.replans = 0
         self.progress_term = 0.0
+        self._waypoints_of: tuple[np.ndarray | None, int, np.ndarray] = (None, 0, np.zeros((0, 2)))
 
     # ------------------------------------------------------------------ reset
     def _maps(self, layout: WarehouseLayout) -> tuple[Roadmap, Roadmap, np.ndarray]:
@@ -79,12 +104,14 @@ class WarehouseSimulator(CrowdSimulator):
         cfg, s = self.config, self.scene
         self.layout = cfg.layout if cfg.layout is not None else generate_layout(rng, cfg.layout_ranges)
         self.robot_map, picker_map, slots = self._maps(self.layout)
-        self.segments = np.concatenate([polygon_segments(list(self.layout.racks)),
-                                        polygon_segments([np.asarray(self.layout.hall.exterior.coords)[:-1]])])
-        self._sight = self.layout.free_space(self.scene.robot_radius).buffer(1e-6)  # where the robot's centre may go
-        shapely.prepare(self._sight)
-        self._seg_a, self._seg_ab = self.segments[:, :2], self.segments[:, 2:] - self.segments[:, :2]
-        self._seg_len2 = np.maximum(np.sum(self._seg_ab**2, axis=1), 1e-18)
+        self.segments = polygon_segments([*self.layout.racks, self.layout.hall_vertices])
+        self._sight = None  # where the robot's centre may go (shapely), built when _in_sight needs it
+        boxes = self.layout.boxes
+        self._boxes = None if boxes is None else [tuple(b) for b in boxes.tolist()]
+        self._segment_list = self.segments.tolist()
+        seg_ab = self.segments[:, 2:] - self.segments[:, :2]
+        self._seg_len2 = np.maximum(np.sum(seg_ab**2, axis=1), 1e-18)
+        (self._seg_ax, self._seg_ay), (self._seg_abx, self._seg_aby) = self.segments[:, :2].T.copy(), seg_ab.T.copy()
         start, goal = self._stations(rng)
         self.route = self.robot_map.route(start, goal)
         self.route_index, self.replans = 1, 0
@@ -132,7 +159,7 @@ class WarehouseSimulator(CrowdSimulator):
         """``n`` slot indices, pairwise at least ``spacing`` apart, in random order."""
         chosen: list[int] = []
         for i in rng.permutation(len(slots)) if n else ():
-            if all(np.hypot(*(slots[i] - slots[j])) >= spacing for j in chosen):
+            if (np.hypot(*(slots[i] - slots[chosen]).T) >= spacing).all():
                 chosen.append(int(i))
                 if len(chosen) == n:
                     break
@@ -143,32 +170,54 @@ class WarehouseSimulator(CrowdSimulator):
     # ------------------------------------------------------------------ observation
     def _distances(self, point: np.ndarray) -> np.ndarray:
         """Distance from ``point`` (2,) to every segment (S,) (:func:`point_segment_distance` on cached arrays)."""
-        t = np.clip(((point - self._seg_a) * self._seg_ab).sum(axis=1) / self._seg_len2, 0.0, 1.0)
-        return np.hypot(*(point - self._seg_a - t[:, None] * self._seg_ab).T)
+        (x, y), abx, aby = point.tolist(), self._seg_abx, self._seg_aby
+        dx, dy = x - self._seg_ax, y - self._seg_ay  # per coordinate: fewer, cheaper NumPy calls, the same values
+        t = np.minimum(np.maximum((dx * abx + dy * aby) / self._seg_len2, 0.0), 1.0)
+        return np.hypot(dx - t * abx, dy - t * aby)
 
     def observed_obstacles(self) -> tuple[np.ndarray, np.ndarray]:
         """The ``max_obstacles`` segments nearest the robot within ``sensor_range``: (M, 4), mask (M,)
         (:func:`~sb3_crowdnav.sim.geometry.nearest_segments`' rule on the cached distances)."""
         m = self.config.max_obstacles
-        order = np.argsort(self._seg_dist, kind="stable")
-        order = order[self._seg_dist[order] <= self.config.sensor_range][:m]
+        seen = min(m, int(np.count_nonzero(self._seg_dist <= self.config.sensor_range)))
         out, mask = np.zeros((m, SEGMENT_DIM)), np.zeros(m, dtype=bool)
-        out[: len(order)], mask[: len(order)] = self.segments[order], True
+        out[:seen], mask[:seen] = self.segments[np.argsort(self._seg_dist, kind="stable")[:seen]], True
         return out, mask
 
     def observed_waypoints(self) -> np.ndarray:
-        """The current waypoint and the next ones, (K, 2), the goal repeated at the end."""
-        k = self.config.num_waypoints
-        ahead = self.route[self.route_index : self.route_index + k]
-        return np.concatenate([ahead, np.repeat(self.route[-1:], k - len(ahead), axis=0)])
+        """The current waypoint and the next ones, (K, 2), the goal repeated at the end (kept until the route or the
+        index changes; the observation copies it)."""
+        if self._waypoints_of[0] is not self.route or self._waypoints_of[1] != self.route_index:
+            k = self.config.num_waypoints
+            ahead = self.route[self.route_index : self.route_index + k]
+            waypoints = np.concatenate([ahead, np.repeat(self.route[-1:], k - len(ahead), axis=0)])
+            self._waypoints_of = (self.route, self.route_index, waypoints)
+        return self._waypoints_of[2]
 
     # ------------------------------------------------------------------ step
     def _blocked(self, a: np.ndarray, b: np.ndarray, candidates: np.ndarray) -> bool:
-        """Whether the robot's disc moving straight from ``a`` to ``b`` touches one of the ``candidates`` segments."""
-        if not candidates.any():
-            return False
-        seg = self.segments[candidates]
-        return bool(segment_distance(a, b, seg[:, :2], seg[:, 2:]).min() < self.scene.robot_radius)
+        """Whether the robot's disc moving straight from ``a`` to ``b`` touches one of the ``candidates`` segments
+        (:func:`~sb3_crowdnav.sim.geometry.segment_distance` below the radius; in floats, the same operations)."""
+        radius, p, q = self.scene.robot_radius, a.tolist(), b.tolist()
+        for k in np.flatnonzero(candidates).tolist():
+            x0, y0, x1, y1 = self._segment_list[k]
+            if _segment_distance(p, q, (x0, y0), (x1, y1)) < radius:
+                return True
+        return False
+
+    def _in_sight(self, a: np.ndarray, b: np.ndarray) -> bool:
+        """Whether the robot's disc fits all along the segment ``a``-``b``: shapely's ``covers`` by the free space of
+        its radius (+ 1 µm), decided by the exact distance to the racks and walls when it is clear of the radius."""
+        radius = self.scene.robot_radius
+        if self._boxes is not None:
+            d = segment_clearance(a.tolist(), b.tolist(), self._boxes, (self.layout.width / 2, self.layout.height / 2),
+                                  radius + BAND)
+            if abs(d - radius) > BAND:
+                return d > radius
+        if self._sight is None:
+            self._sight = self.layout.free_space(radius).buffer(1e-6)
+            shapely.prepare(self._sight)
+        return bool(self._sight.covers(LineString([a, b])))
 
     def _advance_route(self) -> None:
         """Pass reached waypoints (:func:`next_waypoints`' rule); plan again when the route is lost: the robot
@@ -182,7 +231,7 @@ class WarehouseSimulator(CrowdSimulator):
         dx, dy = bx - ax, by - ay  # point_segment_distance in floats
         t = min(1.0, max(0.0, ((x - ax) * dx + (y - ay) * dy) / max(dx * dx + dy * dy, 1e-18)))
         off = math.hypot(x - ax - t * dx, y - ay - t * dy) > self.config.replan_distance
-        if off or not self._sight.covers(LineString([pos, current])):
+        if off or not self._in_sight(pos, current):
             try:
                 self.route = self.robot_map.route(pos, self.route[-1])
                 self.route_index, self.replans = 1, self.replans + 1
@@ -204,7 +253,8 @@ class WarehouseSimulator(CrowdSimulator):
         self._seg_dist = self._distances(pos1)
         step_length = math.dist(pos0, pos1)
         hit = self._blocked(pos0, pos1, self._seg_dist < self.scene.robot_radius + step_length)
-        terms = with_obstacle_collision(terms, np.bool_(hit), self.config.obstacle_collision_penalty)
+        if hit:  # (without a hit, with_obstacle_collision returns the terms unchanged)
+            terms = with_obstacle_collision(terms, np.bool_(hit), self.config.obstacle_collision_penalty)
         self.hit_obstacle = hit and not bool(terms.min_distance < 0)
         terms = with_route_progress(terms, pos0, pos1, waypoint, self.config.progress_reward)
         self.progress_term = float(terms.progress_term)

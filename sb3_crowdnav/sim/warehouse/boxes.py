@@ -1,0 +1,159 @@
+"""Fast geometry of layouts whose racks are axis-aligned rectangles ("boxes"), as every generated layout's are.
+
+`shapely` answers every geometric question about a layout, but building the free space of a clearance (the hall
+minus the racks, buffered) costs a tenth of a millisecond and each predicate call microseconds, and an env that
+draws a layout per episode asks many. For boxes in a rectangular hall the same questions are a few comparisons:
+
+* the free space of a disc of radius ``c`` with mitred corners (the roadmaps') is the hall shrunk by ``c`` minus
+  the racks grown by ``c``, each grown rack again a box: :func:`segments_miss_boxes` (NumPy, many segments);
+* with round corners (the robot's line of sight, the pickers' room, the pick slots) a point or a segment is in
+  it when its distance to every rack and to the walls is at least ``c``: :func:`points_clearance` (NumPy, many
+  points), :func:`segment_clearance` (Python floats: one segment against a handful of boxes).
+
+shapely's round buffers approximate the arcs around rack corners by chords (within 0.4 mm at the radii used here).
+Callers therefore take the answer of an exact distance only when it is farther than :data:`BAND` from the
+threshold and ask shapely otherwise, so they give shapely's answer everywhere.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import shapely
+
+BAND = 1e-3  # [m] an exact distance this close to a round free space's radius is left to shapely's polygon
+
+
+def rack_boxes(racks: Sequence[np.ndarray]) -> np.ndarray | None:
+    """(B, 4) ``[xmin, ymin, xmax, ymax]`` of the racks when every one is an axis-aligned rectangle of positive
+    area (four vertices, the corners of its bounding box, in ring order), else None."""
+    if not racks or any(len(r) != 4 for r in racks):
+        return None if racks else np.zeros((0, 4))
+    vertices = np.stack(racks)  # (B, 4, 2)
+    lo, hi = vertices.min(axis=1), vertices.max(axis=1)
+    at_corner = ((vertices == lo[:, None]) | (vertices == hi[:, None])).all(axis=(1, 2))
+    steps = vertices != np.roll(vertices, -1, axis=1)  # (B, 4, 2): which coordinates change along each edge
+    one_axis = (steps.sum(axis=2) == 1).all(axis=1)  # every edge along x or along y: a rectangle, no bow tie
+    if not (at_corner & one_axis & (hi > lo).all(axis=1)).all():
+        return None
+    return np.concatenate([lo, hi], axis=1)
+
+
+def separated(boxes: np.ndarray, inner: tuple[float, float, float, float]) -> bool:
+    """Whether ``boxes`` (B, 4) lie strictly inside the rectangle ``inner`` and pairwise apart (a gap in x or y)."""
+    x0, y0, x1, y1 = inner
+    listed = boxes.tolist()
+    if not all(x0 < a and y0 < b and c < x1 and d < y1 for a, b, c, d in listed):
+        return False
+    return all(p[2] < q[0] or q[2] < p[0] or p[3] < q[1] or q[3] < p[1]
+               for k, p in enumerate(listed) for q in listed[k + 1 :])
+
+
+def segments_miss_boxes(a: np.ndarray, b: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+    """(n,) bool: the segment ``a[k]``-``b[k]`` (each (n, 2)) enters the interior of none of the ``boxes`` (B, 4);
+    running along a box's side or through its corner is allowed (Liang-Barsky clipping against the open boxes).
+
+    Along an axis the segment does not move in, the division by zero gives the right answer by itself: t = ±inf
+    (inside that slab for every t, or for none) or NaN when it runs on the slab's edge, which the NaN-propagating
+    ``minimum``/``maximum`` turn into "misses" (the slab is open).
+    """
+    enter, leave = np.zeros((len(boxes), len(a))), np.ones((len(boxes), len(a)))  # (B, n): the part inside
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for axis in (0, 1):
+            start, d = a[:, axis], b[:, axis] - a[:, axis]  # (n,)
+            t_lo, t_hi = (boxes[:, axis, None] - start) / d, (boxes[:, axis + 2, None] - start) / d  # (B, n)
+            enter = np.maximum(enter, np.minimum(t_lo, t_hi))
+            leave = np.minimum(leave, np.maximum(t_lo, t_hi))
+    return ~(enter < leave).any(axis=0)
+
+
+def points_clearance(points: np.ndarray, boxes: np.ndarray, hall: tuple[float, float]) -> np.ndarray:
+    """(n,) distance from each of ``points`` (n, 2) to the nearest rack (a box of ``boxes`` (B, 4), solid) or wall
+    (the hall ``[-hall[0], hall[0]] x [-hall[1], hall[1]]``); 0 inside a rack, negative outside the hall."""
+    (x, y), (w, h) = points.T, hall
+    out = np.minimum(np.minimum(x + w, w - x), np.minimum(y + h, h - y))
+    if len(boxes):
+        dx = np.maximum(np.maximum(boxes[:, 0, None] - x, x - boxes[:, 2, None]), 0.0)  # (B, n)
+        dy = np.maximum(np.maximum(boxes[:, 1, None] - y, y - boxes[:, 3, None]), 0.0)
+        out = np.minimum(out, np.sqrt(dx * dx + dy * dy).min(axis=0))
+    return out
+
+
+def point_clearance(x: float, y: float, boxes: list[tuple[float, float, float, float]], hall: tuple[float, float]) -> float:
+    """:func:`points_clearance` of one point, in floats."""
+    w, h = hall
+    best = min(x + w, w - x, y + h, h - y)
+    for x0, y0, x1, y1 in boxes:
+        dx, dy = max(x0 - x, 0.0, x - x1), max(y0 - y, 0.0, y - y1)
+        if dx < best and dy < best:
+            best = min(best, math.sqrt(dx * dx + dy * dy))
+    return best
+
+
+def in_free_space(layout: Any, points: np.ndarray, clearance: float) -> np.ndarray:
+    """(n,) bool: ``shapely.contains_xy(layout.free_space(clearance), ...)`` of ``points`` (n, 2), the free space
+    built only when the racks are not boxes or a point is within :data:`BAND` of its boundary."""
+    boxes = layout.boxes
+    if boxes is None:
+        d, unsure = None, np.ones(len(points), dtype=bool)
+    else:
+        d = points_clearance(points, boxes, (layout.width / 2, layout.height / 2))
+        unsure = np.abs(d - clearance) <= BAND
+    inside = np.zeros(len(points), dtype=bool) if d is None else d > clearance
+    if unsure.any():
+        free = layout.free_space(clearance)
+        shapely.prepare(free)
+        inside[unsure] = shapely.contains_xy(free, points[unsure, 0], points[unsure, 1])
+    return inside
+
+
+def segment_clearance(a: Sequence[float], b: Sequence[float], boxes: list[tuple[float, float, float, float]],
+                      hall: tuple[float, float], cap: float) -> float:
+    """Distance from the segment ``a``-``b`` to the nearest rack (a box of ``boxes``) or wall (see
+    :func:`points_clearance`), in floats; racks farther than ``cap`` from the segment's bounding box are skipped, so
+    a value >= ``cap`` only means "at least ``cap``".
+
+    The walls are nearest at an end (the hall is convex); a rack is 0 away when the segment meets it, else nearest
+    at an end of the segment or at a corner of the rack (the nearest points of two disjoint convex sets).
+    """
+    (ax, ay), (bx, by), (w, h) = a, b, hall
+    best = min(cap, ax + w, w - ax, ay + h, h - ay, bx + w, w - bx, by + h, h - by)
+    dx, dy = bx - ax, by - ay
+    sx0, sx1, sy0, sy1 = min(ax, bx), max(ax, bx), min(ay, by), max(ay, by)
+    for box in boxes:
+        x0, y0, x1, y1 = box
+        if x0 - sx1 >= best or sx0 - x1 >= best or y0 - sy1 >= best or sy0 - y1 >= best:
+            continue
+        if segment_meets_box(ax, ay, dx, dy, box):
+            return 0.0
+        ends = [math.hypot(max(x0 - px, 0.0, px - x1), max(y0 - py, 0.0, py - y1)) for px, py in ((ax, ay), (bx, by))]
+        best = min(best, *ends, *(_point_segment(cx, cy, ax, ay, dx, dy) for cx in (x0, x1) for cy in (y0, y1)))
+    return max(best, 0.0)
+
+
+def _point_segment(px: float, py: float, ax: float, ay: float, dx: float, dy: float) -> float:
+    """Distance from ``(px, py)`` to the segment from ``(ax, ay)`` along ``(dx, dy)``."""
+    length2 = dx * dx + dy * dy
+    t = 0.0 if length2 <= 1e-18 else min(1.0, max(0.0, ((px - ax) * dx + (py - ay) * dy) / length2))
+    return math.hypot(px - ax - t * dx, py - ay - t * dy)
+
+
+def segment_meets_box(ax: float, ay: float, dx: float, dy: float, box: Sequence[float], interior: bool = False) -> bool:
+    """Whether the segment from ``(ax, ay)`` along ``(dx, dy)`` meets the closed ``box`` ``[xmin, ymin, xmax, ymax]``,
+    or its interior (``interior``; the test of :func:`segments_miss_boxes`, for one segment and one box, in floats)."""
+    enter, leave = 0.0, 1.0
+    for start, d, lo, hi in ((ax, dx, box[0], box[2]), (ay, dy, box[1], box[3])):
+        if d == 0:
+            if not (lo < start < hi if interior else lo <= start <= hi):
+                return False
+            continue
+        t0, t1 = (lo - start) / d, (hi - start) / d
+        enter, leave = max(enter, min(t0, t1)), min(leave, max(t0, t1))
+    return enter < leave if interior else enter <= leave
+
+
+__all__ = ["BAND", "in_free_space", "point_clearance", "points_clearance", "rack_boxes", "segment_clearance",
+           "segment_meets_box", "segments_miss_boxes", "separated"]
