@@ -81,3 +81,74 @@ def test_orca_statistics_invisible_and_visible():
     """Issue 2's acceptance: invisible robot 0.25-0.55 (paper 0.33); visible >= 0.95."""
     assert 0.25 <= _success_rate(False, "nearest", 500) <= 0.55
     assert _success_rate(True, "constrained", 500) >= 0.95
+
+
+def _reference_decision(policy: OrcaPolicy, obs) -> int:
+    """A decision as first written: every pedestrian a full ORCA agent of its own, one NumPy pass per ORCA line."""
+    import math
+
+    from sb3_crowdnav.sim.actions import nearest_action
+    from sb3_crowdnav.sim.observation import ObservationSchema
+    from sb3_crowdnav.sim.orca import make_simulator
+
+    cfg = policy.scene
+    robot, mask = np.asarray(obs["robot"], dtype=np.float64), np.asarray(obs["humans_mask"])
+    latest = ObservationSchema(cfg.history_length, len(mask)).humans_view(np.asarray(obs["humans"], np.float64))[-1]
+    present = latest[mask.astype(bool)]
+    (px, py), (gx, gy), (vx, vy) = robot[Robot.POS].tolist(), robot[Robot.GOAL].tolist(), robot[Robot.VEL].tolist()
+    sim = make_simulator(cfg, float(robot[Robot.V_PREF]))
+    target = (gx, gy)
+    if "obstacles_mask" in obs:
+        segments = np.asarray(obs["obstacles"], np.float64).reshape(-1, 4)[np.asarray(obs["obstacles_mask"]) > 0.5]
+        for x0, y0, x1, y1 in segments.tolist():
+            sim.add_obstacle([(x0, y0), (x1, y1)])
+        if len(segments):
+            sim.process_obstacles()
+        target = tuple(np.asarray(obs["waypoints"], np.float64)[:2].tolist())
+    args = (cfg.orca_neighbor_dist, cfg.orca_max_neighbors, cfg.orca_time_horizon, cfg.orca_time_horizon_obst)
+    for (hx, hy), (hvx, hvy), radius in zip(present[:, Human.POS].tolist(), present[:, Human.VEL].tolist(),
+                                            present[:, Human.RADIUS].tolist(), strict=True):
+        i = sim.add_agent((hx, hy), *args, radius + 0.01, math.hypot(hvx, hvy) + 1e-3, (hvx, hvy))
+        sim.set_agent_pref_velocity(i, (hvx, hvy))
+    v_pref = float(robot[Robot.V_PREF])
+    rid = sim.add_agent((px, py), *args, float(robot[Robot.RADIUS]) + 0.01, v_pref, (vx, vy))
+    dx, dy = target[0] - px, target[1] - py
+    norm = math.sqrt(dx * dx + dy * dy)
+    if norm > v_pref:
+        dx, dy = dx / max(norm, 1e-12) * v_pref, dy / max(norm, 1e-12) * v_pref
+    sim.set_agent_pref_velocity(rid, (dx, dy))
+    sim.do_step()
+    v = sim.get_agent_velocity(rid)
+    heading, goal_direction = float(robot[Robot.HEADING]), math.atan2(gy - py, gx - px)
+    allowed = None
+    if policy.mapping == "constrained" and sim.get_agent_num_orca_lines(rid):
+        angles = (heading if cfg.kinematics == "unicycle" else goal_direction) + policy.directions
+        wx, wy = policy.speeds * np.cos(angles), policy.speeds * np.sin(angles)
+        allowed = np.ones(len(policy.speeds), dtype=bool)
+        for k in range(sim.get_agent_num_orca_lines(rid)):
+            (lx, ly), (qx, qy) = sim.get_agent_orca_line(rid, k)
+            allowed &= lx * (qy - wy) - ly * (qx - wx) <= 1e-6
+    return nearest_action(np.array([v.x, v.y]), heading, goal_direction, policy.speeds, policy.directions,
+                          cfg.kinematics, allowed)
+
+
+@pytest.mark.parametrize("env_id", ["CrowdNav-v0", "CrowdNavWarehouse-v0"])
+@pytest.mark.parametrize("mapping", OrcaPolicy.MAPPINGS)
+def test_decisions_are_those_of_the_reference_orca_program(env_id, mapping):
+    """The decision's shortcuts (pedestrians that plan nothing of their own, all ORCA lines in one NumPy pass) leave
+    every decision as the plain program makes it, on the open floor and in the warehouse."""
+    env = gym.make(env_id, num_humans=8)
+    policy = OrcaPolicy.from_env(env, mapping=mapping)
+    rng = np.random.default_rng(0)
+    checked = 0
+    for seed in range(6):
+        obs, _ = env.reset(seed=seed)
+        for _ in range(40):
+            ours = int(policy.predict(obs)[0])
+            assert ours == _reference_decision(policy, obs)
+            checked += 1
+            action = ours if rng.random() < 0.7 else int(rng.integers(80))
+            obs, _, terminated, truncated, _ = env.step(action)
+            if terminated or truncated:
+                break
+    assert checked > 100

@@ -239,8 +239,9 @@ def test_the_fast_geometric_tests_of_a_step_agree_with_shapely_and_numpy():
     from shapely.geometry import LineString
 
     from sb3_crowdnav.sim.config import RewardConfig, SceneConfig
+    from sb3_crowdnav.sim.geometry import segment_distance_scalar
     from sb3_crowdnav.sim.warehouse.config import WarehouseConfig
-    from sb3_crowdnav.sim.warehouse.simulator import WarehouseSimulator, _segment_distance
+    from sb3_crowdnav.sim.warehouse.simulator import WarehouseSimulator
 
     sim = WarehouseSimulator(SceneConfig(num_humans=4, scenario="warehouse"), RewardConfig(), WarehouseConfig())
     rng = np.random.default_rng(0)
@@ -258,5 +259,36 @@ def test_the_fast_geometric_tests_of_a_step_agree_with_shapely_and_numpy():
             np.testing.assert_array_equal(sim.pickers._pressed(group), [not room.contains(Point(p)) for p in group])
         for p0, p1, seg in zip(points[:-1:2], points[1::2], sim.segments[rng.integers(len(sim.segments), size=200)],
                                strict=False):
-            assert _segment_distance(p0.tolist(), p1.tolist(), seg[:2].tolist(), seg[2:].tolist()) == \
+            assert segment_distance_scalar(p0.tolist(), p1.tolist(), seg[:2].tolist(), seg[2:].tolist()) == \
                 float(segment_distance(p0, p1, seg[:2], seg[2:]))
+
+
+def test_a_fixed_layout_keeps_its_maps_and_gives_the_episodes_of_a_fresh_env():
+    """A fixed layout's pick slots, roadmaps and routes between slots serve every episode: an env that ran other
+    episodes first gives the same episode as a fresh one."""
+    kwargs = {"layout": str(EXAMPLE), "num_humans": 8}
+    used = gym.make("CrowdNavWarehouse-v0", **kwargs)
+    for seed in range(3):
+        _episode(used, 100 + seed, policy=lambda obs: 0)
+    sim = used.unwrapped.sim
+    maps = sim._fixed
+    for seed in (7, 8):
+        a, info_a = _episode(used, seed, policy=lambda obs: 17)
+        b, info_b = _episode(gym.make("CrowdNavWarehouse-v0", **kwargs), seed, policy=lambda obs: 17)
+        assert len(a) == len(b) and info_a["outcome"] == info_b["outcome"]
+        for x, y in zip(a, b, strict=True):
+            for key in x:
+                np.testing.assert_array_equal(x[key], y[key])
+    assert sim._fixed is maps
+    assert len(maps[1]._routes) > 8  # routes between slots remembered across episodes
+
+
+def test_a_picker_walks_from_its_slot_to_the_next_along_the_slots_route():
+    env = gym.make("CrowdNavWarehouse-v0", num_humans=6)
+    env.reset(seed=3)
+    pickers = env.unwrapped.sim.pickers
+    for _ in range(40):
+        env.step(0)
+        for i in range(pickers.n):
+            if pickers.dwell[i] == 0:  # walking: the route of the slot it left to the slot it walks to ends there
+                assert pickers.routes[i][-1] == pickers.slots[pickers.slot[i]].tolist()

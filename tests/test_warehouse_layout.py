@@ -133,17 +133,18 @@ def _points(rng, layout, n):
 @pytest.mark.parametrize("seed", range(8))
 @pytest.mark.parametrize("clearance", [ROBOT_RADIUS + 0.1, ROBOT_RADIUS + 0.02])
 def test_the_box_roadmap_routes_as_the_shapely_one(seed, clearance):
-    """Generated racks are boxes: corners from their buffers, visibility by clipping, only bitangent edges. Same
-    corners, a subgraph of the full visibility graph with the same weights, routes of the same length."""
+    """Generated racks are boxes: corners from the grown boxes, visibility by clipping, only bitangent edges. The
+    same corners (shapely's buffers within an ulp), a subgraph of the full visibility graph with the same weights,
+    routes of the same length."""
     rng = np.random.default_rng(seed)
     layout = generate_layout(rng)
     fast, slow = Roadmap(layout, clearance), Roadmap(_as_polygons(layout), clearance)
-    assert fast.grown is not None and slow.grown is None
-    corners = [tuple(c) for c in fast.corners.tolist()]
-    assert set(corners) == {tuple(c) for c in slow.corners.tolist()}
-    index = {c: k for k, c in enumerate(tuple(c) for c in slow.corners.tolist())}
-    full = {frozenset((index[corners[u]], index[corners[v]])): d for u, v, d in fast.graph.edges(data="weight")}
-    assert all(slow.graph.edges[tuple(e)]["weight"] == d for e, d in full.items())
+    assert fast.grown is not None and slow.grown is None and len(fast.corners) == len(slow.corners)
+    gaps = np.linalg.norm(fast.corners[:, None] - slow.corners[None], axis=2)
+    index = gaps.argmin(axis=1)  # the shapely corner of each of ours
+    assert gaps.min(axis=1).max() < 1e-12 and len(set(index.tolist())) == len(index)
+    full = {frozenset((index[u], index[v])): d for u, v, d in fast.graph.edges(data="weight")}
+    assert all(slow.graph.edges[tuple(e)]["weight"] == pytest.approx(d, abs=1e-12) for e, d in full.items())
     points = _points(rng, layout, 30)
     free = slow.free.buffer(1e-9)
     for a, b in itertools.pairwise(points):
@@ -194,3 +195,20 @@ def test_polygons_are_oriented_as_shapely_orients_them():
     for ours, rack in zip(layout.polygons, layout.racks, strict=False):
         np.testing.assert_array_equal(ours, np.asarray(shapely.geometry.polygon.orient(Polygon(rack)).exterior.coords)[:-1])
     assert layout.boxes is None  # the closed ring has five vertices: not a box
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_a_remembered_slot_route_is_the_route_planned_afresh(seed):
+    from sb3_crowdnav.sim.config import SceneConfig
+    from sb3_crowdnav.sim.warehouse.pickers import PickSlots
+
+    rng = np.random.default_rng(seed)
+    layout = generate_layout(rng)
+    slots = PickSlots(layout, SceneConfig(scenario="warehouse"), 0.32)
+    pairs = rng.integers(len(slots.points), size=(40, 2)).tolist()
+    first = [slots.route(i, j) for i, j in pairs]
+    assert all(slots.route(i, j) is route for (i, j), route in zip(pairs, first, strict=True))  # remembered
+    fresh = Roadmap(layout, 0.32)
+    for (i, j), route in zip(pairs, first, strict=True):
+        np.testing.assert_array_equal(route, fresh.route(slots.points[i], slots.points[j])[1:])
+        assert route[-1] == slots.points[j].tolist()

@@ -25,8 +25,8 @@ class CrowdNavWarehouseEnv(CrowdNavEnv):
     main aisles between the rows and cross aisles between the racks of a row. Pickers (the
     pedestrians, ORCA agents that see the racks through ``pyrvo``'s obstacles) walk routes between
     pick faces along the aisles and stand at each for a dwell time, so some stand still at any moment.
-    The robot gets a global route from a planner on the static map (A* on a grid roadmap of the free
-    space, ``networkx``); the observation carries its next waypoints and the nearest rack and wall
+    The robot gets a global route from a planner on the static map (A* with ``networkx`` on a visibility
+    roadmap: the corners of the racks grown by the robot's radius and a clearance); the observation carries its next waypoints and the nearest rack and wall
     segments, in world coordinates like the pedestrians, so that a lookahead can propagate them.
 
     A layout is drawn per episode from ``layout_ranges`` (rows of racks, racks per row, rack length and

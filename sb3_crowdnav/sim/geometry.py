@@ -7,6 +7,9 @@ radius to any segment (the swept disc touches it), checked with :func:`segment_d
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
+
 import numpy as np
 
 SEGMENT_DIM = 4  # x0, y0, x1, y1
@@ -50,6 +53,29 @@ def swept_clearance(pos0: np.ndarray, pos1: np.ndarray, segments: np.ndarray, ma
     d = segment_distance(pos0[..., None, :], pos1[..., None, :], a, b)
     d = np.where(np.asarray(mask) > 0.5, d, np.inf)
     return d.min(axis=-1) if d.shape[-1] else np.full(d.shape[:-1], np.inf)
+
+
+def point_segment_distance_scalar(p: Sequence[float], a: Sequence[float], b: Sequence[float]) -> float:
+    """:func:`point_segment_distance` of one point and one segment, in Python floats (the same operations in the
+    same order, so the same value; NumPy's per-call overhead exceeds the arithmetic of one pair)."""
+    abx, aby = b[0] - a[0], b[1] - a[1]
+    length2 = abx * abx + aby * aby
+    t = ((p[0] - a[0]) * abx + (p[1] - a[1]) * aby) / (length2 if length2 > 1e-18 else 1.0)
+    t = min(max(t, 0.0), 1.0)
+    dx, dy = p[0] - (a[0] + t * abx), p[1] - (a[1] + t * aby)
+    return math.sqrt(dx * dx + dy * dy)
+
+
+def segment_distance_scalar(p0: Sequence[float], p1: Sequence[float], q0: Sequence[float],
+                            q1: Sequence[float]) -> float:
+    """:func:`segment_distance` of two segments, in Python floats (the same value)."""
+    def cross(o, a, b):
+        return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
+
+    if cross(q0, q1, p0) * cross(q0, q1, p1) < 0 and cross(p0, p1, q0) * cross(p0, p1, q1) < 0:
+        return 0.0
+    return min(point_segment_distance_scalar(p0, q0, q1), point_segment_distance_scalar(p1, q0, q1),
+               point_segment_distance_scalar(q0, p0, p1), point_segment_distance_scalar(q1, p0, p1))
 
 
 def polygon_segments(polygons: list[np.ndarray]) -> np.ndarray:

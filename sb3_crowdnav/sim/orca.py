@@ -11,6 +11,8 @@ from sb3_crowdnav.sim.actions import action_table, nearest_action
 from sb3_crowdnav.sim.config import SceneConfig
 from sb3_crowdnav.sim.observation import Human, ObservationSchema, Robot
 
+BLIND_HORIZON = 1e-3  # [s] the obstacle horizon of the pedestrians in a decision's simulator (see OrcaPolicy._act)
+
 
 def preferred_velocity(position: np.ndarray, goal: np.ndarray, v_pref: float) -> np.ndarray:
     """goal - position, normalised to ``v_pref`` only when longer (so agents slow down at the goal)."""
@@ -39,9 +41,10 @@ class OrcaCrowd:
                  robot: tuple[np.ndarray, np.ndarray, float] | None,
                  obstacles: list[np.ndarray] | None = None) -> None:
         """:param obstacles: static obstacles as counter-clockwise (k, 2) vertex arrays, seen by every agent"""
+        # (a simulator is never reused with clear_agents(): RVO2's agent tree keeps pointers to the removed agents)
         self.sim = make_simulator(cfg, float(np.max(v_prefs, initial=cfg.human_v_pref)))
         for polygon in obstacles or ():
-            self.sim.add_obstacle([(float(x), float(y)) for x, y in polygon])
+            self.sim.add_obstacle([(float(x), float(y)) for x, y in np.asarray(polygon).tolist()])
         if obstacles:
             self.sim.process_obstacles()
         self.n = len(positions)
@@ -81,10 +84,24 @@ class OrcaCrowd:
 
     def states(self) -> tuple[np.ndarray, np.ndarray]:
         """The pedestrians' positions and velocities, each (N, 2)."""
-        sim = self.sim
-        get_pos, get_vel = sim.get_agent_position, sim.get_agent_velocity
-        state = np.array([get_pos(i).to_tuple() + get_vel(i).to_tuple() for i in range(self.n)]).reshape(self.n, 4)
+        state = np.array(self.rows()).reshape(self.n, 4)
         return state[:, :2], state[:, 2:]
+
+    def rows(self) -> list[tuple[float, float, float, float]]:
+        """The pedestrians' ``(px, py, vx, vy)``, in floats."""
+        get_pos, get_vel = self.sim.get_agent_position, self.sim.get_agent_velocity
+        return [get_pos(i).to_tuple() + get_vel(i).to_tuple() for i in range(self.n)]
+
+    def set_preferred_velocities(self, velocities: list[tuple[float, float]]) -> None:
+        """The pedestrians' preferred velocities for the next step (no robot)."""
+        set_pref = self.sim.set_agent_pref_velocity
+        for i, v in enumerate(velocities):
+            set_pref(i, v)
+
+    def advance(self) -> list[tuple[float, float, float, float]]:
+        """One RVO2 step with the preferred velocities set; :meth:`rows` after it."""
+        self.sim.do_step()
+        return self.rows()
 
     def move_agent(self, i: int, position: np.ndarray) -> None:
         """Put pedestrian ``i`` at ``position`` (2,) (the warehouse pushes a picker out of a rack it was pressed into)."""
@@ -150,12 +167,11 @@ class OrcaPolicy:
         base = heading if self.scene.kinematics == "unicycle" else goal_direction
         angles = base + self.directions
         vx, vy = self.speeds * np.cos(angles), self.speeds * np.sin(angles)
-        ok = np.ones(len(self.speeds), dtype=bool)
-        for i in range(n_lines):
-            (dx, dy), (px, py) = sim.get_agent_orca_line(rid, i)
-            # RVO2: velocity v violates line i when det(direction, point - v) > 0
-            ok &= dx * (py - vy) - dy * (px - vx) <= 1e-6
-        return ok
+        get_line = sim.get_agent_orca_line
+        lines = np.array([get_line(rid, i) for i in range(n_lines)]).reshape(n_lines, 4, 1)  # (L, [dx dy px py], 1)
+        dx, dy, px, py = lines[:, 0], lines[:, 1], lines[:, 2], lines[:, 3]
+        # RVO2: velocity v violates line i when det(direction, point - v) > 0 (all lines at once: the same values)
+        return (dx * (py - vy) - dy * (px - vx) <= 1e-6).all(axis=0)
 
     def _act(self, robot: np.ndarray, humans: np.ndarray, mask: np.ndarray, segments: np.ndarray | None = None,
              waypoint: np.ndarray | None = None) -> int:
@@ -173,11 +189,14 @@ class OrcaPolicy:
                 sim.add_obstacle([(x0, y0), (x1, y1)])
             sim.process_obstacles()
         args = (cfg.orca_neighbor_dist, cfg.orca_max_neighbors, cfg.orca_time_horizon, cfg.orca_time_horizon_obst)
+        # Only the robot's new velocity is read, and RVO2 computes it from the others' position, velocity and radius
+        # alone: the pedestrians look at no neighbour and (nearly) no obstacle, which spares their own ORCA programs.
+        blind = (0.0, 0, cfg.orca_time_horizon, BLIND_HORIZON)
         for (hx, hy), (hvx, hvy), radius in zip(
             present[:, Human.POS].tolist(), present[:, Human.VEL].tolist(), present[:, Human.RADIUS].tolist(),
             strict=True,
         ):
-            i = sim.add_agent((hx, hy), *args, radius + 0.01, math.hypot(hvx, hvy) + 1e-3, (hvx, hvy))
+            i = sim.add_agent((hx, hy), *blind, radius + 0.01, math.hypot(hvx, hvy) + 1e-3, (hvx, hvy))
             sim.set_agent_pref_velocity(i, (hvx, hvy))
         rid = sim.add_agent((px, py), *args, r[Robot.RADIUS] + 0.01 + self.safety_space, v_pref, (vx, vy))
         # preferred_velocity() of one agent, in floats

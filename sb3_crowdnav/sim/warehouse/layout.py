@@ -14,26 +14,26 @@ simple, of positive area and inside the hall; every gap between two racks, or be
 either closed (touching) or at least the robot's diameter + ``margin`` wide; and the free space of a
 robot of that radius connected. Any violation is a ``ValueError`` naming the parameter.
 
-Geometry is `shapely`'s; routes are shortest paths on a grid roadmap of the free space (`networkx`).
+Geometry is `shapely`'s (with the fast paths of :mod:`~sb3_crowdnav.sim.warehouse.boxes` for box racks); routes are
+shortest paths on a visibility roadmap of the free space (`networkx`, :mod:`~sb3_crowdnav.sim.warehouse.roadmap`).
 """
 
 from __future__ import annotations
 
 import functools
 import json
-import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import networkx as nx
 import numpy as np
 import shapely
-from shapely.geometry import LineString, Point, Polygon, box
+from shapely.geometry import LineString, Polygon, box
 
 from sb3_crowdnav.sim.config import check_int, check_number
-from sb3_crowdnav.sim.warehouse.boxes import rack_boxes, segment_meets_box, segments_miss_boxes, separated
+from sb3_crowdnav.sim.warehouse.boxes import rack_boxes
+from sb3_crowdnav.sim.warehouse.roadmap import Roadmap  # re-exported: the roadmap of a layout
 
 
 @dataclass(frozen=True)
@@ -242,8 +242,8 @@ def generate_layout(rng: np.random.Generator, ranges: LayoutRanges | None = None
     r = LayoutRanges() if ranges is None else ranges
     rows = int(rng.integers(r.rows[0], r.rows[1] + 1))
     segments = int(rng.integers(r.segments[0], r.segments[1] + 1))
-    length, depth, aisle, cross = (float(rng.uniform(*getattr(r, k)))
-                                   for k in ("rack_length", "rack_depth", "aisle_width", "cross_aisle_width"))
+    lo, hi = zip(*(getattr(r, k) for k in ("rack_length", "rack_depth", "aisle_width", "cross_aisle_width")), strict=True)
+    length, depth, aisle, cross = rng.uniform(lo, hi).tolist()  # one call: the values of four, in the same order
     return layout_from_sizes(rows, segments, length, depth, aisle, cross)
 
 
@@ -252,194 +252,16 @@ def layout_from_sizes(rows: int, segments: int, rack_length: float, rack_depth: 
     """The regular layout of ``rows`` x ``segments`` racks with these sizes [m] (the hall fits around them)."""
     width = 2 * cross_aisle_width + segments * rack_length + (segments - 1) * cross_aisle_width
     height = (rows + 1) * aisle_width + rows * rack_depth
-    racks = []
+    racks, boxes = [], []
     for row in range(rows):
         y0 = -height / 2 + aisle_width + row * (rack_depth + aisle_width)
         for seg in range(segments):
             x0 = -width / 2 + cross_aisle_width + seg * (rack_length + cross_aisle_width)
             racks.append(_box_vertices(x0, y0, x0 + rack_length, y0 + rack_depth))
-    return WarehouseLayout(width=width, height=height, racks=tuple(racks))
-
-
-@functools.lru_cache(maxsize=64)
-def _pairs(n: int) -> tuple[np.ndarray, np.ndarray]:
-    """``np.triu_indices(n, k=1)``, remembered (a roadmap of n nodes is built every episode)."""
-    return np.triu_indices(n, k=1)
-
-
-class Roadmap:
-    """Shortest routes through the free space of a disc of radius ``clearance``: a visibility graph (``networkx``).
-
-    The nodes are the corners of the free space shrunk by ``clearance`` (racks grown with square, mitred
-    corners, so every corner is a point the disc can reach); two corners are joined when the straight segment
-    between them stays in that free space (a segment along its boundary counts as inside), weighted by its
-    length. A route adds the start and the goal to the graph, joined to the corners they see, and takes the A*
-    path: the shortest polygonal path around the obstacles. A start or goal outside the shrunk free space (a
-    picker pressed against a rack) is joined to its nearest corner, from which the route goes on as from a start.
-
-    When the racks are boxes whose grown copies stay apart and off the walls (every generated layout), the free
-    space is the shrunk hall minus the grown boxes (shapely's own mitred buffers of the racks: the coordinates of
-    the buffered free space's corners), and the roadmap is built and queried without it
-    (:mod:`~sb3_crowdnav.sim.warehouse.boxes`). The graph then keeps only what a shortest path can use: the
-    racks' corners (a shortest path never bends at a corner of the hall) and the edges that pass each of their
-    ends on the outside of its rack (bitangents; a route's end is joined likewise): the same shortest routes, from
-    a graph of about a third of the edges. Otherwise every test is a shapely predicate on :attr:`free`.
-    """
-
-    def __init__(self, layout: WarehouseLayout, clearance: float) -> None:
-        check_number("clearance", clearance, allow_zero=True)
-        self.layout, self.clearance = layout, float(clearance)
-        w, h, c = layout.width / 2, layout.height / 2, self.clearance
-        self._hall = (-w + c, -h + c, w - c, h - c)  # the free space's outline (shapely's mitred buffer gives these)
-        self.grown = self._grown_racks()  # (B, 4) bounds of the racks grown by the clearance, or None (see above)
-        self._joins_of: dict[tuple[float, float], tuple[list[int], list[float]]] = {}
-        if self.grown is not None:
-            x0, y0, x1, y1 = self._hall
-            g = self.grown
-            racks = np.stack([g[:, [0, 1]], g[:, [2, 1]], g[:, [2, 3]], g[:, [0, 3]]], axis=1).reshape(-1, 2)
-            self.corners = np.concatenate([[(x0, y0), (x0, y1), (x1, y1), (x1, y0)], racks])
-            # a segment leaving a rack's corner along (dx, dy) passes it on the outside when side * dx * dy <= 0
-            self._sides = np.concatenate([np.zeros(4), np.tile([1.0, -1.0, 1.0, -1.0], len(g))])
-            self._nodes = np.arange(4, len(self.corners))
-            self._open = self.grown + np.array([1e-6, 1e-6, -1e-6, -1e-6])  # touching a grown rack is allowed
-            self._open_list, self._grown_list = self._open.tolist(), self.grown.tolist()
-            self._node_list, self._side_list = self.corners[4:].tolist(), self._sides[4:].tolist()
-        else:
-            self._cover = self.free.buffer(1e-6)  # segments along the boundary count as inside
-            shapely.prepare(self._cover)
-            rings = [ring for poly in getattr(self.free, "geoms", [self.free]) if not poly.is_empty
-                     for ring in (poly.exterior, *poly.interiors)]
-            self.corners = np.concatenate([np.asarray(r.coords)[:-1] for r in rings]) if rings else np.zeros((0, 2))
-            self._nodes = np.arange(len(self.corners))
-        self.graph = nx.Graph()
-        self.graph.add_nodes_from(self._nodes.tolist())
-        i, j = (self._nodes[k] for k in _pairs(len(self._nodes)))
-        a, b = self.corners[i], self.corners[j]
-        keep = self._outside(i, b - a) & self._outside(j, a - b)
-        i, j, a, b = i[keep], j[keep], a[keep], b[keep]
-        visible = self._visible(a, b)
-        lengths = np.linalg.norm(a - b, axis=1)
-        self.graph.add_weighted_edges_from(zip(i[visible].tolist(), j[visible].tolist(), lengths[visible].tolist(),
-                                               strict=True))
-
-    def _outside(self, corners: np.ndarray, direction: np.ndarray) -> np.ndarray:
-        """(n,) bool: a segment leaving corner ``corners[k]`` along ``direction[k]`` passes it on the outside of its
-        rack (both sides of the rack at the corner on one side of the segment), as each segment of a shortest route
-        does at a corner it bends around; always True without boxes."""
-        if self.grown is None:
-            return np.ones(len(corners), dtype=bool)
-        return self._sides[corners] * direction[:, 0] * direction[:, 1] <= 0
-
-    def _grown_racks(self) -> np.ndarray | None:
-        """(B, 4) bounds of the racks grown by the clearance (mitred), when they are boxes, apart and off the walls."""
-        boxes = self.layout.boxes
-        if boxes is None or not len(boxes):
-            return None
-        racks = shapely.polygons(np.stack(self.layout.racks))
-        grown = shapely.bounds(shapely.buffer(racks, self.clearance, join_style="mitre"))
-        return grown if separated(grown, self._hall) else None
-
-    @functools.cached_property
-    def free(self) -> Any:
-        """The free space of the disc (shapely, prepared; with boxes for racks built only when asked for)."""
-        free = self.layout.free_space(self.clearance, join_style="mitre")
-        shapely.prepare(free)
-        return free
-
-    def _visible(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        """(n,) bool: the segments a[k]-b[k] lie in the free space."""
-        if not len(a):
-            return np.zeros(0, dtype=bool)
-        if self.grown is None:
-            return shapely.covers(self._cover, shapely.linestrings(np.stack([a, b], axis=1)))
-        x0, y0, x1, y1 = self._hall
-        lo, hi = np.array([x0 - 1e-6, y0 - 1e-6]), np.array([x1 + 1e-6, y1 + 1e-6])
-        in_hall = ((a >= lo) & (a <= hi) & (b >= lo) & (b <= hi)).all(axis=1)  # the hall is convex
-        return in_hall & segments_miss_boxes(a, b, self._open)
-
-    def is_free(self, point: Sequence[float]) -> bool:
-        """Whether a disc of radius ``clearance`` centred at ``point`` is in the free space."""
-        if self.grown is None:
-            return bool(self.free.contains(Point(point)))
-        (x, y), (x0, y0, x1, y1) = point, self._hall
-        return bool(x0 < x < x1 and y0 < y < y1 and not any(gx0 <= x <= gx1 and gy0 <= y <= gy1
-                                                            for gx0, gy0, gx1, gy1 in self._grown_list))
-
-    def sample_free(self, rng: np.random.Generator) -> np.ndarray:
-        """A point drawn uniformly from the free space (rejection sampling in the hall)."""
-        w, h = self.layout.width / 2, self.layout.height / 2
-        for _ in range(10_000):
-            point = rng.uniform((-w, -h), (w, h))
-            if self.is_free(point):
-                return point
-        raise ValueError("the free space is empty for this clearance")
-
-    def _visible_one(self, a: np.ndarray, b: np.ndarray) -> bool:
-        """:meth:`_visible` of the one segment ``a``-``b`` (in floats when the racks are boxes)."""
-        if self.grown is None:
-            return bool(self._visible(a[None], b[None])[0])
-        (ax, ay), (bx, by), (x0, y0, x1, y1) = a.tolist(), b.tolist(), self._hall
-        inside = x0 - 1e-6 <= min(ax, bx) and max(ax, bx) <= x1 + 1e-6 and y0 - 1e-6 <= min(ay, by) and \
-            max(ay, by) <= y1 + 1e-6
-        return inside and self._misses_racks(ax, ay, bx, by)
-
-    def _misses_racks(self, ax: float, ay: float, bx: float, by: float) -> bool:
-        """Whether the segment enters none of the grown racks (floats; racks beside its bounding box skipped)."""
-        sx0, sx1, sy0, sy1 = min(ax, bx), max(ax, bx), min(ay, by), max(ay, by)
-        return not any(box[0] < sx1 and sx0 < box[2] and box[1] < sy1 and sy0 < box[3] and
-                       segment_meets_box(ax, ay, bx - ax, by - ay, box, interior=True) for box in self._open_list)
-
-    def _joins(self, point: np.ndarray) -> tuple[list[int], list[float]]:
-        """The graph's corners a route's end at ``point`` sees (and passes on the outside) and the edges' lengths;
-        none when ``point`` is outside the free space. Remembered per point (pick slots and goals recur)."""
-        key = (float(point[0]), float(point[1]))
-        joins = self._joins_of.get(key)
-        if joins is None and self.grown is None:
-            nodes = self._nodes[self._visible(np.broadcast_to(point, self.corners.shape), self.corners)]
-            joins = (nodes.tolist(), np.linalg.norm(self.corners[nodes] - point, axis=1).tolist())
-        elif joins is None:  # in floats: a dozen corners against a handful of racks
-            (px, py), (x0, y0, x1, y1), joins = key, self._hall, ([], [])
-            if x0 - 1e-6 <= px <= x1 + 1e-6 and y0 - 1e-6 <= py <= y1 + 1e-6:
-                for k, (cx, cy), side in zip(self._nodes.tolist(), self._node_list, self._side_list, strict=True):
-                    dx, dy = px - cx, py - cy
-                    if side * dx * dy <= 0 and self._misses_racks(px, py, cx, cy):
-                        joins[0].append(k)
-                        joins[1].append(math.sqrt(dx * dx + dy * dy))  # np.linalg.norm's value
-        if len(self._joins_of) >= 4096:  # a fixed layout's roadmap lives for many episodes
-            self._joins_of.clear()
-        self._joins_of[key] = joins
-        return joins
-
-    def route(self, start: Sequence[float], goal: Sequence[float]) -> np.ndarray:
-        """Waypoints (n, 2) from ``start`` to ``goal`` (both included) through the free space; ``ValueError`` when
-        no route exists."""
-        start, goal = np.asarray(start, dtype=np.float64), np.asarray(goal, dtype=np.float64)
-        if self._visible_one(start, goal):
-            return np.stack([start, goal])
-        (from_start, start_lengths), (to_goal, goal_lengths) = self._joins(start), self._joins(goal)
-        if len(self.corners) and not (from_start and to_goal):  # an end outside the free space: via its nearest corner
-            if not from_start:
-                nearest = self.corners[np.argmin(np.linalg.norm(self.corners - start, axis=1))]
-                return np.concatenate([start[None], self.route(nearest, goal)])
-            nearest = self.corners[np.argmin(np.linalg.norm(self.corners - goal, axis=1))]
-            return np.stack([start, goal]) if (nearest == start).all() else \
-                np.concatenate([self.route(start, nearest), goal[None]])
-        graph, n = self.graph, len(self.corners)
-        points = np.concatenate([self.corners, start[None], goal[None]])
-        remaining = np.linalg.norm(points - goal, axis=1).tolist()  # the A* heuristic of every node
-        try:
-            graph.add_weighted_edges_from(zip([n] * len(from_start), from_start, start_lengths, strict=True))
-            graph.add_weighted_edges_from(zip([n + 1] * len(to_goal), to_goal, goal_lengths, strict=True))
-            path = nx.astar_path(graph, n, n + 1, heuristic=lambda u, _: remaining[u])
-        except (nx.NetworkXNoPath, nx.NodeNotFound):
-            raise ValueError(f"no route from {tuple(start)} to {tuple(goal)} in the free space") from None
-        finally:
-            graph.remove_nodes_from((n, n + 1))
-        return points[path]
-
-    @staticmethod
-    def route_length(route: np.ndarray) -> float:
-        return float(np.sum(np.linalg.norm(np.diff(route, axis=0), axis=1)))
+            boxes.append(racks[-1][[3, 1]].ravel())  # [xmin, ymin, xmax, ymax]: what rack_boxes finds
+    layout = WarehouseLayout(width=width, height=height, racks=tuple(racks))
+    layout.__dict__["boxes"] = np.array(boxes).reshape(-1, 4)  # the cached property, known without the checks
+    return layout
 
 
 __all__ = ["LayoutRanges", "Roadmap", "WarehouseLayout", "generate_layout", "layout_from_sizes"]

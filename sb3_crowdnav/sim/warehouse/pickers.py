@@ -1,11 +1,17 @@
 """Pickers: ORCA pedestrians that see the racks, walk routes between pick faces and stand there for a while.
 
 Each picker's job is endless: walk to a pick slot along a roadmap route, stand for a dwell time drawn from
-``dwell_time``, draw the next slot, walk on. At the start of an episode about half of the pickers are
+``dwell_time``, draw the next slot, walk on. A route goes from the slot the picker stood at to the next one (the
+picker sets off from where it stands, within reach of its slot), so it depends on the two slots alone and is
+planned once per layout (:class:`PickSlots`). At the start of an episode about half of the pickers are
 standing at a slot (with a part of their dwell left), the others walking to their first one, so some
-pickers stand still at any moment. Obstacle avoidance is RVO2's own (``pyrvo``'s ``add_obstacle``);
+pickers stand still at any moment. Obstacle avoidance is RVO2's own (``pyrvo``'s ``add_obstacle``: the racks, and
+the walls as the hall's boundary, :func:`rvo_obstacles`);
 because ORCA at a large time step can still press an agent into a thin obstacle, every step ends by
 pushing any picker that overlaps a rack or a wall back out to its radius (:meth:`PickerCrowd.step`).
+
+With a fixed layout, the slots, the roadmap and the routes between slots serve every episode (the simulator keeps
+its :class:`PickSlots`).
 """
 
 from __future__ import annotations
@@ -20,8 +26,9 @@ from shapely.ops import nearest_points
 from sb3_crowdnav.sim.config import SceneConfig
 from sb3_crowdnav.sim.geometry import polygon_segments
 from sb3_crowdnav.sim.orca import OrcaCrowd
-from sb3_crowdnav.sim.warehouse.boxes import BAND, in_free_space, point_clearance
-from sb3_crowdnav.sim.warehouse.layout import Roadmap, WarehouseLayout
+from sb3_crowdnav.sim.warehouse.boxes import in_free_space, point_clearance
+from sb3_crowdnav.sim.warehouse.layout import WarehouseLayout
+from sb3_crowdnav.sim.warehouse.roadmap import Roadmap
 
 SLOT_OFFSET = 0.1  # [m] a standing picker keeps this much between its body and the rack face
 ARRIVAL = 0.25  # [m] a waypoint of a picker's route counts as reached this close
@@ -31,48 +38,83 @@ def pick_slots(layout: WarehouseLayout, scene: SceneConfig) -> np.ndarray:
     """Where a picker stands to pick: points along every rack edge, ``human_radius + SLOT_OFFSET`` out from it,
     spaced by a picker's diameter + 0.2 m, kept where a picker fits; (n, 2)."""
     radius = scene.human_radius
-    spacing = 2 * radius + 0.2
+    spacing, offset = 2 * radius + 0.2, radius + SLOT_OFFSET
     racks = layout.polygons[: len(layout.racks)]  # counter-clockwise: the normal (dy, -dx) points out
     if not racks:
         return np.zeros((0, 2))
     segments = polygon_segments(racks)
-    a, edge = segments[:, :2], segments[:, 2:] - segments[:, :2]
-    length = np.hypot(edge[:, 0], edge[:, 1])
-    count = np.array([int(n // spacing) if n >= spacing else 0 for n in length.tolist()], dtype=np.int64)
-    of = np.repeat(np.arange(len(a)), count)  # the edge of each slot, and its number k along that edge
-    k = np.arange(len(of)) - np.repeat(np.cumsum(count) - count, count)
-    length, edge = length[of], edge[of]
-    t = (k + 0.5) * length / count[of]
-    normal = np.stack([edge[:, 1], -edge[:, 0]], axis=1) / length[:, None]
-    points = a[of] + edge * (t / length)[:, None] + normal * (radius + SLOT_OFFSET)
+    edges = segments[:, 2:] - segments[:, :2]
+    points = []  # in floats: a few dozen edges
+    for (ax, ay, _, _), (ex, ey), length in zip(segments.tolist(), edges.tolist(), np.hypot(*edges.T).tolist(),
+                                                strict=True):
+        count = int(length // spacing) if length >= spacing else 0
+        nx, ny = ey / length if count else 0.0, -ex / length if count else 0.0
+        for k in range(count):
+            t = (k + 0.5) * length / count
+            points.append((ax + ex * (t / length) + nx * offset, ay + ey * (t / length) + ny * offset))
+    points = np.array(points).reshape(-1, 2)
     return points[in_free_space(layout, points, radius + 1e-3)]
+
+
+def rvo_obstacles(layout: WarehouseLayout) -> list[np.ndarray]:
+    """The layout's obstacles for RVO2: the racks (counter-clockwise) and the hall's walls as one clockwise boundary
+    polygon (RVO2's way of keeping agents inside; the walls' inner faces without the edges no picker ever faces)."""
+    return [*layout.polygons[: len(layout.racks)], layout.hall_vertices[::-1].copy()]
+
+
+class PickSlots:
+    """The pick slots of a layout, the pickers' roadmap and the routes between slots, each planned once.
+
+    :param layout: the layout
+    :param scene: the picker's radius (the slots' offset from the racks)
+    :param clearance: the roadmap's clearance [m]
+    """
+
+    def __init__(self, layout: WarehouseLayout, scene: SceneConfig, clearance: float) -> None:
+        self.layout = layout
+        self.points = pick_slots(layout, scene)
+        self.roadmap = Roadmap(layout, clearance)
+        self._routes: dict[tuple[int, int], list[list[float]] | None] = {}
+
+    def route(self, i: int, j: int) -> list[list[float]] | None:
+        """The waypoints from slot ``i`` to slot ``j`` in floats, slot ``i`` left out (the roadmap's shortest route,
+        remembered); None when there is none."""
+        key = (i, j)
+        if key not in self._routes:
+            try:
+                self._routes[key] = self.roadmap.route(self.points[i], self.points[j])[1:].tolist()
+            except ValueError:
+                self._routes[key] = None
+        return self._routes[key]
 
 
 class PickerCrowd:
     """The pickers of one episode: their ORCA simulator, routes and dwell times.
 
     :param scene: radii, speeds, time step and ORCA parameters
-    :param layout: the episode's layout (its obstacles are given to ORCA)
-    :param slots: the pick slots pickers may use this episode (n, 2)
-    :param roadmap: routes for a picker's clearance
-    :param starts: start slot index of each picker
+    :param slots: the layout's slots and routes (its obstacles are given to ORCA)
+    :param usable: the indices of the slots pickers may use this episode (n,)
+    :param starts: start slot of each picker, an index into ``usable``
     :param rng: the episode's generator (dwell times, next slots)
     :param dwell_time: (min, max) [s]
     """
 
-    def __init__(self, scene: SceneConfig, layout: WarehouseLayout, slots: np.ndarray, roadmap: Roadmap,
-                 starts: np.ndarray, rng: np.random.Generator, dwell_time: tuple[float, float]) -> None:
-        self.scene, self.slots, self.roadmap, self.rng, self.dwell_time = scene, slots, roadmap, rng, dwell_time
+    def __init__(self, scene: SceneConfig, slots: PickSlots, usable: np.ndarray, starts: np.ndarray,
+                 rng: np.random.Generator, dwell_time: tuple[float, float]) -> None:
+        self.scene, self.rng, self.dwell_time = scene, rng, dwell_time
+        self.slots = slots.points[usable]  # (u, 2): the usable slots
+        self._map, self._ids = slots, np.asarray(usable).tolist()
         n = len(starts)
         self.n = n
-        self._layout = layout
+        layout = self._layout = slots.layout
         self._boxes = None if layout.boxes is None else layout.boxes.tolist()
-        self._clear = self._clear_region()
-        self.orca = OrcaCrowd(scene, slots[starts], np.full(n, scene.human_radius), np.full(n, scene.human_v_pref),
-                              None, obstacles=layout.polygons)
+        c, w, h = scene.human_radius - 1e-6, layout.width / 2, layout.height / 2
+        self._room, self._hall = (-w + c, -h + c, w - c, h - c), (w, h)  # inside it and outside the grown boxes: clear
+        self._grown = None if self._boxes is None else [(x0 - c, y0 - c, x1 + c, y1 + c) for x0, y0, x1, y1 in self._boxes]
+        self.orca = OrcaCrowd(scene, self.slots[starts], np.full(n, scene.human_radius), np.full(n, scene.human_v_pref),
+                              None, obstacles=rvo_obstacles(layout))
         self.slot = np.array(starts, dtype=np.int64)  # a copy: the caller keeps the start slots
-        self.routes: list[np.ndarray] = [slots[s][None] for s in starts]
-        self._route_points = [r.tolist() for r in self.routes]  # the routes in floats, for the per-step loops
+        self.routes: list[list[list[float]]] = [[p] for p in self.slots[starts].tolist()]  # waypoints, in floats
         self.waypoint = [0] * n
         self.dwell = [0.0] * n  # [s] left standing at the slot; 0 while walking
         standing = rng.random(n) < 0.5
@@ -80,23 +122,21 @@ class PickerCrowd:
             if standing[i]:
                 self.dwell[i] = rng.uniform(*dwell_time) * rng.random()
             else:
-                self._next_job(i, slots[starts[i]])
+                self._next_job(i)
 
     @property
     def standing(self) -> np.ndarray:
         """(n,) bool: the pickers standing at a pick face now."""
         return np.array(self.dwell, dtype=np.float64).reshape(self.n) > 0
 
-    def _next_job(self, i: int, position: np.ndarray) -> None:
-        """Send picker ``i`` to another slot along the roadmap (its dwell is over)."""
+    def _next_job(self, i: int) -> None:
+        """Send picker ``i`` from its slot to another one along the slots' route (its dwell is over)."""
+        here = int(self.slot[i])
         if len(self.slots) > 1:  # any other slot, uniformly: rng.choice of the others, drawn the same way
             k = int(self.rng.integers(0, len(self.slots) - 1))
-            self.slot[i] = k + (k >= self.slot[i])
-        try:
-            self.routes[i] = self.roadmap.route(position, self.slots[self.slot[i]])[1:]
-        except ValueError:  # cornered by the others' clearance: stay and pick here once more
-            self.routes[i] = self.slots[self.slot[i]][None]
-        self._route_points[i] = self.routes[i].tolist()
+            self.slot[i] = k + (k >= here)
+        route = self._map.route(self._ids[here], self._ids[self.slot[i]])
+        self.routes[i] = route if route is not None else [self.slots[self.slot[i]].tolist()]
         self.waypoint[i] = 0
 
     def preferred_velocities(self, positions: np.ndarray) -> list[tuple[float, float]]:
@@ -106,7 +146,7 @@ class PickerCrowd:
             if self.dwell[i] > 0:
                 out.append((0.0, 0.0))
                 continue
-            route, w = self._route_points[i], self.waypoint[i]
+            route, w = self.routes[i], self.waypoint[i]
             while w < len(route) - 1 and math.dist((x, y), route[w]) < ARRIVAL:
                 w += 1
             self.waypoint[i] = w
@@ -121,49 +161,49 @@ class PickerCrowd:
     def step(self, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """One ORCA step from ``positions`` (n, 2); new positions and velocities, each (n, 2)."""
         dt = self.scene.time_step
-        pos, vel = self.orca.step(self.preferred_velocities(positions))
-        for i in np.flatnonzero(self._pressed(pos)):  # never seen at Δt <= 0.5 s; a guard
-            p = self._outside(pos[i])
+        self.orca.set_preferred_velocities(self.preferred_velocities(positions))
+        rows = self.orca.advance()  # [(x, y, vx, vy)] per picker
+        for i in self._pressed_indices(rows):  # never seen at Δt <= 0.5 s; a guard
+            p = self._outside(np.array(rows[i][:2]))
             if p is not None:
-                self.orca.move_agent(int(i), p)
-                pos[i] = p
-        dwell, waypoint, routes = self.dwell, self.waypoint, self._route_points
-        for i, (x, y) in enumerate(pos.tolist()):
+                self.orca.move_agent(i, p)
+                rows[i] = (float(p[0]), float(p[1]), *rows[i][2:])
+        dwell, waypoint, routes = self.dwell, self.waypoint, self.routes
+        for i, (x, y, _, _) in enumerate(rows):
             if dwell[i] > 0:
                 dwell[i] = max(0.0, dwell[i] - dt)
                 if dwell[i] == 0:
-                    self._next_job(i, pos[i])
+                    self._next_job(i)
             elif waypoint[i] == len(routes[i]) - 1 and math.dist((x, y), routes[i][-1]) < ARRIVAL:
                 dwell[i] = max(self.rng.uniform(*self.dwell_time), dt)
-        return pos, vel
+        state = np.array(rows, dtype=np.float64).reshape(self.n, 4)
+        return state[:, :2], state[:, 2:]
 
     def _pressed(self, positions: np.ndarray) -> np.ndarray:
-        """(n,) bool: the pickers whose centre is closer than their radius (- 1 µm) to a rack or a wall, i.e. outside
-        ``layout.free_space(human_radius - 1e-6)``. With boxes for racks: by the exact distance, asked only of the
-        pickers within ``BAND`` more than that of a rack or a wall along x or y (rare), unless it is within ``BAND``
-        of the radius (then by shapely's polygon)."""
-        radius = self.scene.human_radius - 1e-6
-        if self._clear is None:
-            return ~in_free_space(self._layout, positions, radius)
-        pressed = ~shapely.contains_xy(self._clear, positions[:, 0], positions[:, 1])
-        if pressed.any():
-            hall = (self._layout.width / 2, self._layout.height / 2)
-            for i in np.flatnonzero(pressed).tolist():
-                d = point_clearance(*positions[i].tolist(), self._boxes, hall)
-                pressed[i] = d < radius if abs(d - radius) > BAND else \
-                    not in_free_space(self._layout, positions[i][None], radius)[0]
+        """(n,) bool: the pickers at ``positions`` (n, 2) pressed into a rack or a wall (see :meth:`_pressed_indices`)."""
+        pressed = np.zeros(len(positions), dtype=bool)
+        pressed[self._pressed_indices(positions.tolist())] = True
         return pressed
 
-    def _clear_region(self) -> shapely.Polygon | None:
-        """Where a picker's centre is certainly clear of racks and walls (prepared): the hall and the racks, boxes,
-        shrunk and grown by the radius + ``BAND`` (square corners); None unless the grown racks stay apart."""
-        if self._boxes is None or self.roadmap.grown is None:  # the roadmap's clearance is wider: apart there, apart here
-            return None
-        c, w, h = self.scene.human_radius + BAND, self._layout.width / 2, self._layout.height / 2
-        holes = [[(x0 - c, y0 - c), (x1 + c, y0 - c), (x1 + c, y1 + c), (x0 - c, y1 + c)] for x0, y0, x1, y1 in self._boxes]
-        region = shapely.Polygon([(-w + c, -h + c), (w - c, -h + c), (w - c, h - c), (-w + c, h - c)], holes)
-        shapely.prepare(region)
-        return region
+    def _pressed_indices(self, rows: list) -> list[int]:
+        """The pickers (``rows``: x, y first) whose centre is closer than their radius (- 1 µm) to a rack or a wall.
+        With boxes for racks by the exact distance, asked only of the pickers inside a rack grown by that much
+        (square corners) or outside the hall shrunk by it; otherwise outside ``layout.free_space(radius - 1e-6)``."""
+        radius = self.scene.human_radius - 1e-6
+        if self._grown is None:
+            return np.flatnonzero(~in_free_space(self._layout, np.array([r[:2] for r in rows]).reshape(-1, 2),
+                                                 radius)).tolist()
+        (x0, y0, x1, y1), grown, hall, out = self._room, self._grown, self._hall, []
+        for i, (x, y, *_) in enumerate(rows):
+            if x0 < x < x1 and y0 < y < y1:
+                for a, b, c, d in grown:
+                    if a < x < c and b < y < d:
+                        break
+                else:
+                    continue  # farther than the radius from every rack and wall
+            if point_clearance(x, y, self._boxes, hall) < radius:
+                out.append(i)
+        return out
 
     def _outside(self, position: np.ndarray) -> np.ndarray | None:
         """Where to put a picker centred at ``position`` that overlaps an obstacle (None: it does not)."""

@@ -10,19 +10,20 @@ import shapely
 from shapely.geometry import LineString
 
 from sb3_crowdnav.sim.config import RewardConfig, SceneConfig
-from sb3_crowdnav.sim.geometry import SEGMENT_DIM, polygon_segments
+from sb3_crowdnav.sim.geometry import SEGMENT_DIM, polygon_segments, segment_distance_scalar
 from sb3_crowdnav.sim.observation import HUMAN_DIM, ROBOT_DIM, Human, Robot
 from sb3_crowdnav.sim.rewards import RewardTerms, with_obstacle_collision, with_route_progress
 from sb3_crowdnav.sim.simulator import CrowdSimulator
-from sb3_crowdnav.sim.warehouse.boxes import BAND, segment_clearance
+from sb3_crowdnav.sim.warehouse.boxes import segment_clearance
 from sb3_crowdnav.sim.warehouse.config import WarehouseConfig, check_feasible
 from sb3_crowdnav.sim.warehouse.layout import Roadmap, WarehouseLayout, generate_layout
-from sb3_crowdnav.sim.warehouse.pickers import PickerCrowd, pick_slots
+from sb3_crowdnav.sim.warehouse.pickers import PickerCrowd, PickSlots, pick_slots
 
 ROUTE_CLEARANCE = 0.1  # [m] the robot's route keeps this much beyond its radius from racks and walls
 PICKER_CLEARANCE = 0.02  # [m] likewise for the pickers' routes
 START_GAP = 1.0  # [m] no picker starts, or picks, this close (surface to surface) to the robot's start or goal
 MAX_TRIES = 100
+STATION_BATCH = 16  # points drawn at once for the robot's start and goal
 
 
 def next_waypoints(waypoints: np.ndarray, position: np.ndarray, radius: float) -> np.ndarray:
@@ -37,28 +38,6 @@ def next_waypoints(waypoints: np.ndarray, position: np.ndarray, radius: float) -
         shifted = np.concatenate([out[..., 1:, :], out[..., -1:, :]], axis=-2)
         out = np.where(reached[..., None, None], shifted, out)
     return out
-
-
-def _point_segment_distance(p: Sequence[float], a: Sequence[float], b: Sequence[float]) -> float:
-    """:func:`~sb3_crowdnav.sim.geometry.point_segment_distance` of one point and one segment, in floats (the same
-    operations in the same order, so the same value)."""
-    abx, aby = b[0] - a[0], b[1] - a[1]
-    length2 = abx * abx + aby * aby
-    t = ((p[0] - a[0]) * abx + (p[1] - a[1]) * aby) / (length2 if length2 > 1e-18 else 1.0)
-    t = min(max(t, 0.0), 1.0)
-    dx, dy = p[0] - (a[0] + t * abx), p[1] - (a[1] + t * aby)
-    return math.sqrt(dx * dx + dy * dy)
-
-
-def _segment_distance(p0: Sequence[float], p1: Sequence[float], q0: Sequence[float], q1: Sequence[float]) -> float:
-    """:func:`~sb3_crowdnav.sim.geometry.segment_distance` of two segments, in floats (the same value)."""
-    def cross(o, a, b):
-        return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
-
-    if cross(q0, q1, p0) * cross(q0, q1, p1) < 0 and cross(p0, p1, q0) * cross(p0, p1, q1) < 0:
-        return 0.0
-    return min(_point_segment_distance(p0, q0, q1), _point_segment_distance(p1, q0, q1),
-               _point_segment_distance(q0, p0, p1), _point_segment_distance(q1, p0, p1))
 
 
 class WarehouseSimulator(CrowdSimulator):
@@ -79,22 +58,24 @@ class WarehouseSimulator(CrowdSimulator):
         self._seg_dist = np.zeros(0)  # distance from the robot's centre to every segment, kept current
         self.hit_obstacle = False
         self.layout: WarehouseLayout | None = config.layout
-        self._fixed: tuple[Roadmap, Roadmap, np.ndarray] | None = None
+        self._fixed: tuple[Roadmap, PickSlots] | None = None
         self.route = np.zeros((1, 2))
         self.route_index = 0
         self.route_length = 0.0
         self.replans = 0
         self.progress_term = 0.0
         self._waypoints_of: tuple[np.ndarray | None, int, np.ndarray] = (None, 0, np.zeros((0, 2)))
+        self._obstacles_of: tuple[bytes | None, np.ndarray, np.ndarray] = (None, np.zeros((0, 4)), np.zeros(0, bool))
+        self._route_points: list[list[float]] = []  # self.route in floats, for the per-step checks
 
     # ------------------------------------------------------------------ reset
-    def _maps(self, layout: WarehouseLayout) -> tuple[Roadmap, Roadmap, np.ndarray]:
-        """The robot's roadmap, the pickers' roadmap and the pick slots of ``layout`` (cached for a fixed layout)."""
+    def _maps(self, layout: WarehouseLayout) -> tuple[Roadmap, PickSlots]:
+        """The robot's roadmap and the pick slots (with the pickers' roadmap and routes) of ``layout``; kept for a
+        fixed layout, with the routes planned so far."""
         if self.config.layout is not None and self._fixed is not None:
             return self._fixed
         s = self.scene
-        maps = (Roadmap(layout, s.robot_radius + ROUTE_CLEARANCE), Roadmap(layout, s.human_radius + PICKER_CLEARANCE),
-                pick_slots(layout, s))
+        maps = (Roadmap(layout, s.robot_radius + ROUTE_CLEARANCE), PickSlots(layout, s, s.human_radius + PICKER_CLEARANCE))
         if self.config.layout is not None:
             self._fixed = maps
         return maps
@@ -103,7 +84,7 @@ class WarehouseSimulator(CrowdSimulator):
         """Start a new episode drawn from ``rng``: layout, robot start, goal and route, pickers."""
         cfg, s = self.config, self.scene
         self.layout = cfg.layout if cfg.layout is not None else generate_layout(rng, cfg.layout_ranges)
-        self.robot_map, picker_map, slots = self._maps(self.layout)
+        self.robot_map, picks = self._maps(self.layout)
         self.segments = polygon_segments([*self.layout.racks, self.layout.hall_vertices])
         self._sight = None  # where the robot's centre may go (shapely), built when _in_sight needs it
         boxes = self.layout.boxes
@@ -113,8 +94,9 @@ class WarehouseSimulator(CrowdSimulator):
         self._seg_len2 = np.maximum(np.sum(seg_ab**2, axis=1), 1e-18)
         (self._seg_ax, self._seg_ay), (self._seg_abx, self._seg_aby) = self.segments[:, :2].T.copy(), seg_ab.T.copy()
         start, goal = self._stations(rng)
-        self.route = self.robot_map.route(start, goal)
+        self._set_route(self.robot_map.route(start, goal))
         self.route_index, self.replans = 1, 0
+        self._obstacles_of = (None, *self._obstacles_of[1:])  # another layout's segments
         self.route_length = self.robot_map.route_length(self.route)
         self.max_steps = math.ceil((cfg.time_limit_slack + cfg.time_limit_factor * self.route_length / s.robot_v_pref)
                                    / s.time_step)
@@ -126,14 +108,13 @@ class WarehouseSimulator(CrowdSimulator):
 
         lo, hi = s.humans_range
         n = int(rng.integers(lo, hi + 1))
-        keep = (np.linalg.norm(slots - start, axis=1) >= s.robot_radius + s.human_radius + START_GAP) & \
-               (np.linalg.norm(slots - goal, axis=1) >= s.robot_radius + s.human_radius + START_GAP)
-        usable = slots[keep]
-        starts = self._spread(rng, usable, n, 2 * s.human_radius + 0.2)
+        slots, gap = picks.points, s.robot_radius + s.human_radius + START_GAP
+        usable = np.flatnonzero((np.hypot(*(slots - start).T) >= gap) & (np.hypot(*(slots - goal).T) >= gap))
+        starts = self._spread(rng, slots[usable], n, 2 * s.human_radius + 0.2)
         self.num_humans = len(starts)
-        self.pickers = PickerCrowd(s, self.layout, usable, picker_map, starts, rng, cfg.dwell_time) if n else None
+        self.pickers = PickerCrowd(s, picks, usable, starts, rng, cfg.dwell_time) if n else None
         current = np.zeros((s.max_humans, HUMAN_DIM))
-        current[: self.num_humans, Human.POS] = usable[starts] if n else np.zeros((0, 2))
+        current[: self.num_humans, Human.POS] = slots[usable[starts]] if n else np.zeros((0, 2))
         current[: self.num_humans, Human.RADIUS] = s.human_radius
         self.history = np.repeat(current[None], s.history_length, axis=0)
         self.mask = np.zeros(s.max_humans, dtype=bool)
@@ -145,22 +126,34 @@ class WarehouseSimulator(CrowdSimulator):
         self._seg_dist = self._distances(self.robot[Robot.POS])
 
     def _stations(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-        """Start and goal: free points (uniform) at least ``min_route_distance`` apart."""
-        for _ in range(MAX_TRIES):
-            start = self.robot_map.sample_free(rng)
-            for _ in range(MAX_TRIES):
-                goal = self.robot_map.sample_free(rng)
-                if np.linalg.norm(goal - start) >= self.config.min_route_distance:
-                    return start, goal
+        """Start and goal: free points (uniform) at least ``min_route_distance`` apart. Points are drawn uniformly
+        in the hall, ``STATION_BATCH`` at a time: the first free one is the start, the first free one after it far
+        enough away the goal (a new start after ``MAX_TRIES`` free ones too close)."""
+        w, h, is_free, far = self.layout.width / 2, self.layout.height / 2, self.robot_map.is_free, \
+            self.config.min_route_distance
+        start, tries = None, 0
+        for _ in range(MAX_TRIES * MAX_TRIES // STATION_BATCH):
+            for x, y in rng.uniform((-w, -h), (w, h), (STATION_BATCH, 2)).tolist():
+                if not is_free((x, y)):
+                    continue
+                if start is None:
+                    start, tries = (x, y), 0
+                elif math.hypot(x - start[0], y - start[1]) >= far:
+                    return np.array(start), np.array([x, y])
+                else:
+                    tries += 1
+                    start = start if tries < MAX_TRIES else None
         raise RuntimeError("no start and goal min_route_distance apart (check_feasible should have refused this)")
 
     @staticmethod
     def _spread(rng: np.random.Generator, slots: np.ndarray, n: int, spacing: float) -> np.ndarray:
         """``n`` slot indices, pairwise at least ``spacing`` apart, in random order."""
         chosen: list[int] = []
-        for i in rng.permutation(len(slots)) if n else ():
-            if (np.hypot(*(slots[i] - slots[chosen]).T) >= spacing).all():
-                chosen.append(int(i))
+        points = slots.tolist()
+        for i in rng.permutation(len(slots)).tolist() if n else ():
+            (x, y) = points[i]
+            if all(math.hypot(x - points[k][0], y - points[k][1]) >= spacing for k in chosen):
+                chosen.append(i)
                 if len(chosen) == n:
                     break
         if len(chosen) < n:
@@ -177,12 +170,17 @@ class WarehouseSimulator(CrowdSimulator):
 
     def observed_obstacles(self) -> tuple[np.ndarray, np.ndarray]:
         """The ``max_obstacles`` segments nearest the robot within ``sensor_range``: (M, 4), mask (M,)
-        (:func:`~sb3_crowdnav.sim.geometry.nearest_segments`' rule on the cached distances)."""
+        (:func:`~sb3_crowdnav.sim.geometry.nearest_segments`' rule on the cached distances; kept while the same
+        segments are seen in the same order: the observation copies them)."""
         m = self.config.max_obstacles
-        seen = min(m, int(np.count_nonzero(self._seg_dist <= self.config.sensor_range)))
-        out, mask = np.zeros((m, SEGMENT_DIM)), np.zeros(m, dtype=bool)
-        out[:seen], mask[:seen] = self.segments[np.argsort(self._seg_dist, kind="stable")[:seen]], True
-        return out, mask
+        seen = np.argsort(self._seg_dist, kind="stable")[: min(m, int(np.count_nonzero(
+            self._seg_dist <= self.config.sensor_range)))]
+        key = seen.tobytes()
+        if key != self._obstacles_of[0]:
+            out, mask = np.zeros((m, SEGMENT_DIM)), np.zeros(m, dtype=bool)
+            out[: len(seen)], mask[: len(seen)] = self.segments[seen], True
+            self._obstacles_of = (key, out, mask)
+        return self._obstacles_of[1], self._obstacles_of[2]
 
     def observed_waypoints(self) -> np.ndarray:
         """The current waypoint and the next ones, (K, 2), the goal repeated at the end (kept until the route or the
@@ -195,45 +193,45 @@ class WarehouseSimulator(CrowdSimulator):
         return self._waypoints_of[2]
 
     # ------------------------------------------------------------------ step
-    def _blocked(self, a: np.ndarray, b: np.ndarray, candidates: np.ndarray) -> bool:
-        """Whether the robot's disc moving straight from ``a`` to ``b`` touches one of the ``candidates`` segments
+    def _blocked(self, p: list[float], q: list[float], candidates: np.ndarray) -> bool:
+        """Whether the robot's disc moving straight from ``p`` to ``q`` touches one of the ``candidates`` segments
         (:func:`~sb3_crowdnav.sim.geometry.segment_distance` below the radius; in floats, the same operations)."""
-        radius, p, q = self.scene.robot_radius, a.tolist(), b.tolist()
+        radius = self.scene.robot_radius
         for k in np.flatnonzero(candidates).tolist():
             x0, y0, x1, y1 = self._segment_list[k]
-            if _segment_distance(p, q, (x0, y0), (x1, y1)) < radius:
+            if segment_distance_scalar(p, q, (x0, y0), (x1, y1)) < radius:
                 return True
         return False
 
-    def _in_sight(self, a: np.ndarray, b: np.ndarray) -> bool:
-        """Whether the robot's disc fits all along the segment ``a``-``b``: shapely's ``covers`` by the free space of
-        its radius (+ 1 µm), decided by the exact distance to the racks and walls when it is clear of the radius."""
+    def _in_sight(self, a: Sequence[float], b: Sequence[float]) -> bool:
+        """Whether the robot's disc fits all along the segment ``a``-``b`` (to within 1 µm): with boxes for racks by
+        the exact distance to the racks and walls, else shapely's ``covers`` by the free space of its radius + 1 µm."""
         radius = self.scene.robot_radius
         if self._boxes is not None:
-            d = segment_clearance(a.tolist(), b.tolist(), self._boxes, (self.layout.width / 2, self.layout.height / 2),
-                                  radius + BAND)
-            if abs(d - radius) > BAND:
-                return d > radius
+            hall = (self.layout.width / 2, self.layout.height / 2)
+            return segment_clearance(a, b, self._boxes, hall, radius) >= radius - 1e-6
         if self._sight is None:
             self._sight = self.layout.free_space(radius).buffer(1e-6)
             shapely.prepare(self._sight)
         return bool(self._sight.covers(LineString([a, b])))
 
-    def _advance_route(self) -> None:
-        """Pass reached waypoints (:func:`next_waypoints`' rule); plan again when the route is lost: the robot
-        strayed more than ``replan_distance`` from it, or the way to the current waypoint is blocked."""
-        pos = self.robot[Robot.POS]
-        (x, y), radius, last = pos.tolist(), self.config.waypoint_radius, len(self.route) - 1
-        while self.route_index < last and math.dist((x, y), self.route[self.route_index]) < radius:
+    def _set_route(self, route: np.ndarray) -> None:
+        self.route, self._route_points = route, route.tolist()
+
+    def _advance_route(self, pos: list[float]) -> None:
+        """Pass reached waypoints (:func:`next_waypoints`' rule); plan again when the route is lost: the robot at
+        ``pos`` strayed more than ``replan_distance`` from it, or the way to the current waypoint is blocked."""
+        (x, y), radius, points = pos, self.config.waypoint_radius, self._route_points
+        last = len(points) - 1
+        while self.route_index < last and math.dist(pos, points[self.route_index]) < radius:
             self.route_index += 1
-        (ax, ay), (bx, by) = self.route[self.route_index - 1].tolist(), self.route[self.route_index].tolist()
-        current = self.route[self.route_index]
-        dx, dy = bx - ax, by - ay  # point_segment_distance in floats
+        (ax, ay), current = points[self.route_index - 1], points[self.route_index]
+        dx, dy = current[0] - ax, current[1] - ay  # point_segment_distance in floats
         t = min(1.0, max(0.0, ((x - ax) * dx + (y - ay) * dy) / max(dx * dx + dy * dy, 1e-18)))
         off = math.hypot(x - ax - t * dx, y - ay - t * dy) > self.config.replan_distance
         if off or not self._in_sight(pos, current):
             try:
-                self.route = self.robot_map.route(pos, self.route[-1])
+                self._set_route(self.robot_map.route(pos, self.route[-1]))
                 self.route_index, self.replans = 1, self.replans + 1
             except ValueError:  # the robot is cornered: keep the old route
                 pass
@@ -250,16 +248,17 @@ class WarehouseSimulator(CrowdSimulator):
         waypoint = self.route[self.route_index]  # the observed current waypoint (replanning replaces the array)
         terms = super().step(action)
         pos1 = self.robot[Robot.POS]
+        p0, p1 = pos0.tolist(), pos1.tolist()
         self._seg_dist = self._distances(pos1)
-        step_length = math.dist(pos0, pos1)
-        hit = self._blocked(pos0, pos1, self._seg_dist < self.scene.robot_radius + step_length)
+        hit = self._blocked(p0, p1, self._seg_dist < self.scene.robot_radius + math.dist(p0, p1))
         if hit:  # (without a hit, with_obstacle_collision returns the terms unchanged)
             terms = with_obstacle_collision(terms, np.bool_(hit), self.config.obstacle_collision_penalty)
         self.hit_obstacle = hit and not bool(terms.min_distance < 0)
-        terms = with_route_progress(terms, pos0, pos1, waypoint, self.config.progress_reward)
+        if self.config.progress_reward:  # (with_route_progress returns the terms unchanged without shaping)
+            terms = with_route_progress(terms, pos0, pos1, waypoint, self.config.progress_reward)
         self.progress_term = float(terms.progress_term)
         if not (terms.collision or terms.success):
-            self._advance_route()
+            self._advance_route(p1)
         return terms
 
     @property
