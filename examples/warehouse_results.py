@@ -19,6 +19,7 @@ DIR``, the training wall times read from the run folders ``DIR/apg_warehouse`` a
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 from pathlib import Path
 
@@ -27,7 +28,7 @@ from sb3_crowdnav.cli import main as cli
 ENV = "CrowdNavWarehouse-v0"
 LAYOUT_FILE = Path(__file__).with_name("warehouse_layout.yaml")
 POLICIES = ("pretrained:apg_warehouse", "pretrained:ppo_warehouse", "orca", "orca-constrained")
-SWEEP = ("2", "4", "6", "8", "10")
+SWEEP = (2, 4, 6, 8, 10)
 
 
 def benchmark(out: Path, policies, episodes: int, workers: int, extra=()) -> None:
@@ -38,6 +39,24 @@ def benchmark(out: Path, policies, episodes: int, workers: int, extra=()) -> Non
     code = cli(args)
     if code:
         raise SystemExit(f"sb3-crowdnav {' '.join(args)} exited with {code}")
+
+
+def compact(results_csv: Path, key: str = "method") -> str:
+    """The README's columns of a ``results.csv``: rates with their 95 % intervals, time, path / route, gap."""
+    def rate(row, name):
+        return f"{float(row[name]):.3f} [{float(row[name + '_ci_low']):.3f}, {float(row[name + '_ci_high']):.3f}]"
+
+    def number(row, name, digits=2):
+        return "–" if row[name] in ("", "nan") else f"{float(row[name]):.{digits}f}"
+
+    lines = [f"| {key} | success | picker collision | obstacle collision | timeout | time [s] | path / route | "
+             "gap [m] |", "|---|---|---|---|---|---|---|---|"]
+    with results_csv.open() as f:
+        for row in csv.DictReader(f):
+            lines.append(f"| {row[key]} | {rate(row, 'success')} | {rate(row, 'human_collision')} | "
+                         f"{rate(row, 'obstacle_collision')} | {rate(row, 'timeout')} | {number(row, 'time')} | "
+                         f"{number(row, 'route_ratio')} | {number(row, 'gap')} |")
+    return "\n".join(lines)
 
 
 def run_wall_time(folder: Path) -> str:
@@ -53,26 +72,30 @@ def run_wall_time(folder: Path) -> str:
     return f"{(end - start) / 60:.0f} min (to the last validation, {curve[-1]['episodes']} RL episodes)"
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--episodes", type=int, default=500)
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--out", type=Path, default=Path("paper_results/warehouse"))
     p.add_argument("--unshaped", metavar="ZIP", help="also evaluate this model trained without progress shaping")
     p.add_argument("--runs", type=Path, help="folder holding the run folders apg_warehouse and ppo_warehouse")
-    args = p.parse_args()
+    p.add_argument("--sweep", type=int, nargs="+", default=SWEEP, help="pickers of the sweep (default: 2 4 6 8 10)")
+    p.add_argument("--gif", action=argparse.BooleanOptionalAction, default=True, help="a GIF per policy")
+    args = p.parse_args(argv)
 
-    benchmark(args.out / "generated", POLICIES, args.episodes, args.workers, ["--sweep", *SWEEP])
+    benchmark(args.out / "generated", POLICIES, args.episodes, args.workers,
+              ["--sweep", *map(str, args.sweep), *([] if args.gif else ["--no-gif"])])
     benchmark(args.out / "layout_file", POLICIES, args.episodes, args.workers,
               ["--env-kwargs", f"dict(layout={str(LAYOUT_FILE)!r})", "--no-gif"])
-    sections = [("Generated layouts, 6 pickers", args.out / "generated" / "results.md"),
-                ("apg_warehouse with 2-10 pickers", args.out / "generated" / "sweep.md"),
-                (f"The layout file {LAYOUT_FILE.name}, 6 pickers", args.out / "layout_file" / "results.md")]
+    sections = [("Generated layouts, 6 pickers", args.out / "generated" / "results.csv", "method"),
+                (f"apg_warehouse with {', '.join(map(str, args.sweep))} pickers", args.out / "generated" / "sweep.csv",
+                 "humans"),
+                (f"The layout file {LAYOUT_FILE.name}, 6 pickers", args.out / "layout_file" / "results.csv", "method")]
     if args.unshaped:
         benchmark(args.out / "unshaped", [args.unshaped], args.episodes, args.workers, ["--no-gif"])
-        sections.append(("Trained without the progress shaping", args.out / "unshaped" / "results.md"))
+        sections.append(("Trained without the progress shaping", args.out / "unshaped" / "results.csv", "method"))
     text = [f"# CrowdNavWarehouse-v0, {args.episodes} test episodes per row (seeds 1,000,000 + i)\n"]
-    text += [f"## {title}\n\n{path.read_text().strip()}\n" for title, path in sections]
+    text += [f"## {title}\n\n{compact(path, key)}\n" for title, path, key in sections]
     if args.runs:
         text.append("## Training wall time (2 cores)\n")
         text += [f"- {name}: {run_wall_time(args.runs / name)}" for name in ("apg_warehouse", "ppo_warehouse")]
