@@ -26,8 +26,9 @@ class CrowdNavWarehouseEnv(CrowdNavEnv):
     pedestrians, ORCA agents that see the racks through ``pyrvo``'s obstacles) walk routes between
     pick faces along the aisles and stand at each for a dwell time, so some stand still at any moment.
     The robot gets a global route from a planner on the static map (A* with ``networkx`` on a visibility
-    roadmap: the corners of the racks grown by the robot's radius and a clearance); the observation carries its next waypoints and the nearest rack and wall
-    segments, in world coordinates like the pedestrians, so that a lookahead can propagate them.
+    roadmap: the corners of the racks grown by the robot's radius and a clearance); the observation carries
+    its next waypoints and the nearest rack and wall segments, in world coordinates like the pedestrians, so
+    that a lookahead can propagate them.
 
     A layout is drawn per episode from ``layout_ranges`` (rows of racks, racks per row, rack length and
     depth, aisle widths; see :class:`~sb3_crowdnav.sim.warehouse.LayoutRanges`), or fixed by ``layout``

@@ -125,15 +125,6 @@ class Roadmap:
         return bool(x0 < x < x1 and y0 < y < y1 and not any(gx0 <= x <= gx1 and gy0 <= y <= gy1
                                                             for gx0, gy0, gx1, gy1 in self._grown_list))
 
-    def sample_free(self, rng: np.random.Generator) -> np.ndarray:
-        """A point drawn uniformly from the free space (rejection sampling in the hall)."""
-        w, h = self.layout.width / 2, self.layout.height / 2
-        for _ in range(10_000):
-            point = rng.uniform((-w, -h), (w, h))
-            if self.is_free(point):
-                return point
-        raise ValueError("the free space is empty for this clearance")
-
     def _visible_one(self, a: np.ndarray, b: np.ndarray) -> bool:
         """:meth:`_visible` of the one segment ``a``-``b`` (in floats when the racks are boxes)."""
         if self.grown is None:

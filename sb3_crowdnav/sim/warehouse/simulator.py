@@ -10,7 +10,12 @@ import shapely
 from shapely.geometry import LineString
 
 from sb3_crowdnav.sim.config import RewardConfig, SceneConfig
-from sb3_crowdnav.sim.geometry import SEGMENT_DIM, polygon_segments, segment_distance_scalar
+from sb3_crowdnav.sim.geometry import (
+    SEGMENT_DIM,
+    point_segment_distance_scalar,
+    polygon_segments,
+    segment_distance_scalar,
+)
 from sb3_crowdnav.sim.observation import HUMAN_DIM, ROBOT_DIM, Human, Robot
 from sb3_crowdnav.sim.rewards import RewardTerms, with_obstacle_collision, with_route_progress
 from sb3_crowdnav.sim.simulator import CrowdSimulator
@@ -221,14 +226,12 @@ class WarehouseSimulator(CrowdSimulator):
     def _advance_route(self, pos: list[float]) -> None:
         """Pass reached waypoints (:func:`next_waypoints`' rule); plan again when the route is lost: the robot at
         ``pos`` strayed more than ``replan_distance`` from it, or the way to the current waypoint is blocked."""
-        (x, y), radius, points = pos, self.config.waypoint_radius, self._route_points
+        radius, points = self.config.waypoint_radius, self._route_points
         last = len(points) - 1
         while self.route_index < last and math.dist(pos, points[self.route_index]) < radius:
             self.route_index += 1
-        (ax, ay), current = points[self.route_index - 1], points[self.route_index]
-        dx, dy = current[0] - ax, current[1] - ay  # point_segment_distance in floats
-        t = min(1.0, max(0.0, ((x - ax) * dx + (y - ay) * dy) / max(dx * dx + dy * dy, 1e-18)))
-        off = math.hypot(x - ax - t * dx, y - ay - t * dy) > self.config.replan_distance
+        current = points[self.route_index]
+        off = point_segment_distance_scalar(pos, points[self.route_index - 1], current) > self.config.replan_distance
         if off or not self._in_sight(pos, current):
             try:
                 self._set_route(self.robot_map.route(pos, self.route[-1]))
