@@ -15,8 +15,10 @@ Usage: python benchmarks/training_speed.py [--n-envs 1] [--rl-steps 3000] [--il-
                                           [--dtype float32|bfloat16] [--optimizer adam|sgd] [--overlap]
                                           [--from-pretrained apg_rl] [--epsilon 0.1]
 
-``--overlap`` runs the gradient steps in a second thread while the env collects the next steps
-(``APGValue(overlap_training=True)``): the paper's schedule on both cores.
+``--overlap [thread|process]`` runs the gradient steps in a second thread (or process) while the env collects the
+next steps (``APGValue(overlap_training=...)``): the paper's schedule on both cores. The RL rate is timed after
+the first tenth of the steps, so that a learner process's start-up (a few seconds, once per ``learn()``) is not
+counted in it.
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ import time
 
 import numpy as np
 import torch as th
+from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.logger import configure
 
@@ -53,6 +56,23 @@ def bare_decision_rate(model: APGValue, decisions: int) -> float:
     return rate
 
 
+class _SteadyClock(BaseCallback):
+    """Env steps/s of ``learn()`` after its first ``skip`` steps (a learner process starts up during those)."""
+
+    def __init__(self, skip: int) -> None:
+        super().__init__()
+        self.skip, self._marks = skip, {}
+
+    def _on_step(self) -> bool:
+        self._marks.setdefault(self.n_calls >= self.skip, (self.n_calls, time.perf_counter()))
+        self._marks[None] = (self.n_calls, time.perf_counter())
+        return True
+
+    def rate(self) -> float:
+        (n0, t0), (n1, t1) = self._marks[True], self._marks[None]
+        return (n1 - n0) * self.model.n_envs / (t1 - t0)
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__)
     p.add_argument("--n-envs", type=int, default=1)
@@ -68,7 +88,9 @@ def main() -> None:
                    help="mean RL episode length [steps] over the paper's schedule, for the projection")
     p.add_argument("--dtype", default="float32", choices=("float32", "bfloat16"), help="lookahead precision when acting")
     p.add_argument("--optimizer", default="adam", choices=("adam", "sgd"), help="RL optimiser (APGValue's default: adam)")
-    p.add_argument("--overlap", action="store_true", help="APGValue(overlap_training=True): gradient steps on a 2nd core")
+    p.add_argument("--overlap", nargs="?", const="thread", default=False, choices=("thread", "process"),
+                   help="APGValue(overlap_training=...): gradient steps on the second core, in a thread (default) or "
+                        "in a process")
     p.add_argument("--from-pretrained", metavar="NAME",
                    help="start RL from a shipped model's weights (e.g. apg_rl), as the acting-efficiency measurement of "
                         "the issue tracker does; imitation is then only timed, not used")
@@ -107,11 +129,12 @@ def main() -> None:
         model.policy.value_net_target.load_state_dict(shipped.policy.value_net.state_dict())
 
     decisions_per_s = bare_decision_rate(model, args.decisions)
+    clock = _SteadyClock(args.rl_steps // 10)
     t2 = time.perf_counter()
-    model.learn(args.rl_steps, reset_num_timesteps=False)
+    model.learn(args.rl_steps, reset_num_timesteps=False, callback=clock)
     rl = time.perf_counter() - t2
     episodes = max(model._episode_num, 1)
-    steps_per_s = args.rl_steps / rl
+    steps_per_s = clock.rate()
     ep_len = args.rl_steps / episodes
 
     il_collect_s = args.il_schedule / (args.il_episodes / collect)
@@ -120,8 +143,8 @@ def main() -> None:
           f"optimizer={args.optimizer} dtype={args.dtype} epsilon={model.exploration_rate:.2f}")
     print(f"imitation collection: {args.il_episodes / collect:.1f} episodes/s ({states_per_episode:.1f} states/episode)")
     print(f"imitation regression: {per_epoch_per_k:.3f} s per epoch per 1,000 states")
-    print(f"RL: {steps_per_s:.0f} env steps/s, mean episode length {ep_len:.1f} steps, "
-          f"{3600 * steps_per_s / ep_len:.0f} episodes/h")
+    print(f"RL: {steps_per_s:.0f} env steps/s (after the first {clock.skip} steps; all {args.rl_steps} in {rl:.1f} s), "
+          f"mean episode length {ep_len:.1f} steps, {3600 * steps_per_s / ep_len:.0f} episodes/h")
     print(f"bare decision rate: {decisions_per_s:.0f} decisions/s (greedy lookahead of one env, real observations, "
           f"same weights); acting efficiency = RL env steps/s / decisions/s = {steps_per_s / decisions_per_s:.2f}")
     for label, length in (("measured episode length", ep_len), (f"{args.episode_length:g}-step episodes",

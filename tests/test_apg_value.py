@@ -162,10 +162,10 @@ def test_td_target_zero_future_on_terminal():
     rewards = th.tensor([0.3])
     with th.no_grad():
         v_next = model.policy.values(tens, target=True)
-    np.testing.assert_allclose(model._td_target(rewards, tens, tens, th.tensor([1.0])).numpy(), [0.3])
+    td_target = model._value_learner().td_target
+    np.testing.assert_allclose(td_target(rewards, tens, tens, th.tensor([1.0])).numpy(), [0.3])
     expected = 0.3 + 0.9**0.25 * v_next
-    np.testing.assert_allclose(model._td_target(rewards, tens, tens, th.tensor([0.0])).numpy(), expected.numpy(),
-                               rtol=1e-6)
+    np.testing.assert_allclose(td_target(rewards, tens, tens, th.tensor([0.0])).numpy(), expected.numpy(), rtol=1e-6)
 
 
 def test_refusals():
@@ -402,19 +402,41 @@ def test_overlap_training_is_deterministic_and_not_the_sequential_run():
     assert not th.equal(a, run(False))  # V is one training call stale when acting: a different run
 
 
+def _state(model):
+    policy = model.policy
+    optimizer = policy.optimizer.state_dict()["state"]
+    return (_params(model), th.cat([p.detach().flatten() for p in policy.value_net_target.parameters()]),
+            th.cat([optimizer[i]["exp_avg_sq"].flatten() for i in sorted(optimizer)]))
+
+
+def test_overlap_training_in_a_process_is_the_thread_run():
+    """The learner process runs the same arithmetic on the same batches: V, V_target (updated twice here) and Adam's
+    state end bit-identical to the learner thread's run, and a second learn() continues it the same way."""
+    runs = {}
+    for kind in ("thread", "process"):
+        model = APGValue("ApgPolicy", "CrowdNav-v0", seed=11, overlap_training=kind, target_update_interval=50, **TINY)
+        first = _state(model.learn(120))
+        runs[kind] = first, _state(model.learn(40, reset_num_timesteps=False))
+        assert model._overlap is None and model._n_updates == 160 // 4
+    for a, b in zip(runs["thread"], runs["process"], strict=True):
+        for x, y in zip(a, b, strict=True):
+            assert th.equal(x, y)
+    assert not th.equal(runs["process"][0][1], runs["process"][1][1])  # V_target did move
+
+
 def test_overlap_training_acts_with_the_previous_weights(monkeypatch):
     """Each training call hands the acting copy the weights of the completed previous call, not the ones in flight."""
     model = APGValue("ApgPolicy", "CrowdNav-v0", seed=2, overlap_training=True, **TINY)
     seen = []
-    from sb3_crowdnav.apg_value.overlap import OverlappingLearner
+    from sb3_crowdnav.apg_value.overlap import ThreadLearner
 
-    original = OverlappingLearner.sync
+    original = ThreadLearner.sync
 
     def sync(self, value_net):
         original(self, value_net)
         seen.append((_params(model).clone(), th.cat([p.detach().flatten() for p in self.acting_net.parameters()])))
 
-    monkeypatch.setattr(OverlappingLearner, "sync", sync)
+    monkeypatch.setattr(ThreadLearner, "sync", sync)
     model.learn(40)
     assert len(seen) >= 5
     for v, acting in seen:
@@ -424,18 +446,22 @@ def test_overlap_training_acts_with_the_previous_weights(monkeypatch):
     assert model._overlap is None
 
 
-def test_overlap_training_two_envs_checkpoint_and_bfloat16(tmp_path):
+@pytest.mark.parametrize("kind", ["thread", "process"])
+def test_overlap_training_two_envs_checkpoint_and_bfloat16(tmp_path, kind):
     from stable_baselines3.common.callbacks import CheckpointCallback
 
     vec = make_vec_env("CrowdNav-v0", n_envs=2, seed=3)
     kwargs = dict(TINY, policy_kwargs={"lookahead_dtype": "bfloat16"}) if bfloat16_supported() else TINY
-    model = APGValue("ApgPolicy", vec, seed=0, overlap_training=True, **kwargs)
+    model = APGValue("ApgPolicy", vec, seed=0, overlap_training=kind, **kwargs)
     model.learn(80, callback=CheckpointCallback(save_freq=10, save_path=str(tmp_path), name_prefix="ck"))
     assert model.num_timesteps == 80 and model._n_updates == 80 // (4 * 2)
     saved = sorted(tmp_path.glob("ck_*.zip"))
     assert saved
     last = APGValue.load(saved[-1])
     assert last.policy.lookahead_dtype == model.policy.lookahead_dtype
+    if kind == "process":  # the checkpoint saved during learn() carries the learner process's optimiser state
+        steps = last.policy.optimizer.state_dict()["state"][0]["step"]
+        assert int(steps) == last._n_updates > 0
     obs = vec.reset()
     model.save(tmp_path / "final")
     np.testing.assert_array_equal(APGValue.load(tmp_path / "final").predict(obs, deterministic=True)[0],
@@ -454,8 +480,40 @@ def test_overlap_training_errors_reach_the_caller(monkeypatch):
     with pytest.raises(FloatingPointError, match="nan loss"):
         model.learn(40)
     assert model._overlap is None
-    with pytest.raises(TypeError, match="overlap_training must be a bool"):
+    with pytest.raises(ValueError, match="overlap_training must be a bool or one of"):
         APGValue("ApgPolicy", "CrowdNav-v0", overlap_training="yes")
+
+
+@pytest.mark.slow
+def test_overlap_training_process_errors_and_death_reach_the_caller(monkeypatch):
+    """An exception in the learner process is raised in learn(); a learner process that dies is named."""
+    from sb3_crowdnav.apg_value.overlap import ProcessLearner
+
+    original = ProcessLearner.submit
+    calls = []
+
+    def bad_command(self, batches, learning_rates):
+        original(self, batches, learning_rates)
+        calls.append(1)
+        if len(calls) == 3:
+            self.join()
+            self._request("bogus")
+
+    monkeypatch.setattr(ProcessLearner, "submit", bad_command)
+    model = APGValue("ApgPolicy", "CrowdNav-v0", seed=0, overlap_training="process", **TINY)
+    with pytest.raises(ValueError, match="unknown learner command 'bogus'"):
+        model.learn(40)
+    assert model._overlap is None
+
+    def killed(self, batches, learning_rates):
+        original(self, batches, learning_rates)
+        self._process.kill()
+
+    monkeypatch.setattr(ProcessLearner, "submit", killed)
+    model = APGValue("ApgPolicy", "CrowdNav-v0", seed=0, overlap_training="process", **TINY)
+    with pytest.raises(RuntimeError, match=r"learner process .* died \(exit code -9\)"):
+        model.learn(40)
+    assert model._overlap is None
 
 
 def test_imitation_reports_progress_and_fps_counts_rl_only(tmp_path, capsys):

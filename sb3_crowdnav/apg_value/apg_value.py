@@ -17,12 +17,13 @@ from stable_baselines3.common.utils import polyak_update
 
 from sb3_crowdnav.apg_value import checks
 from sb3_crowdnav.apg_value.buffers import ValueReplayBuffer, follow_timeout_handling, is_npz, load_buffer, save_buffer
-from sb3_crowdnav.apg_value.overlap import Batch, OverlappingLearner
+from sb3_crowdnav.apg_value.learner import Batch, ValueLearner
+from sb3_crowdnav.apg_value.overlap import ProcessLearner, ThreadLearner
 from sb3_crowdnav.apg_value.policies import POLICY_ALIASES, ValueLookaheadPolicy
 from sb3_crowdnav.apg_value.pretraining import pretrain_from_orca
 from sb3_crowdnav.apg_value.rollout_stats import RolloutStats
 from sb3_crowdnav.serialization import UnsafeModelFileError, safe_custom_objects, write_spaces
-from sb3_crowdnav.sim.observation import ObservationSchema, Robot
+from sb3_crowdnav.sim.observation import ObservationSchema
 from sb3_crowdnav.sim.orca import OrcaPolicy
 
 SelfAPGValue = TypeVar("SelfAPGValue", bound="APGValue")
@@ -74,9 +75,11 @@ class APGValue(OffPolicyAlgorithm):
         chosen (a value-iteration backup through the propagation model, frozen in the buffer as the field's
         reference code freezes its targets); transitions without one (the demonstrations) use the TD target.
     :param torch_threads: ``torch.set_num_threads`` at construction (1 is fastest on small CPUs); None leaves it
-    :param overlap_training: run each training call's gradient steps in a second thread while the envs collect the
-        next ``train_freq`` steps, acting with a copy of V one training call stale (:mod:`.overlap`); deterministic,
-        but not the same run as with ``False``. 1.2-1.6x faster training on 2 cores.
+    :param overlap_training: run each training call's gradient steps on the second core while the envs collect the
+        next ``train_freq`` steps, acting with a copy of V one training call stale (:mod:`.overlap`): ``"thread"``
+        (a learner thread), ``"process"`` (a learner process, weights handed over through shared memory), ``True``
+        (= ``"thread"``) or ``False``. Deterministic, the same run with either learner, but not the same run as
+        with ``False``. 1.2-1.6x faster training on 2 cores.
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = dict(POLICY_ALIASES)
@@ -117,7 +120,7 @@ class APGValue(OffPolicyAlgorithm):
         seed: int | None = None,
         device: th.device | str = "auto",
         torch_threads: int | None = 1,
-        overlap_training: bool = False,
+        overlap_training: bool | str = False,
         _init_setup_model: bool = True,
     ) -> None:
         if torch_threads is not None:
@@ -174,7 +177,7 @@ class APGValue(OffPolicyAlgorithm):
             raise ValueError(f"policy_kwargs['gamma'] = {given_gamma!r} differs from the algorithm's gamma = {self.gamma!r}")
         super()._setup_model()  # seeds the ε draws too (set_random_seed)
         self._rollout_stats = RolloutStats(self._stats_window_size)
-        self._overlap: OverlappingLearner | None = None  # inside learn() with overlap_training; never saved
+        self._overlap: ThreadLearner | ProcessLearner | None = None  # inside learn() with overlap_training; never saved
 
     def set_random_seed(self, seed: int | None = None) -> None:
         super().set_random_seed(seed)
@@ -244,18 +247,10 @@ class APGValue(OffPolicyAlgorithm):
         if self._n_calls % max(self.target_update_interval // self.n_envs, 1) == 0:
             self._join_learner()  # V must not be mid-update while it is copied
             polyak_update(self.policy.value_net.parameters(), self.policy.value_net_target.parameters(), self.tau)
+            if self._overlap is not None:
+                self._overlap.update_target(self.tau)
         self._update_exploration()
         self.logger.record("rollout/exploration_rate", self.exploration_rate)
-
-    def _td_target(self, rewards: th.Tensor, next_obs: dict[str, th.Tensor], obs: dict[str, th.Tensor],
-                   dones: th.Tensor) -> th.Tensor:
-        with th.no_grad():
-            v_next = self.policy.values(next_obs, target=True)
-            ceiling = self.policy.value_ceiling(obs["robot"][:, Robot.V_PREF])
-            if ceiling is not None:  # the warehouse: no return exceeds it (ValueLookaheadPolicy.value_ceiling)
-                v_next = th.minimum(v_next, ceiling)
-            discount = self.gamma ** (self.policy.time_step * obs["robot"][:, Robot.V_PREF])
-            return rewards + discount * (1.0 - dones) * v_next
 
     def train(self, gradient_steps: int, batch_size: int = 100) -> None:
         if self._overlap is None:
@@ -269,34 +264,17 @@ class APGValue(OffPolicyAlgorithm):
         # early in training most actions are ε-random and acting is cheap, late it runs a lookahead at nearly every
         # step. The numbers are the same in either thread, so this timing-based choice does not change the run.
         batches = self._sample_batches(gradient_steps, batch_size)
-        if self._overlap.busy:  # the learner was slower: this thread computes the targets
-            batches = [Batch(b.data, *self._batch_target(b.data)) for b in batches]
+        if self._overlap.shares_targets and self._overlap.busy:  # the learner thread was slower: targets here
+            batches = [Batch(b.data, *self._value_learner().batch_target(b.data)) for b in batches]
         self._join_learner()
         self._overlap.sync(self.policy.value_net)
         self._update_learning_rate(self.policy.optimizer)
-        self._overlap.submit(self._gradient_steps, batches)
+        self._overlap.submit(batches, [group["lr"] for group in self.policy.optimizer.param_groups])
 
     def _sample_batches(self, gradient_steps: int, batch_size: int) -> list[Batch]:
         """Sample the replay batches of one training call (targets not computed yet)."""
         return [Batch(self.replay_buffer.sample(batch_size, env=self._vec_normalize_env))  # type: ignore[union-attr]
                 for _ in range(gradient_steps)]
-
-    def _batch_target(self, data: Any) -> tuple[th.Tensor, th.Tensor | None]:
-        """Regression target of a sampled batch (see ``value_target``) and per-sample weights (None: all count).
-
-        Targets only read V_target, which changes between training calls only (``_on_step`` waits for the learner
-        thread before updating it), so the numbers do not depend on which thread computes them or when.
-        """
-        if self.value_target == "lookahead":
-            target = data.lookahead_targets.flatten()
-            known = th.isfinite(target)
-            if not known.all():
-                td = self._td_target(data.rewards.flatten(), data.next_observations, data.observations,
-                                     data.dones.flatten())
-                target = th.where(known, target, td)
-            return target, None
-        target = self._td_target(data.rewards.flatten(), data.next_observations, data.observations, data.dones.flatten())
-        return target, (data.greedy.flatten() if self.value_target == "greedy_td" else None)
 
     def _record_losses(self, losses: list[float]) -> None:
         self._n_updates += len(losses)
@@ -309,24 +287,19 @@ class APGValue(OffPolicyAlgorithm):
         if losses is not None:
             self._record_losses(losses)
 
+    @property
+    def overlap_kind(self) -> str | None:
+        """``"thread"``, ``"process"`` or None: where ``overlap_training`` runs the gradient steps."""
+        if self.overlap_training is False:
+            return None
+        return "thread" if self.overlap_training is True else self.overlap_training
+
+    def _value_learner(self) -> ValueLearner:
+        return ValueLearner(self.policy, self.gamma, self.value_target, self.max_grad_norm)
+
     def _gradient_steps(self, batches: list[Batch]) -> list[float]:
         """One gradient step on V per sampled batch; returns the losses (the learner thread's work when overlapping)."""
-        losses = []
-        for batch in batches:
-            data, target, weights = batch.data, batch.target, batch.weights
-            if target is None:
-                target, weights = self._batch_target(data)
-            error = self.policy.values(data.observations) - target
-            if weights is None:
-                loss = error.square().mean()
-            else:  # ε-drawn transitions do not train V
-                loss = (weights * error.square()).sum() / weights.sum().clamp_min(1.0)
-            self.policy.optimizer.zero_grad()
-            loss.backward()
-            th.nn.utils.clip_grad_norm_(self.policy.value_net.parameters(), self.max_grad_norm)
-            self.policy.optimizer.step()
-            losses.append(loss.item())
-        return losses
+        return self._value_learner().gradient_steps(batches)
 
     def _setup_learn(self, total_timesteps: int, callback: MaybeCallback = None, reset_num_timesteps: bool = True,
                      tb_log_name: str = "run", progress_bar: bool = False):
@@ -351,7 +324,13 @@ class APGValue(OffPolicyAlgorithm):
                                  tb_log_name=tb_log_name, reset_num_timesteps=reset_num_timesteps,
                                  progress_bar=progress_bar)
         self.policy.set_training_mode(True)  # V only trains from here on; the acting copy only acts
-        self._overlap = OverlappingLearner(self.policy.value_net, self.policy.lookahead_dtype == "bfloat16")
+        bfloat16_acting = self.policy.lookahead_dtype == "bfloat16"
+        if self.overlap_kind == "process":
+            self._overlap = ProcessLearner(self.policy, dict(gamma=self.gamma, value_target=self.value_target,
+                                                             max_grad_norm=self.max_grad_norm), bfloat16_acting,
+                                           num_threads=th.get_num_threads())
+        else:
+            self._overlap = ThreadLearner(self.policy.value_net, self._gradient_steps, bfloat16_acting)
         try:
             return super().learn(total_timesteps=total_timesteps, callback=callback, log_interval=log_interval,
                                  tb_log_name=tb_log_name, reset_num_timesteps=reset_num_timesteps,
@@ -359,6 +338,7 @@ class APGValue(OffPolicyAlgorithm):
         finally:
             try:
                 self._join_learner()
+                self._overlap.pull_optimizer(self.policy.optimizer)
             finally:
                 self._overlap.shutdown()
                 self._overlap = None
@@ -377,6 +357,8 @@ class APGValue(OffPolicyAlgorithm):
         """SB3's ``save`` with the current ``lookahead_dtype`` and the spaces as plain JSON; inside ``learn()`` with
         ``overlap_training`` it first waits for the gradient steps in flight (the V of a completed step is saved)."""
         self._join_learner()
+        if self._overlap is not None:  # the learner process's optimiser state is saved with V
+            self._overlap.pull_optimizer(self.policy.optimizer)
         if self.policy is not None and self.policy_kwargs.get("lookahead_dtype", "float32") != self.policy.lookahead_dtype:
             self.policy_kwargs["lookahead_dtype"] = self.policy.lookahead_dtype
         super().save(path, exclude, include)

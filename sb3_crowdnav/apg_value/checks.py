@@ -12,6 +12,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecFrameStack, VecNormalize
 from stable_baselines3.her.her_replay_buffer import HerReplayBuffer
 
 from sb3_crowdnav.apg_value.buffers import ValueReplayBuffer
+from sb3_crowdnav.apg_value.overlap import OVERLAP_KINDS
 
 VALUE_TARGETS = ("td", "greedy_td", "lookahead")
 
@@ -66,7 +67,7 @@ def check_policy_name(policy: Any, aliases: dict[str, Any]) -> None:
 
 def check_args(*, exploration_initial_eps: float, exploration_final_eps: float, gamma: float, tau: float,
                exploration_episodes: int, imitation_episodes: int, imitation_epochs: int, target_update_interval: int,
-               batch_size: int, bootstrap_timeouts: bool, overlap_training: bool, value_target: str) -> None:
+               batch_size: int, bootstrap_timeouts: bool, overlap_training: bool | str, value_target: str) -> None:
     """``ValueError``/``TypeError`` naming the first of APGValue's scalar arguments out of its range."""
     for name, value, lo, hi in (
         ("exploration_initial_eps", exploration_initial_eps, 0.0, 1.0),
@@ -85,9 +86,10 @@ def check_args(*, exploration_initial_eps: float, exploration_final_eps: float, 
     ):
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
             raise ValueError(f"{name} must be an int >= {minimum}, got {value!r}")
-    for name, flag in (("bootstrap_timeouts", bootstrap_timeouts), ("overlap_training", overlap_training)):
-        if not isinstance(flag, bool):
-            raise TypeError(f"{name} must be a bool, got {flag!r}")
+    if not isinstance(bootstrap_timeouts, bool):
+        raise TypeError(f"bootstrap_timeouts must be a bool, got {bootstrap_timeouts!r}")
+    if not (isinstance(overlap_training, bool) or overlap_training in OVERLAP_KINDS):
+        raise ValueError(f"overlap_training must be a bool or one of {OVERLAP_KINDS}, got {overlap_training!r}")
     if value_target not in VALUE_TARGETS:
         raise ValueError(f"value_target must be one of {VALUE_TARGETS}, got {value_target!r}")
 
