@@ -14,6 +14,7 @@ import pytest
 from sb3_crowdnav.apg_value import APGValue
 from sb3_crowdnav.cli import main
 from sb3_crowdnav.nn.layers import bfloat16_supported
+from sb3_crowdnav.training.schedule import ScheduleConfig
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "train_paper.py"
 CLI = [sys.executable, "-u", "-m", "sb3_crowdnav.cli", "train"]
@@ -46,6 +47,13 @@ def test_checkpoints_validation_selection_and_resume(tmp_path, monkeypatch, caps
     rows = [json.loads(line) for line in (out / "eval_curve.jsonl").read_text().splitlines()]
     assert [r["episodes"] for r in rows] == [2, 4, 6]
     assert APGValue.load(out / "final.zip").policy.lookahead_dtype == "float32"
+    _run(monkeypatch, *common, "--rl-episodes", "8", "--overlap", "process")  # and with a learner process
+    rows = [json.loads(line) for line in (out / "eval_curve.jsonl").read_text().splitlines()]
+    assert [r["episodes"] for r in rows] == [2, 4, 6, 8]
+    final = APGValue.load(out / "final.zip")
+    assert final.overlap_training == "process" and int(final.policy.optimizer.state_dict()["state"][0]["step"]) > 0
+    with pytest.raises(ValueError, match="overlap must be a bool or one of"):
+        ScheduleConfig(overlap="fork")
 
 
 @pytest.mark.skipif(not bfloat16_supported(), reason="no native bfloat16 kernels on this CPU")

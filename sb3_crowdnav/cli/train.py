@@ -43,6 +43,7 @@ def _positive_float(text: str) -> float:
 def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
     """Add ``train`` to the subcommands ``sub``."""
     from sb3_crowdnav.apg_value.checks import VALUE_TARGETS
+    from sb3_crowdnav.apg_value.overlap import OVERLAP_KINDS
     from sb3_crowdnav.training.callbacks import SELECT_BY
     from sb3_crowdnav.training.schedule import LOOKAHEAD_DTYPES, OPTIMIZERS, VARIANTS
 
@@ -88,8 +89,9 @@ def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
     g.add_argument("--optimizer", choices=sorted(OPTIMIZERS), help="RL optimiser (default: adam; sgd: momentum 0.9)")
     g.add_argument("--value-target", choices=VALUE_TARGETS, help="what V is regressed on in RL (default: td)")
     g.add_argument("--from-imitation", type=Path, metavar="ZIP", help="start from a saved post-imitation model")
-    g.add_argument("--overlap", action="store_const", const=True,
-                   help="gradient steps on the second core while acting (APGValue overlap_training)")
+    g.add_argument("--overlap", nargs="?", const=True, choices=OVERLAP_KINDS, metavar="{thread,process}",
+                   help="gradient steps on the second core while acting (APGValue overlap_training), in a thread "
+                        "(default) or a process")
     g.add_argument("--refill-steps", type=common.nonneg_int,
                    help="resuming without OUT/replay_buffer_<N>.npz: env steps collected before training again "
                         "(default: 5000)")

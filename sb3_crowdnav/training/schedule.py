@@ -51,6 +51,7 @@ from stable_baselines3.common.env_util import make_vec_env
 
 from sb3_crowdnav.apg_value import APGValue
 from sb3_crowdnav.apg_value.checks import VALUE_TARGETS
+from sb3_crowdnav.apg_value.overlap import OVERLAP_KINDS
 from sb3_crowdnav.apg_value.policies import ValueLookaheadPolicy
 from sb3_crowdnav.sim.config import check_choice, check_int, check_number
 from sb3_crowdnav.training.callbacks import SELECT_BY, EpisodeCheckpoint
@@ -131,7 +132,8 @@ class ScheduleConfig:
         paper: 5,000; ``apg_warehouse``: 3,000)
     :param optimizer: RL optimiser, ``"adam"`` (APGValue's default) or ``"sgd"`` (momentum 0.9, the field's code)
     :param value_target: see :class:`~sb3_crowdnav.apg_value.APGValue`
-    :param overlap: ``APGValue(overlap_training=True)``: gradient steps on the second core while acting
+    :param overlap: ``APGValue(overlap_training=...)``: gradient steps on the second core while acting, in a
+        ``"thread"`` (also ``True``) or a ``"process"`` (the same run; faster on 2 cores)
     :param refill_steps: resuming without the replay buffer, env steps collected before gradient steps resume
     :param lookahead_dtype: precision of the acting lookahead, ``"float32"`` or ``"bfloat16"``
     """
@@ -156,7 +158,7 @@ class ScheduleConfig:
     exploration_episodes: int | None = None
     refill_steps: int = 5_000
     select_by: Literal["success", "return"] = "success"
-    overlap: bool = False
+    overlap: bool | Literal["thread", "process"] = False
     lookahead_dtype: Literal["float32", "bfloat16"] = "float32"
 
     def __post_init__(self) -> None:
@@ -175,9 +177,10 @@ class ScheduleConfig:
             check_int("num_humans", count, 0)
         check_number("learning_rate", self.learning_rate)
         check_number("imitation_learning_rate", self.imitation_learning_rate)
-        for name in ("bootstrap_timeouts", "overlap"):
-            if not isinstance(getattr(self, name), bool):
-                raise TypeError(f"{name} must be a bool, got {getattr(self, name)!r}")
+        if not isinstance(self.bootstrap_timeouts, bool):
+            raise TypeError(f"bootstrap_timeouts must be a bool, got {self.bootstrap_timeouts!r}")
+        if not (isinstance(self.overlap, bool) or self.overlap in OVERLAP_KINDS):
+            raise ValueError(f"overlap must be a bool or one of {OVERLAP_KINDS}, got {self.overlap!r}")
         if not isinstance(self.env_kwargs, dict):
             raise TypeError(f"env_kwargs must be a dict, got {type(self.env_kwargs).__name__}")
         reward = self.env_kwargs.get("reward", self.spec.reward)
