@@ -12,6 +12,9 @@ from sb3_crowdnav.sim.config import SceneConfig
 from sb3_crowdnav.sim.observation import Human, ObservationSchema, Robot
 
 BLIND_HORIZON = 1e-3  # [s] the obstacle horizon of the pedestrians in a decision's simulator (see OrcaPolicy._act)
+# RVO2 builds its agent tree of this many agents or fewer as one leaf, in the order they were added (pyrvo's
+# src/KdTree.cc, RVO_MAX_LEAF_SIZE): a reused simulator of so few agents visits them in the order a new one does
+AGENT_LEAF_SIZE = 10
 
 
 def preferred_velocity(position: np.ndarray, goal: np.ndarray, v_pref: float) -> np.ndarray:
@@ -108,6 +111,17 @@ class OrcaCrowd:
         self.sim.set_agent_position(i, (float(position[0]), float(position[1])))
 
 
+def _set_agent(sim: pyrvo.RVOSimulator, i: int, position: tuple[float, float], radius: float, max_speed: float,
+               velocity: tuple[float, float]) -> int:
+    """Put agent ``i`` of a reused simulator in the state ``add_agent`` with these values (and the neighbour distance,
+    max neighbours and time horizons it was added with) would give it; returns ``i``."""
+    sim.set_agent_position(i, position)
+    sim.set_agent_velocity(i, velocity)
+    sim.set_agent_radius(i, radius)
+    sim.set_agent_max_speed(i, max_speed)
+    return i
+
+
 class OrcaPolicy:
     """ORCA for the robot, behind SB3's ``predict(observation, deterministic)`` call.
 
@@ -149,6 +163,12 @@ class OrcaPolicy:
         self.mapping = mapping
         self.safety_space = float(safety_space)
         self.speeds, self.directions = action_table(self.scene.robot_v_pref, self.scene.rotation_range)
+        # the last decision's simulator with obstacles: (its segments, its number of pedestrians, the simulator)
+        self._obstacle_sim: tuple[bytes, int, pyrvo.RVOSimulator] | None = None
+
+    def __getstate__(self) -> dict:
+        """Pickled (and copied) without the reused simulator: a cache, and pyrvo's simulators do not pickle."""
+        return {**self.__dict__, "_obstacle_sim": None}
 
     @classmethod
     def from_env(cls, env, safety_space: float = 0.0, mapping: str = "nearest") -> OrcaPolicy:
@@ -183,22 +203,30 @@ class OrcaPolicy:
         r = robot.tolist()
         (px, py), (gx, gy), (vx, vy) = r[Robot.POS], r[Robot.GOAL], r[Robot.VEL]
         heading, v_pref = r[Robot.HEADING], r[Robot.V_PREF]
-        sim = make_simulator(cfg, v_pref)
-        if segments is not None and len(segments):
-            for x0, y0, x1, y1 in segments.tolist():
-                sim.add_obstacle([(x0, y0), (x1, y1)])
-            sim.process_obstacles()
         args = (cfg.orca_neighbor_dist, cfg.orca_max_neighbors, cfg.orca_time_horizon, cfg.orca_time_horizon_obst)
         # Only the robot's new velocity is read, and RVO2 computes it from the others' position, velocity and radius
         # alone: the pedestrians look at no neighbour and (nearly) no obstacle, which spares their own ORCA programs.
         blind = (0.0, 0, cfg.orca_time_horizon, BLIND_HORIZON)
-        for (hx, hy), (hvx, hvy), radius in zip(
-            present[:, Human.POS].tolist(), present[:, Human.VEL].tolist(), present[:, Human.RADIUS].tolist(),
-            strict=True,
-        ):
-            i = sim.add_agent((hx, hy), *blind, radius + 0.01, math.hypot(hvx, hvy) + 1e-3, (hvx, hvy))
-            sim.set_agent_pref_velocity(i, (hvx, hvy))
-        rid = sim.add_agent((px, py), *args, r[Robot.RADIUS] + 0.01 + self.safety_space, v_pref, (vx, vy))
+        pedestrians = zip(present[:, Human.POS].tolist(), present[:, Human.VEL].tolist(),
+                          present[:, Human.RADIUS].tolist(), strict=True)
+        robot_radius = r[Robot.RADIUS] + 0.01 + self.safety_space
+        sim = self._reusable(segments, len(present)) if segments is not None else None
+        if sim is None:
+            sim = make_simulator(cfg, v_pref)
+            if segments is not None and len(segments):
+                for x0, y0, x1, y1 in segments.tolist():
+                    sim.add_obstacle([(x0, y0), (x1, y1)])
+                sim.process_obstacles()
+                self._obstacle_sim = (segments.tobytes(), len(present), sim)
+            for (hx, hy), (hvx, hvy), radius in pedestrians:
+                i = sim.add_agent((hx, hy), *blind, radius + 0.01, math.hypot(hvx, hvy) + 1e-3, (hvx, hvy))
+                sim.set_agent_pref_velocity(i, (hvx, hvy))
+            rid = sim.add_agent((px, py), *args, robot_radius, v_pref, (vx, vy))
+        else:  # the last decision's simulator: its agents (added with these args) in the state add_agent gives
+            for i, ((hx, hy), (hvx, hvy), radius) in enumerate(pedestrians):
+                _set_agent(sim, i, (hx, hy), radius + 0.01, math.hypot(hvx, hvy) + 1e-3, (hvx, hvy))
+                sim.set_agent_pref_velocity(i, (hvx, hvy))
+            rid = _set_agent(sim, len(present), (px, py), robot_radius, v_pref, (vx, vy))
         # preferred_velocity() of one agent, in floats
         tx, ty = (gx, gy) if waypoint is None else waypoint.tolist()
         dx, dy = tx - px, ty - py
@@ -212,6 +240,21 @@ class OrcaPolicy:
         allowed = self._allowed(sim, rid, heading, goal_direction) if self.mapping == "constrained" else None
         return nearest_action(np.array([v.x, v.y]), heading, goal_direction, self.speeds, self.directions,
                               cfg.kinematics, allowed)
+
+    def _reusable(self, segments: np.ndarray, humans: int) -> pyrvo.RVOSimulator | None:
+        """The last decision's simulator with obstacles when it can serve a decision with ``segments`` (S, 4) and
+        ``humans`` pedestrians, else None (a new one is built, and kept when it has obstacles).
+
+        Processing the obstacles (RVO2's obstacle tree) costs more than the rest of a decision, and the observed
+        segments often stay the same from one step to the next: the simulator is reused when its segments (in the
+        same order) and its number of agents are the same and at most :data:`AGENT_LEAF_SIZE`, with every agent put
+        in the state ``add_agent`` gives (:func:`_set_agent`): a step computed from the same state, the same decision.
+        """
+        kept = self._obstacle_sim
+        if kept is None or kept[1] != humans or humans >= AGENT_LEAF_SIZE or not len(segments) or \
+                kept[0] != segments.tobytes():
+            return None
+        return kept[2]
 
     def predict(self, observation: dict[str, np.ndarray], state=None, episode_start=None, deterministic: bool = True):
         """Actions for one observation or a batch (VecEnv); returns ``(actions, None)`` like SB3."""

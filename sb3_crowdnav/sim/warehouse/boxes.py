@@ -144,15 +144,26 @@ def _point_segment(px: float, py: float, ax: float, ay: float, dx: float, dy: fl
 
 def segment_meets_box(ax: float, ay: float, dx: float, dy: float, box: Sequence[float], interior: bool = False) -> bool:
     """Whether the segment from ``(ax, ay)`` along ``(dx, dy)`` meets the closed ``box`` ``[xmin, ymin, xmax, ymax]``,
-    or its interior (``interior``; the test of :func:`segments_miss_boxes`, for one segment and one box, in floats)."""
-    enter, leave = 0.0, 1.0
-    for start, d, lo, hi in ((ax, dx, box[0], box[2]), (ay, dy, box[1], box[3])):
-        if d == 0:
-            if not (lo < start < hi if interior else lo <= start <= hi):
-                return False
-            continue
-        t0, t1 = (lo - start) / d, (hi - start) / d
-        enter, leave = max(enter, min(t0, t1)), min(leave, max(t0, t1))
+    or its interior (``interior``; the test of :func:`segments_miss_boxes`, for one segment and one box, in floats:
+    the part of the segment in each slab, t in [enter, leave], the two axes written out)."""
+    x0, y0, x1, y1 = box
+    if dx == 0:
+        if not (x0 < ax < x1 if interior else x0 <= ax <= x1):
+            return False
+        enter, leave = 0.0, 1.0
+    else:
+        t0, t1 = (x0 - ax) / dx, (x1 - ax) / dx
+        if t1 < t0:
+            t0, t1 = t1, t0
+        enter, leave = (t0 if t0 > 0.0 else 0.0), (t1 if t1 < 1.0 else 1.0)
+    if dy == 0:
+        if not (y0 < ay < y1 if interior else y0 <= ay <= y1):
+            return False
+    else:
+        t0, t1 = (y0 - ay) / dy, (y1 - ay) / dy
+        if t1 < t0:
+            t0, t1 = t1, t0
+        enter, leave = (t0 if t0 > enter else enter), (t1 if t1 < leave else leave)
     return enter < leave if interior else enter <= leave
 
 

@@ -93,11 +93,15 @@ class WarehouseLayout:
         racks = []
         for i, rack in enumerate(self.racks):
             vertices = np.asarray(rack, dtype=np.float64)
-            if vertices.ndim != 2 or vertices.shape[1] != 2 or len(vertices) < 3 or not np.isfinite(vertices).all():
+            if vertices.ndim != 2 or vertices.shape[1] != 2 or len(vertices) < 3:
                 raise ValueError(f"racks[{i}] must be a (k, 2) array of finite vertices with k >= 3, got shape "
                                  f"{vertices.shape}")
             vertices.setflags(write=False)
             racks.append(vertices)
+        if racks and not np.isfinite(np.concatenate(racks)).all():  # (one test of all the racks' vertices)
+            i = next(i for i, vertices in enumerate(racks) if not np.isfinite(vertices).all())
+            raise ValueError(f"racks[{i}] must be a (k, 2) array of finite vertices with k >= 3, got a non-finite "
+                             f"vertex")
         object.__setattr__(self, "racks", tuple(racks))
 
     # ------------------------------------------------------------------ geometry
@@ -122,16 +126,22 @@ class WarehouseLayout:
         return [_box_vertices(*r) for r in rects]
 
     @functools.cached_property
-    def polygons(self) -> list[np.ndarray]:
-        """Every static obstacle (the racks, then the four walls) as a (k, 2) vertex array, counter-clockwise
-        (a clockwise one reversed as shapely's ``orient`` does: the first vertex kept, the others backwards)."""
+    def rack_vertices(self) -> list[np.ndarray]:
+        """The racks as (k, 2) vertex arrays, counter-clockwise (a clockwise one reversed as shapely's ``orient``
+        does: the first vertex kept, the others backwards); :attr:`polygons` without the walls."""
         out = []
         for v in self.racks:
             v = v[:-1] if len(v) > 3 and (v[0] == v[-1]).all() else v  # a closed ring: shapely drops the repeat
             p = v.tolist()
             clockwise = sum(x0 * y1 - x1 * y0 for (x0, y0), (x1, y1) in zip(p, p[1:] + p[:1], strict=True)) < 0
             out.append(np.concatenate([v[:1], v[:0:-1]]) if clockwise else np.array(v))
-        return out + self.wall_polygons  # counter-clockwise already
+        return out
+
+    @functools.cached_property
+    def polygons(self) -> list[np.ndarray]:
+        """Every static obstacle (the racks, then the four walls) as a (k, 2) vertex array, counter-clockwise
+        (:attr:`rack_vertices`, then :attr:`wall_polygons`)."""
+        return [*self.rack_vertices, *self.wall_polygons]
 
     @functools.cached_property
     def boxes(self) -> np.ndarray | None:
@@ -252,15 +262,19 @@ def layout_from_sizes(rows: int, segments: int, rack_length: float, rack_depth: 
     """The regular layout of ``rows`` x ``segments`` racks with these sizes [m] (the hall fits around them)."""
     width = 2 * cross_aisle_width + segments * rack_length + (segments - 1) * cross_aisle_width
     height = (rows + 1) * aisle_width + rows * rack_depth
-    racks, boxes = [], []
+    corners = []  # the four vertices of every rack, in floats; one array of all of them below
     for row in range(rows):
         y0 = -height / 2 + aisle_width + row * (rack_depth + aisle_width)
         for seg in range(segments):
             x0 = -width / 2 + cross_aisle_width + seg * (rack_length + cross_aisle_width)
-            racks.append(_box_vertices(x0, y0, x0 + rack_length, y0 + rack_depth))
-            boxes.append(racks[-1][[3, 1]].ravel())  # [xmin, ymin, xmax, ymax]: what rack_boxes finds
-    layout = WarehouseLayout(width=width, height=height, racks=tuple(racks))
-    layout.__dict__["boxes"] = np.array(boxes).reshape(-1, 4)  # the cached property, known without the checks
+            x1, y1 = x0 + rack_length, y0 + rack_depth
+            corners.append(((x1, y0), (x1, y1), (x0, y1), (x0, y0)))  # _box_vertices' order
+    vertices = np.array(corners, dtype=np.float64).reshape(-1, 4, 2)
+    layout = WarehouseLayout(width=width, height=height, racks=tuple(vertices))
+    # the cached properties, known without the checks: [xmin, ymin, xmax, ymax] (what rack_boxes finds), and the
+    # racks, counter-clockwise already
+    layout.__dict__["boxes"] = vertices[:, [3, 1]].reshape(-1, 4)
+    layout.__dict__["rack_vertices"] = list(layout.racks)
     return layout
 
 

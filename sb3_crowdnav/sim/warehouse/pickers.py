@@ -39,27 +39,26 @@ def pick_slots(layout: WarehouseLayout, scene: SceneConfig) -> np.ndarray:
     spaced by a picker's diameter + 0.2 m, kept where a picker fits; (n, 2)."""
     radius = scene.human_radius
     spacing, offset = 2 * radius + 0.2, radius + SLOT_OFFSET
-    racks = layout.polygons[: len(layout.racks)]  # counter-clockwise: the normal (dy, -dx) points out
+    racks = layout.rack_vertices  # counter-clockwise: the normal (dy, -dx) points out
     if not racks:
         return np.zeros((0, 2))
     segments = polygon_segments(racks)
-    edges = segments[:, 2:] - segments[:, :2]
-    points = []  # in floats: a few dozen edges
-    for (ax, ay, _, _), (ex, ey), length in zip(segments.tolist(), edges.tolist(), np.hypot(*edges.T).tolist(),
-                                                strict=True):
-        count = int(length // spacing) if length >= spacing else 0
-        nx, ny = ey / length if count else 0.0, -ex / length if count else 0.0
-        for k in range(count):
-            t = (k + 0.5) * length / count
-            points.append((ax + ex * (t / length) + nx * offset, ay + ey * (t / length) + ny * offset))
-    points = np.array(points).reshape(-1, 2)
+    (ax, ay), (ex, ey) = segments[:, :2].T, (segments[:, 2:] - segments[:, :2]).T
+    length = np.hypot(ex, ey)
+    count = np.where(length >= spacing, length // spacing, 0.0).astype(np.int64)  # slots per edge
+    edge = np.repeat(np.arange(len(count)), count)  # the edge of every slot
+    k = np.arange(len(edge)) - np.repeat(np.cumsum(count) - count, count)  # its number along the edge
+    ax, ay, ex, ey, length = ax[edge], ay[edge], ex[edge], ey[edge], length[edge]
+    t = (k + 0.5) * length / count[edge]  # [m] along the edge (the operations of a loop in floats, in its order)
+    points = np.stack([ax + ex * (t / length) + ey / length * offset,  # out along the normal (ey, -ex) / length
+                       ay + ey * (t / length) + -ex / length * offset], axis=1)
     return points[in_free_space(layout, points, radius + 1e-3)]
 
 
 def rvo_obstacles(layout: WarehouseLayout) -> list[np.ndarray]:
     """The layout's obstacles for RVO2: the racks (counter-clockwise) and the hall's walls as one clockwise boundary
     polygon (RVO2's way of keeping agents inside; the walls' inner faces without the edges no picker ever faces)."""
-    return [*layout.polygons[: len(layout.racks)], layout.hall_vertices[::-1].copy()]
+    return [*layout.rack_vertices, layout.hall_vertices[::-1].copy()]
 
 
 class PickSlots:
@@ -141,15 +140,15 @@ class PickerCrowd:
 
     def preferred_velocities(self, positions: np.ndarray) -> list[tuple[float, float]]:
         """Towards the current waypoint at v_pref (slowing into the last one); zero while standing."""
-        v_pref, out = self.scene.human_v_pref, []
+        v_pref, out, dwell, routes, waypoint = self.scene.human_v_pref, [], self.dwell, self.routes, self.waypoint
         for i, (x, y) in enumerate(positions.tolist()):
-            if self.dwell[i] > 0:
+            if dwell[i] > 0:
                 out.append((0.0, 0.0))
                 continue
-            route, w = self.routes[i], self.waypoint[i]
+            route, w = routes[i], waypoint[i]
             while w < len(route) - 1 and math.dist((x, y), route[w]) < ARRIVAL:
                 w += 1
-            self.waypoint[i] = w
+            waypoint[i] = w
             gx, gy = route[w]
             dx, dy = gx - x, gy - y
             norm = math.hypot(dx, dy)
@@ -194,7 +193,8 @@ class PickerCrowd:
             return np.flatnonzero(~in_free_space(self._layout, np.array([r[:2] for r in rows]).reshape(-1, 2),
                                                  radius)).tolist()
         (x0, y0, x1, y1), grown, hall, out = self._room, self._grown, self._hall, []
-        for i, (x, y, *_) in enumerate(rows):
+        for i, row in enumerate(rows):
+            x, y = row[0], row[1]
             if x0 < x < x1 and y0 < y < y1:
                 for a, b, c, d in grown:
                     if a < x < c and b < y < d:

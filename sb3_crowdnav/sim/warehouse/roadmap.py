@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+import itertools
 import math
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
@@ -54,13 +55,15 @@ class Roadmap:
         if self.grown is not None:
             x0, y0, x1, y1 = self._hall
             self._grown_list = self.grown.tolist()
-            self._node_list = [corner for gx0, gy0, gx1, gy1 in self._grown_list  # each rack counter-clockwise
-                               for corner in ((gx0, gy0), (gx1, gy0), (gx1, gy1), (gx0, gy1))]
-            self.corners = np.array([(x0, y0), (x0, y1), (x1, y1), (x1, y0), *self._node_list]).reshape(-1, 2)
+            node_list = [corner for gx0, gy0, gx1, gy1 in self._grown_list  # each rack counter-clockwise
+                         for corner in ((gx0, gy0), (gx1, gy0), (gx1, gy1), (gx0, gy1))]
+            self.corners = np.array([(x0, y0), (x0, y1), (x1, y1), (x1, y0), *node_list]).reshape(-1, 2)
             # a segment leaving a rack's corner along (dx, dy) passes it on the outside when side * dx * dy <= 0
-            self._side_list = [1.0, -1.0, 1.0, -1.0] * len(self._grown_list)
-            self._sides = np.array([0.0] * 4 + self._side_list)
+            side_list = [1.0, -1.0, 1.0, -1.0] * len(self._grown_list)
+            self._sides = np.array([0.0] * 4 + side_list)
             self._nodes = np.arange(4, len(self.corners))
+            self._node_rows = [(k, cx, cy, side)  # every node: its number, corner and side, for the joins in floats
+                               for k, ((cx, cy), side) in enumerate(zip(node_list, side_list, strict=True), 4)]
             # touching a grown rack is allowed
             self._open_list = [(a + 1e-6, b + 1e-6, c - 1e-6, d - 1e-6) for a, b, c, d in self._grown_list]
             self._open = np.array(self._open_list).reshape(-1, 4)
@@ -71,24 +74,36 @@ class Roadmap:
                      for ring in (poly.exterior, *poly.interiors)]
             self.corners = np.concatenate([np.asarray(r.coords)[:-1] for r in rings]) if rings else np.zeros((0, 2))
             self._nodes = np.arange(len(self.corners))
-        self.graph = nx.Graph()
-        self.graph.add_nodes_from(self._nodes.tolist())
+
+    @functools.cached_property
+    def graph(self) -> nx.Graph:
+        """The visibility graph of the corners, built when a route first needs it (a route's ends that see each other
+        need none)."""
+        graph = nx.Graph()
+        graph.add_nodes_from(self._nodes.tolist())
+        graph.add_weighted_edges_from(zip(*self._edges(), strict=True))
+        return graph
+
+    def _edges(self) -> tuple[list[int], list[int], list[float]]:
+        """The graph's edges: both corners and the length of every pair of corners that see each other.
+
+        With boxes only the bitangents: a segment leaving a rack's corner along (dx, dy) passes it on the outside
+        of the rack (both sides of the rack at the corner on one side of the segment, as each segment of a shortest
+        route does at a corner it bends around) when side * dx * dy <= 0, at either end (the product keeps its
+        sign along -(dx, dy)); and the corners are inside the hall, so the segment is in it.
+        """
         i, j = (self._nodes[k] for k in _pairs(len(self._nodes)))
         a, b = self.corners[i], self.corners[j]
-        keep = self._outside(i, b - a) & self._outside(j, a - b)
-        i, j, a, b = i[keep], j[keep], a[keep], b[keep]
-        visible = self._visible(a, b)
-        lengths = np.linalg.norm(a - b, axis=1)
-        self.graph.add_weighted_edges_from(zip(i[visible].tolist(), j[visible].tolist(), lengths[visible].tolist(),
-                                               strict=True))
-
-    def _outside(self, corners: np.ndarray, direction: np.ndarray) -> np.ndarray:
-        """(n,) bool: a segment leaving corner ``corners[k]`` along ``direction[k]`` passes it on the outside of its
-        rack (both sides of the rack at the corner on one side of the segment), as each segment of a shortest route
-        does at a corner it bends around; always True without boxes."""
+        d = b - a
         if self.grown is None:
-            return np.ones(len(corners), dtype=bool)
-        return self._sides[corners] * direction[:, 0] * direction[:, 1] <= 0
+            visible = self._visible(a, b)
+        else:
+            turn = d[:, 0] * d[:, 1]
+            keep = (self._sides[i] * turn <= 0) & (self._sides[j] * turn <= 0)
+            i, j, a, b, d = i[keep], j[keep], a[keep], b[keep], d[keep]
+            visible = segments_miss_boxes(a, b, self._open)
+        lengths = np.linalg.norm(d[visible], axis=1)
+        return i[visible].tolist(), j[visible].tolist(), lengths.tolist()
 
     def _grown_racks(self) -> np.ndarray | None:
         """(B, 4) bounds of the racks grown by the clearance (mitred), when they are boxes, apart and off the walls."""
@@ -136,9 +151,10 @@ class Roadmap:
 
     def _misses_racks(self, ax: float, ay: float, bx: float, by: float) -> bool:
         """Whether the segment enters none of the grown racks (floats; racks beside its bounding box skipped)."""
-        sx0, sx1, sy0, sy1 = min(ax, bx), max(ax, bx), min(ay, by), max(ay, by)
+        (sx0, sx1), (sy0, sy1) = (ax, bx) if ax < bx else (bx, ax), (ay, by) if ay < by else (by, ay)
         for box in self._open_list:  # (a plain loop: any() over a generator costs twice as much here)
-            if box[0] < sx1 and sx0 < box[2] and box[1] < sy1 and sy0 < box[3] and \
+            x0, y0, x1, y1 = box
+            if x0 < sx1 and sx0 < x1 and y0 < sy1 and sy0 < y1 and \
                     segment_meets_box(ax, ay, bx - ax, by - ay, box, interior=True):
                 return False
         return True
@@ -154,7 +170,7 @@ class Roadmap:
         elif joins is None:  # in floats: a dozen corners against a handful of racks
             (px, py), (x0, y0, x1, y1), joins = key, self._hall, ([], [])
             if x0 - 1e-6 <= px <= x1 + 1e-6 and y0 - 1e-6 <= py <= y1 + 1e-6:
-                for k, (cx, cy), side in zip(self._nodes.tolist(), self._node_list, self._side_list, strict=True):
+                for k, cx, cy, side in self._node_rows:
                     dx, dy = px - cx, py - cy
                     if side * dx * dy <= 0 and self._misses_racks(px, py, cx, cy):
                         joins[0].append(k)
@@ -182,8 +198,9 @@ class Roadmap:
         points = np.concatenate([self.corners, start[None], goal[None]])
         remaining = np.linalg.norm(points - goal, axis=1).tolist()  # the A* heuristic of every node
         try:
-            graph.add_weighted_edges_from(zip([n] * len(from_start), from_start, start_lengths, strict=True))
-            graph.add_weighted_edges_from(zip([n + 1] * len(to_goal), to_goal, goal_lengths, strict=True))
+            graph.add_weighted_edges_from(itertools.chain(  # (one call: networkx clears its caches once)
+                zip([n] * len(from_start), from_start, start_lengths, strict=True),
+                zip([n + 1] * len(to_goal), to_goal, goal_lengths, strict=True)))
             path = nx.astar_path(graph, n, n + 1, heuristic=lambda u, _: remaining[u])
         except (nx.NetworkXNoPath, nx.NodeNotFound):
             raise ValueError(f"no route from {tuple(start)} to {tuple(goal)} in the free space") from None

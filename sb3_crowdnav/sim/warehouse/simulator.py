@@ -128,7 +128,7 @@ class WarehouseSimulator(CrowdSimulator):
         self._walk_dir = [(1.0, 0.0)] * self.num_humans
         self._walk_age = [s.history_length] * self.num_humans
         self.steps = 0
-        self._seg_dist = self._distances(self.robot[Robot.POS])
+        self._seg_dist = self._distances(*start.tolist())
 
     def _stations(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         """Start and goal: free points (uniform) at least ``min_route_distance`` apart. Points are drawn uniformly
@@ -166,9 +166,9 @@ class WarehouseSimulator(CrowdSimulator):
         return np.asarray(chosen, dtype=np.int64)
 
     # ------------------------------------------------------------------ observation
-    def _distances(self, point: np.ndarray) -> np.ndarray:
-        """Distance from ``point`` (2,) to every segment (S,) (:func:`point_segment_distance` on cached arrays)."""
-        (x, y), abx, aby = point.tolist(), self._seg_abx, self._seg_aby
+    def _distances(self, x: float, y: float) -> np.ndarray:
+        """Distance from the point (x, y) to every segment (S,) (:func:`point_segment_distance` on cached arrays)."""
+        abx, aby = self._seg_abx, self._seg_aby
         dx, dy = x - self._seg_ax, y - self._seg_ay  # per coordinate: fewer, cheaper NumPy calls, the same values
         t = np.minimum(np.maximum((dx * abx + dy * aby) / self._seg_len2, 0.0), 1.0)
         return np.hypot(dx - t * abx, dy - t * aby)
@@ -247,18 +247,17 @@ class WarehouseSimulator(CrowdSimulator):
 
         :attr:`hit_obstacle` tells whether this step's collision was with a rack or a wall.
         """
-        pos0 = self.robot[Robot.POS].copy()
+        p0 = self.robot[Robot.POS].tolist()
         waypoint = self.route[self.route_index]  # the observed current waypoint (replanning replaces the array)
         terms = super().step(action)
-        pos1 = self.robot[Robot.POS]
-        p0, p1 = pos0.tolist(), pos1.tolist()
-        self._seg_dist = self._distances(pos1)
+        p1 = self.robot[Robot.POS].tolist()
+        self._seg_dist = self._distances(*p1)
         hit = self._blocked(p0, p1, self._seg_dist < self.scene.robot_radius + math.dist(p0, p1))
         if hit:  # (without a hit, with_obstacle_collision returns the terms unchanged)
             terms = with_obstacle_collision(terms, np.bool_(hit), self.config.obstacle_collision_penalty)
         self.hit_obstacle = hit and not bool(terms.min_distance < 0)
         if self.config.progress_reward:  # (with_route_progress returns the terms unchanged without shaping)
-            terms = with_route_progress(terms, pos0, pos1, waypoint, self.config.progress_reward)
+            terms = with_route_progress(terms, np.array(p0), np.array(p1), waypoint, self.config.progress_reward)
         self.progress_term = float(terms.progress_term)
         if not (terms.collision or terms.success):
             self._advance_route(p1)
