@@ -409,18 +409,25 @@ def _state(model):
             th.cat([optimizer[i]["exp_avg_sq"].flatten() for i in sorted(optimizer)]))
 
 
-def test_overlap_training_in_a_process_is_the_thread_run():
+def test_overlap_training_in_a_process_is_the_thread_run(monkeypatch):
     """The learner process runs the same arithmetic on the same batches: V, V_target (updated twice here) and Adam's
-    state end bit-identical to the learner thread's run, and a second learn() continues it the same way."""
+    state end bit-identical to the learner thread's run, and a second learn() continues it the same way; also when
+    the acting process computes every batch's targets (as it does when it waited for the learner)."""
+    from sb3_crowdnav.apg_value.overlap import ProcessLearner
+
     runs = {}
-    for kind in ("thread", "process"):
-        model = APGValue("ApgPolicy", "CrowdNav-v0", seed=11, overlap_training=kind, target_update_interval=50, **TINY)
+    for kind in ("thread", "process", "process, targets in the acting process"):
+        if kind.startswith("process,"):
+            monkeypatch.setattr(ProcessLearner, "busy", property(lambda self: self._pending))
+        model = APGValue("ApgPolicy", "CrowdNav-v0", seed=11, overlap_training=kind.split(",")[0],
+                         target_update_interval=50, **TINY)
         first = _state(model.learn(120))
         runs[kind] = first, _state(model.learn(40, reset_num_timesteps=False))
         assert model._overlap is None and model._n_updates == 160 // 4
-    for a, b in zip(runs["thread"], runs["process"], strict=True):
-        for x, y in zip(a, b, strict=True):
-            assert th.equal(x, y)
+    for other in ("process", "process, targets in the acting process"):
+        for a, b in zip(runs["thread"], runs[other], strict=True):
+            for x, y in zip(a, b, strict=True):
+                assert th.equal(x, y)
     assert not th.equal(runs["process"][0][1], runs["process"][1][1])  # V_target did move
 
 

@@ -12,8 +12,10 @@ Two learners with one interface and the same arithmetic (:class:`~.learner.Value
   slower beside it (``benchmarks/contention.py``).
 * :class:`ProcessLearner` (``"process"``): a second process (``spawn``) that owns the training copy of V, of
   V_target and of the optimiser. The acting process sends each training call's replay batches (plain arrays
-  through a pipe) with the learning rate; the learner sends back the losses after writing V's new weights into
-  shared memory, which the acting process copies into its V at the hand-over. V_target is updated in both
+  through a pipe) with the learning rate, and their targets when it computed them (it does when it had to wait
+  for the learner at the last hand-over, as the acting thread does: the same numbers); the learner sends back the
+  losses after writing V's new weights into shared memory, which the acting process copies into its V at the
+  hand-over. V_target is updated in both
   processes at the same point of the schedule; the optimiser's state comes back for ``save`` and at the end
   of ``learn``. Decisions run ~13 % slower beside it (the two cores still share caches and memory bandwidth).
   As with SB3's ``SubprocVecEnv``, a script that trains this way must guard its entry point with
@@ -53,8 +55,6 @@ class ThreadLearner:
     :param steps: the gradient steps of a list of batches, returning their losses (``APGValue._gradient_steps``)
     :param bfloat16_acting: run the copy's APG encoder in bfloat16 (V itself trains in float32)
     """
-
-    shares_targets = True  # the acting thread computes the batches' targets when the learner is behind
 
     def __init__(self, value_net: th.nn.Module, steps: Callable[[list[Batch]], list[float]],
                  bfloat16_acting: bool) -> None:
@@ -99,7 +99,8 @@ def _as_numpy(data: Any) -> Any:
     if isinstance(data, dict):
         return {key: _as_numpy(value) for key, value in data.items()}
     if isinstance(data, tuple):
-        return type(data)(*(_as_numpy(value) for value in data))
+        values = (_as_numpy(value) for value in data)
+        return type(data)(*values) if hasattr(data, "_fields") else tuple(values)
     return data
 
 
@@ -110,7 +111,8 @@ def _as_torch(data: Any) -> Any:
     if isinstance(data, dict):
         return {key: _as_torch(value) for key, value in data.items()}
     if isinstance(data, tuple):
-        return type(data)(*(_as_torch(value) for value in data))
+        values = (_as_torch(value) for value in data)
+        return type(data)(*values) if hasattr(data, "_fields") else tuple(values)
     return data
 
 
@@ -137,7 +139,7 @@ def _serve(conn: Any, policy: Any, learner_kwargs: dict[str, Any], shared: dict[
                 learning_rates, batches = argument
                 for group, lr in zip(policy.optimizer.param_groups, learning_rates, strict=True):
                     group["lr"] = lr
-                reply: Any = learner.gradient_steps([Batch(_as_torch(data)) for data in batches])
+                reply: Any = learner.gradient_steps([Batch(*_as_torch(batch)) for batch in batches])
                 with th.no_grad():
                     for key, value in policy.value_net.state_dict().items():
                         shared[key].copy_(value)
@@ -181,8 +183,6 @@ class ProcessLearner:
     :param num_threads: torch threads of the learner process
     :param poll_seconds: how often a waiting :meth:`join` checks that the learner process is alive
     """
-
-    shares_targets = False  # the learner process computes every target (it holds V_target)
 
     def __init__(self, policy: Any, learner_kwargs: dict[str, Any], bfloat16_acting: bool, num_threads: int = 1,
                  poll_seconds: float = 1.0) -> None:
@@ -238,11 +238,17 @@ class ProcessLearner:
             raise value
         return value
 
+    @property
+    def busy(self) -> bool:
+        """Gradient steps are still running (the learner is slower than the acting process)."""
+        return self._pending and not self._conn.poll()
+
     def submit(self, batches: list[Batch], learning_rates: list[float]) -> None:
-        """Send ``batches`` (their targets are computed there) to the learner process (after :meth:`join`)."""
+        """Send ``batches`` to the learner process (after :meth:`join`); the targets of those without one are
+        computed there."""
         if self._process is None:
             self._start()
-        self._send("steps", (list(learning_rates), [_as_numpy(batch.data) for batch in batches]))
+        self._send("steps", (list(learning_rates), [_as_numpy((b.data, b.target, b.weights)) for b in batches]))
 
     def join(self) -> list[float] | None:
         """Wait for the gradient steps in flight and copy V's new weights into this process's V; their losses
