@@ -156,3 +156,47 @@ def test_open_floor_policies_have_no_value_ceiling():
     from sb3_crowdnav import pretrained
 
     assert pretrained("apg_rl").policy.value_ceiling(np.array([1.0])) is None
+
+
+def test_cautious_pedestrian_model_charges_the_worse_of_moving_on_and_standing_still(tmp_path):
+    """``pedestrian_model="cautious"``: R(s, a) is the lower of the constant-velocity reward and the reward with every
+    picker standing still (the same observation with the latest velocities zeroed), on real warehouse states."""
+    from sb3_crowdnav import APGValue
+    from sb3_crowdnav.sim.observation import Human, ObservationSchema
+
+    env = gym.make("CrowdNavWarehouse-v0", num_humans=8)
+    cv, cautious = _model(env), _model(env)
+    cautious.pedestrian_model = "cautious"
+    schema = ObservationSchema.from_space(env.observation_space)
+    rng = np.random.default_rng(0)
+    obs, _ = env.reset(seed=11)
+    stricter = 0
+    for _ in range(300):
+        batch = {k: v[None] for k, v in obs.items()}
+        static = {k: batch[k] for k in (*OBSTACLE_KEYS, WAYPOINT_KEY)}
+        still = schema.humans_view(batch["humans"].copy())
+        still[:, -1, :, Human.VEL] = 0.0
+        still = still.reshape(1, -1)
+        a = cv(batch["robot"], batch["humans"], batch["humans_mask"], static)
+        b = cv(batch["robot"], still, batch["humans_mask"], static)
+        c = cautious(batch["robot"], batch["humans"], batch["humans_mask"], static)
+        np.testing.assert_array_equal(c.reward, np.minimum(a.reward, b.reward))
+        worse = b.reward < a.reward
+        np.testing.assert_array_equal(c.terminal, np.where(worse, b.terminal, a.terminal))
+        np.testing.assert_array_equal(c.robot, a.robot)  # V sees the constant-velocity state either way
+        np.testing.assert_array_equal(c.humans, a.humans)
+        stricter += int((c.terminal & ~a.terminal).sum())
+        obs, _, terminated, truncated, _ = env.step(int(rng.integers(80)))
+        if terminated or truncated:
+            obs, _ = env.reset()
+    assert stricter > 0  # some actions collide only with a picker who stops
+
+    model = APGValue("ApgPolicy", "CrowdNavWarehouse-v0", imitation_episodes=0, seed=0)
+    assert model.policy.pedestrian_model == "constant_velocity"
+    model.policy.set_pedestrian_model("cautious")
+    model.save(tmp_path / "m.zip")
+    assert APGValue.load(tmp_path / "m.zip").policy.pedestrian_model == "cautious"
+    with pytest.raises(ValueError, match="pedestrian_model must be one of"):
+        model.policy.set_pedestrian_model("psychic")
+    with pytest.raises(ValueError, match="pedestrian_model must be one of"):
+        APGValue("ApgPolicy", "CrowdNav-v0", imitation_episodes=0, policy_kwargs={"pedestrian_model": "still"})

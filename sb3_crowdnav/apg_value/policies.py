@@ -69,6 +69,10 @@ class ValueLookaheadPolicy(BasePolicy):
         float32; TD targets and gradient steps are always float32). Measured on the shipped APG_RL
         model: the same action in 99.4 % of decisions, never more than 5e-5 of lookahead value lost,
         0.3-0.9 ms less per decision (``benchmarks/lookahead_speed.py --dtype bfloat16``).
+    :param pedestrian_model: how the lookahead's reward predicts the pedestrians over the step (see
+        :class:`PropagationModel`): ``"constant_velocity"`` (the paper, default) or ``"cautious"`` (also charges
+        a collision with a pedestrian who stands still instead; :meth:`set_pedestrian_model` switches a loaded
+        model)
     """
 
     LOOKAHEAD_DTYPES = ("float32", "bfloat16")
@@ -93,11 +97,15 @@ class ValueLookaheadPolicy(BasePolicy):
         optimizer_kwargs: dict[str, Any] | None = None,
         lookahead_dtype: str = "float32",
         obstacles: dict[str, float] | None = None,
+        pedestrian_model: str = "constant_velocity",
     ) -> None:
         schema = ObservationSchema.from_space(observation_space)
         self.history_length, self.max_humans = schema.history_length, schema.max_humans
         if lookahead_dtype not in self.LOOKAHEAD_DTYPES:
             raise ValueError(f"lookahead_dtype must be one of {self.LOOKAHEAD_DTYPES}, got {lookahead_dtype!r}")
+        if pedestrian_model not in PropagationModel.PEDESTRIAN_MODELS:
+            raise ValueError(f"pedestrian_model must be one of {PropagationModel.PEDESTRIAN_MODELS}, got "
+                             f"{pedestrian_model!r}")
         if not isinstance(action_space, spaces.Discrete) or action_space.n != N_ACTIONS:
             raise ValueError(f"ValueLookaheadPolicy needs Discrete({N_ACTIONS}) actions, got {action_space}")
         if kinematics not in KINEMATICS:
@@ -128,7 +136,7 @@ class ValueLookaheadPolicy(BasePolicy):
         self.activation_fn = activation_fn
         self.obstacles = dict(obstacles) if obstacles else None
         self.propagation = PropagationModel(self.time_step, kinematics, self.rotation_range, self.reward_config,
-                                            self.history_length, self.gamma, self.obstacles)
+                                            self.history_length, self.gamma, self.obstacles, pedestrian_model)
         self._build(lr_schedule)
         self.lookahead_dtype = "float32"
         self.set_lookahead_dtype(lookahead_dtype)
@@ -148,6 +156,16 @@ class ValueLookaheadPolicy(BasePolicy):
         if hasattr(extractor, "bfloat16_inference"):
             extractor.bfloat16_inference = dtype == "bfloat16"
         self.lookahead_dtype = dtype
+
+    @property
+    def pedestrian_model(self) -> str:
+        """``"constant_velocity"`` or ``"cautious"`` (see the class docstring)."""
+        return self.propagation.pedestrian_model
+
+    def set_pedestrian_model(self, pedestrian_model: str) -> None:
+        """Switch the lookahead's pedestrian model (see the class docstring); V is unchanged."""
+        self.propagation = PropagationModel(self.time_step, self.kinematics, self.rotation_range, self.reward_config,
+                                            self.history_length, self.gamma, self.obstacles, pedestrian_model)
 
     def _build(self, lr_schedule: Schedule) -> None:
         self.value_net = ValueNetwork(self.make_features_extractor(), self.net_arch, self.activation_fn)
@@ -172,6 +190,8 @@ class ValueLookaheadPolicy(BasePolicy):
         )
         if self.obstacles is not None:
             data["obstacles"] = self.obstacles
+        if self.pedestrian_model != "constant_velocity":  # (files of the paper's model keep their entries)
+            data["pedestrian_model"] = self.pedestrian_model
         return data
 
     # ------------------------------------------------------------------ values

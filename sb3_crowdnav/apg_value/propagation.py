@@ -21,7 +21,13 @@ from sb3_crowdnav.sim.actions import N_ACTIONS, action_table, apply_action
 from sb3_crowdnav.sim.config import RewardConfig
 from sb3_crowdnav.sim.geometry import SEGMENT_DIM, swept_clearance
 from sb3_crowdnav.sim.observation import HUMAN_DIM, Human, ObservationSchema, Robot
-from sb3_crowdnav.sim.rewards import compute_reward, walking_direction, with_obstacle_collision, with_route_progress
+from sb3_crowdnav.sim.rewards import (
+    compute_reward,
+    walking_direction,
+    with_obstacle_collision,
+    with_route_progress,
+    worse_of,
+)
 from sb3_crowdnav.sim.warehouse.simulator import next_waypoints
 
 
@@ -47,12 +53,21 @@ class PropagationModel:
     :param reward: the env's :class:`RewardConfig`
     :param history_length: T
     :param gamma: discount per second at v_pref = 1 (the lookahead discount is γ^(Δt·v_pref))
+    :param pedestrian_model: how R(s, a) predicts the pedestrians over the step: ``"constant_velocity"`` (the
+        paper) or ``"cautious"``, the worse for the robot of constant velocity and standing still (an action is
+        charged a collision when either motion collides). The propagated state V sees is constant velocity in both.
     """
 
+    PEDESTRIAN_MODELS = ("constant_velocity", "cautious")
+
     def __init__(self, time_step: float, kinematics: str, rotation_range: float, reward: RewardConfig,
-                 history_length: int, gamma: float, obstacles: dict[str, float] | None = None) -> None:
+                 history_length: int, gamma: float, obstacles: dict[str, float] | None = None,
+                 pedestrian_model: str = "constant_velocity") -> None:
         """:param obstacles: the warehouse's ``{"penalty": ..., "waypoint_radius": ..., "progress_reward": ...}``
             (None: the open floor; a missing ``progress_reward`` is 0, models saved before it existed)"""
+        if pedestrian_model not in self.PEDESTRIAN_MODELS:
+            raise ValueError(f"pedestrian_model must be one of {self.PEDESTRIAN_MODELS}, got {pedestrian_model!r}")
+        self.pedestrian_model = pedestrian_model
         self.obstacles = obstacles
         self.time_step = time_step
         self.kinematics = kinematics
@@ -97,14 +112,17 @@ class PropagationModel:
         if self.reward.uses_social:
             dirs = walking_direction(new_hist[:, None, :, :, Human.VEL], hpos1[:, None], new_pos)  # (B, 80, M, 2)
         full = (b, N_ACTIONS)
-        terms = compute_reward(
-            self.reward, self.time_step,
-            np.broadcast_to(pos0[:, None, :], (*full, 2)), new_pos,
-            np.broadcast_to(heading0[:, None], full), new_heading,
-            np.broadcast_to(goal[:, None, :], (*full, 2)), np.broadcast_to(radius[:, None], full),
-            np.broadcast_to(hpos0[:, None], (*full, m, 2)), np.broadcast_to(hpos1[:, None], (*full, m, 2)), dirs,
-            np.broadcast_to(latest[:, None, :, Human.RADIUS], (*full, m)), np.broadcast_to(mask[:, None], (*full, m)),
-        )
+        robot_args = (np.broadcast_to(pos0[:, None, :], (*full, 2)), new_pos, np.broadcast_to(heading0[:, None], full),
+                      new_heading, np.broadcast_to(goal[:, None, :], (*full, 2)),
+                      np.broadcast_to(radius[:, None], full))
+        start = np.broadcast_to(hpos0[:, None], (*full, m, 2))
+        human_args = (np.broadcast_to(latest[:, None, :, Human.RADIUS], (*full, m)),
+                      np.broadcast_to(mask[:, None], (*full, m)))
+        terms = compute_reward(self.reward, self.time_step, *robot_args, start,
+                               np.broadcast_to(hpos1[:, None], (*full, m, 2)), dirs, *human_args)
+        if self.pedestrian_model == "cautious":  # and if they stand still instead (a picker stopping at a shelf)
+            terms = worse_of(terms, compute_reward(self.reward, self.time_step, *robot_args, start, start, dirs,
+                                                   *human_args))
         propagated_static: dict[str, np.ndarray] = {}
         if static and self.obstacles is not None:  # the same segment geometry as the env, the same waypoint rule
             segments = np.asarray(static["obstacles"], dtype=np.float64).reshape(b, 1, -1, SEGMENT_DIM)

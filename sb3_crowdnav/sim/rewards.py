@@ -320,3 +320,15 @@ def with_route_progress(terms: RewardTerms, pos0: np.ndarray, pos1: np.ndarray, 
     terminal = np.asarray(terms.success, dtype=bool) | np.asarray(terms.collision, dtype=bool)
     progress = np.where(terminal, 0.0, coefficient * gained)
     return terms._replace(reward=terms.reward + progress, progress_term=progress)
+
+
+def worse_of(a: RewardTerms, b: RewardTerms) -> RewardTerms:
+    """Per transition, the terms of ``a`` or ``b`` (same shapes) whichever has the lower reward (``a`` on ties).
+
+    The lookahead's cautious pedestrian model (:class:`~sb3_crowdnav.apg_value.propagation.PropagationModel`)
+    charges each action the worse of two predictions of the pedestrians' motion.
+    """
+    worse = np.asarray(b.reward) < np.asarray(a.reward)
+    if not worse.any():
+        return a
+    return RewardTerms(*(np.where(worse, y, x) for x, y in zip(a, b, strict=True)))
