@@ -1,6 +1,7 @@
 """Copy a trained checkpoint into the package as a shipped model (``sb3_crowdnav.pretrained(NAME)``).
 
     python examples/ship_model.py runs/apg_rl/best.zip apg_rl
+    python examples/ship_model.py runs/apg_warehouse/best.zip apg_warehouse --pedestrian-model cautious
 
 The optimiser's momentum buffers are dropped (they only matter to continue training, and a continued run
 starts from its own checkpoint); weights and every constructor setting are kept. A ``best.zip`` is shipped
@@ -27,6 +28,8 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("checkpoint", type=Path)
     p.add_argument("name", choices=sorted(PRETRAINED))
+    p.add_argument("--pedestrian-model", choices=("constant_velocity", "cautious"),
+                   help="ship a value model with this lookahead pedestrian model (default: the checkpoint's)")
     args = p.parse_args()
     record = args.checkpoint.with_name("best.json")
     if args.checkpoint.name == "best.zip" and record.exists():
@@ -35,6 +38,10 @@ def main() -> None:
             p.error(f"{args.checkpoint} is not the file {record} recorded: damaged, not shipped")
     model = load_model(args.checkpoint, algo=PRETRAINED[args.name])
     model.policy.optimizer.state = collections.defaultdict(dict)
+    if args.pedestrian_model:
+        if not hasattr(model.policy, "set_pedestrian_model"):
+            p.error(f"--pedestrian-model: {args.checkpoint} is not a value-lookahead model")
+        model.policy.set_pedestrian_model(args.pedestrian_model)
     out = WEIGHTS_DIR / f"{args.name}.zip"
     model.save(out)
     world = read_world(args.checkpoint)

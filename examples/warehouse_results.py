@@ -60,13 +60,17 @@ def compact(results_csv: Path, key: str = "method") -> str:
 
 
 def run_wall_time(folder: Path) -> str:
-    """The wall time of a finished run folder: ``config.json`` written at its start, the last file at its end."""
+    """The wall time of a run folder: from ``config.json``, written at its start, to the validation of its
+    ``best.zip`` (the shipped checkpoint), or of its last checkpoint without one."""
     if not folder.is_dir():
         return "–"
     config = json.loads((folder / "config.json").read_text())
     if "wall_time_s" in config:  # an --algo run records its own
         return f"{config['wall_time_s'] / 60:.0f} min"
     start = (folder / "config.json").stat().st_mtime
+    if (folder / "best.json").is_file():
+        best = json.loads((folder / "best.json").read_text())
+        return f"{(best['wall'] - start) / 60:.0f} min (to the validation of best.zip, {best['episodes']} RL episodes)"
     curve = [json.loads(line) for line in (folder / "eval_curve.jsonl").read_text().splitlines() if line]
     end = max(row["wall"] for row in curve)
     return f"{(end - start) / 60:.0f} min (to the last validation, {curve[-1]['episodes']} RL episodes)"
