@@ -92,28 +92,26 @@ class ThreadLearner:
         self._executor.shutdown(wait=True)
 
 
-def _as_numpy(data: Any) -> Any:
-    """A replay batch (named tuple of tensors and dicts of tensors) with plain arrays instead of tensors."""
-    if isinstance(data, th.Tensor):
-        return data.numpy()
+def _convert(data: Any, leaf: type, convert: Callable[[Any], Any]) -> Any:
+    """``data`` (a replay batch: named tuples, tuples and dicts of arrays) with ``convert`` applied to every ``leaf``."""
+    if isinstance(data, leaf):
+        return convert(data)
     if isinstance(data, dict):
-        return {key: _as_numpy(value) for key, value in data.items()}
+        return {key: _convert(value, leaf, convert) for key, value in data.items()}
     if isinstance(data, tuple):
-        values = (_as_numpy(value) for value in data)
+        values = (_convert(value, leaf, convert) for value in data)
         return type(data)(*values) if hasattr(data, "_fields") else tuple(values)
     return data
+
+
+def _as_numpy(data: Any) -> Any:
+    """A replay batch with plain arrays instead of tensors (sent through the pipe without shared-memory files)."""
+    return _convert(data, th.Tensor, th.Tensor.numpy)
 
 
 def _as_torch(data: Any) -> Any:
     """Inverse of :func:`_as_numpy`."""
-    if isinstance(data, np.ndarray):
-        return th.from_numpy(data)
-    if isinstance(data, dict):
-        return {key: _as_torch(value) for key, value in data.items()}
-    if isinstance(data, tuple):
-        values = (_as_torch(value) for value in data)
-        return type(data)(*values) if hasattr(data, "_fields") else tuple(values)
-    return data
+    return _convert(data, np.ndarray, th.from_numpy)
 
 
 def _serve(conn: Any, policy: Any, learner_kwargs: dict[str, Any], shared: dict[str, th.Tensor],
