@@ -11,8 +11,8 @@ Measures (one torch thread, 6 pedestrians):
   (4) the bare decision rate (greedy lookaheads per second on real observations, the env not timed) and the
       acting efficiency: RL env steps/s with learning on over that rate, measured in the same run.
 
-Usage: python benchmarks/training_speed.py [--n-envs 1] [--rl-steps 3000] [--il-episodes 200]
-                                          [--dtype float32|bfloat16] [--optimizer adam|sgd] [--overlap]
+Usage: python benchmarks/training_speed.py [--n-envs 1] [--train-freq 4] [--rl-steps 3000] [--il-episodes 200]
+                                          [--dtype float32|bfloat16] [--optimizer adam|sgd] [--overlap [thread|process]]
                                           [--from-pretrained apg_rl] [--epsilon 0.1]
 
 ``--overlap [thread|process]`` runs the gradient steps in a second thread (or process) while the env collects the
@@ -76,6 +76,7 @@ class _SteadyClock(BaseCallback):
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__)
     p.add_argument("--n-envs", type=int, default=1)
+    p.add_argument("--train-freq", type=int, default=4, help="one gradient step every this many env steps (per env)")
     p.add_argument("--rl-steps", type=int, default=3000)
     p.add_argument("--il-episodes", type=int, default=200)
     p.add_argument("--imitation-epochs", type=int, default=10)
@@ -103,6 +104,7 @@ def main() -> None:
         policy_kwargs.update(optimizer_class=th.optim.SGD, optimizer_kwargs={"momentum": 0.9})
     eps = {} if args.epsilon is None else dict(exploration_initial_eps=args.epsilon, exploration_final_eps=args.epsilon)
     model = APGValue("ApgPolicy", env, seed=0, imitation_episodes=args.il_episodes, imitation_epochs=2,
+                     train_freq=args.train_freq,
                      policy_kwargs=policy_kwargs, overlap_training=args.overlap, **eps)
 
     model.set_logger(configure(None, [""]))
@@ -139,8 +141,9 @@ def main() -> None:
 
     il_collect_s = args.il_schedule / (args.il_episodes / collect)
     il_regress_s = per_epoch_per_k * args.imitation_epochs * args.il_schedule * states_per_episode / 1000
-    print(f"n_envs={args.n_envs} torch_threads={th.get_num_threads()} overlap_training={args.overlap} "
-          f"optimizer={args.optimizer} dtype={args.dtype} epsilon={model.exploration_rate:.2f}")
+    print(f"n_envs={args.n_envs} train_freq={args.train_freq} torch_threads={th.get_num_threads()} "
+          f"overlap_training={args.overlap} optimizer={args.optimizer} dtype={args.dtype} "
+          f"epsilon={model.exploration_rate:.2f}")
     print(f"imitation collection: {args.il_episodes / collect:.1f} episodes/s ({states_per_episode:.1f} states/episode)")
     print(f"imitation regression: {per_epoch_per_k:.3f} s per epoch per 1,000 states")
     print(f"RL: {steps_per_s:.0f} env steps/s (after the first {clock.skip} steps; all {args.rl_steps} in {rl:.1f} s), "
