@@ -145,7 +145,7 @@ def _serve(conn: Any, policy: Any, learner_kwargs: dict[str, Any], shared: dict[
                 polyak_update(policy.value_net.parameters(), policy.value_net_target.parameters(), argument)
                 reply = None
             elif command == "optimizer":
-                reply = _as_numpy_state(policy.optimizer.state_dict())
+                reply = _as_numpy(policy.optimizer.state_dict())
             else:
                 raise ValueError(f"unknown learner command {command!r}")
             conn.send(("ok", reply))
@@ -154,22 +154,6 @@ def _serve(conn: Any, policy: Any, learner_kwargs: dict[str, Any], shared: dict[
                 conn.send(("error", exc))
             except Exception:  # the exception does not pickle: send its text
                 conn.send(("error", RuntimeError(traceback.format_exc())))
-
-
-def _as_numpy_state(state: dict[str, Any]) -> dict[str, Any]:
-    """An optimiser ``state_dict`` with its tensors as arrays (sent through the pipe without shared-memory files)."""
-    return {"state": {index: {key: (value.numpy() if isinstance(value, th.Tensor) else value)
-                              for key, value in per_param.items()}
-                      for index, per_param in state["state"].items()},
-            "param_groups": state["param_groups"]}
-
-
-def _as_torch_state(state: dict[str, Any]) -> dict[str, Any]:
-    """Inverse of :func:`_as_numpy_state`."""
-    return {"state": {index: {key: (th.from_numpy(value) if isinstance(value, np.ndarray) else value)
-                              for key, value in per_param.items()}
-                      for index, per_param in state["state"].items()},
-            "param_groups": state["param_groups"]}
 
 
 class ProcessLearner:
@@ -270,7 +254,7 @@ class ProcessLearner:
         """Copy the learner's optimiser state into this process's ``optimizer`` (after :meth:`join`); after a
         failure of the learner, ``optimizer`` keeps the state of the last ``save`` or ``learn()``."""
         if self._process is not None and not self._failed:
-            optimizer.load_state_dict(_as_torch_state(self._request("optimizer")))
+            optimizer.load_state_dict(_as_torch(self._request("optimizer")))
 
     def shutdown(self) -> None:
         if self._process is None:
