@@ -26,6 +26,8 @@ SCHEDULE_FLAGS = {
     "exploration_episodes": "--exploration-episodes", "select_by": "--select-by", "optimizer": "--optimizer",
     "value_target": "--value-target", "from_imitation": "--from-imitation", "overlap": "--overlap",
     "refill_steps": "--refill-steps", "lookahead_dtype": "--lookahead-dtype",
+    "exploration_initial_eps": "--epsilon-start", "exploration_final_eps": "--epsilon-end",
+    "pedestrian_model": "--pedestrian-model",
 }
 HYPERPARAMS_FLAGS = {"algo": "--algo", "timesteps": "--timesteps", "checkpoint_freq": "--checkpoint-freq"}
 
@@ -40,12 +42,22 @@ def _positive_float(text: str) -> float:
     return value
 
 
+def _probability(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = None
+    if value is None or not 0 <= value <= 1:
+        raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {text!r}")
+    return value
+
+
 def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
     """Add ``train`` to the subcommands ``sub``."""
     from sb3_crowdnav.apg_value.checks import VALUE_TARGETS
     from sb3_crowdnav.apg_value.overlap import OVERLAP_KINDS
     from sb3_crowdnav.training.callbacks import SELECT_BY
-    from sb3_crowdnav.training.schedule import LOOKAHEAD_DTYPES, OPTIMIZERS, VARIANTS
+    from sb3_crowdnav.training.schedule import LOOKAHEAD_DTYPES, OPTIMIZERS, PEDESTRIAN_MODELS, VARIANTS
 
     p = sub.add_parser(
         "train", parents=parents, help="train a paper variant (--variant) or from an rl-zoo3 YAML (--hyperparams)",
@@ -82,7 +94,12 @@ def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
     g.add_argument("--no-bootstrap-timeouts", dest="bootstrap_timeouts", action="store_const", const=False,
                    help="end timed-out episodes with zero future value (the field's reference code)")
     g.add_argument("--exploration-episodes", type=common.positive_int,
-                   help="RL episodes of the ε decay 0.5 -> 0.1 (default: the variant's: 5000, apg_warehouse 3000)")
+                   help="RL episodes of the ε decay (default: the variant's: 5000, apg_warehouse 3000)")
+    g.add_argument("--epsilon-start", dest="exploration_initial_eps", type=_probability,
+                   help="ε at the first RL episode (default: 0.5, the paper; lower it to fine-tune a model given "
+                        "with --from-imitation)")
+    g.add_argument("--epsilon-end", dest="exploration_final_eps", type=_probability,
+                   help="ε after the decay (default: 0.1, the paper)")
     g.add_argument("--select-by", choices=SELECT_BY,
                    help="best.zip: highest validation success then shortest time (default), or highest return under "
                         "the variant's own reward (use for apg_crl / apg_carl)")
@@ -93,9 +110,12 @@ def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
                    help="gradient steps on the second core while acting (APGValue overlap_training), in a thread "
                         "(default) or a process")
     g.add_argument("--refill-steps", type=common.nonneg_int,
-                   help="resuming without OUT/replay_buffer_<N>.npz: env steps collected before training again "
-                        "(default: 5000)")
+                   help="resuming without OUT/replay_buffer_<N>.npz, or --from-imitation without "
+                        "imitation_replay_buffer.npz beside it: env steps collected before training (default: 5000)")
     g.add_argument("--lookahead-dtype", choices=LOOKAHEAD_DTYPES, help="precision of the acting lookahead (default: float32)")
+    g.add_argument("--pedestrian-model", choices=PEDESTRIAN_MODELS,
+                   help="pedestrians in the acting lookahead's reward: constant_velocity, or cautious (the worse of "
+                        "moving on and standing still) (default: the model's own; constant_velocity for a new one)")
 
     g = p.add_argument_group("hyperparameter files (--hyperparams)")
     g.add_argument("--algo", choices=ALGOS, help="algorithm (required with --hyperparams)")

@@ -53,6 +53,7 @@ from sb3_crowdnav.apg_value import APGValue
 from sb3_crowdnav.apg_value.checks import VALUE_TARGETS
 from sb3_crowdnav.apg_value.overlap import OVERLAP_KINDS
 from sb3_crowdnav.apg_value.policies import ValueLookaheadPolicy
+from sb3_crowdnav.apg_value.propagation import PropagationModel
 from sb3_crowdnav.sim.config import check_choice, check_int, check_number
 from sb3_crowdnav.training.callbacks import SELECT_BY, EpisodeCheckpoint
 from sb3_crowdnav.training.run_folder import (
@@ -103,6 +104,7 @@ VARIANTS = {
 }
 OPTIMIZERS = {"adam": (th.optim.Adam, {}), "sgd": (th.optim.SGD, {"momentum": 0.9})}
 LOOKAHEAD_DTYPES = ValueLookaheadPolicy.LOOKAHEAD_DTYPES
+PEDESTRIAN_MODELS = PropagationModel.PEDESTRIAN_MODELS
 STEPS_PER_EPISODE_BOUND = 200  # the step budget given to learn(); the episode budget stops training first
 
 
@@ -128,13 +130,20 @@ class ScheduleConfig:
     :param select_by: ``"success"`` (then shortest time) or ``"return"`` under the variant's own reward
         (use it for the comfort variants)
     :param bootstrap_timeouts: see :class:`~sb3_crowdnav.apg_value.APGValue`
-    :param exploration_episodes: RL episodes over which ε decays from 0.5 to 0.1 (None: the variant's; the
-        paper: 5,000; ``apg_warehouse``: 3,000)
+    :param exploration_episodes: RL episodes over which ε decays from ``exploration_initial_eps`` to
+        ``exploration_final_eps`` (None: the variant's; the paper: 5,000; ``apg_warehouse``: 3,000)
+    :param exploration_initial_eps: ε at the first RL episode (the paper: 0.5; lower it to fine-tune a trained
+        model given as ``from_imitation``)
+    :param exploration_final_eps: ε after ``exploration_episodes`` (the paper: 0.1)
+    :param pedestrian_model: the acting lookahead's pedestrian model (see
+        :class:`~sb3_crowdnav.apg_value.ValueLookaheadPolicy`); None: the model's own (``"constant_velocity"``
+        for a new one)
     :param optimizer: RL optimiser, ``"adam"`` (APGValue's default) or ``"sgd"`` (momentum 0.9, the field's code)
     :param value_target: see :class:`~sb3_crowdnav.apg_value.APGValue`
     :param overlap: ``APGValue(overlap_training=...)``: gradient steps on the second core while acting, in a
         ``"thread"`` (also ``True``) or a ``"process"`` (the same run; faster on 2 cores)
-    :param refill_steps: resuming without the replay buffer, env steps collected before gradient steps resume
+    :param refill_steps: resuming without the replay buffer, or starting from a ``from_imitation`` model without
+        ``imitation_replay_buffer.npz`` beside it, env steps collected before the first gradient step
     :param lookahead_dtype: precision of the acting lookahead, ``"float32"`` or ``"bfloat16"``
     """
 
@@ -156,6 +165,9 @@ class ScheduleConfig:
     eval_episodes: int = 100
     bootstrap_timeouts: bool = True
     exploration_episodes: int | None = None
+    exploration_initial_eps: float = 0.5
+    exploration_final_eps: float = 0.1
+    pedestrian_model: str | None = None
     refill_steps: int = 5_000
     select_by: Literal["success", "return"] = "success"
     overlap: bool | Literal["thread", "process"] = False
@@ -176,6 +188,12 @@ class ScheduleConfig:
         for count in self.num_humans if isinstance(self.num_humans, tuple) else (self.num_humans,):
             check_int("num_humans", count, 0)
         check_number("learning_rate", self.learning_rate)
+        for name in ("exploration_initial_eps", "exploration_final_eps"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value <= 1:
+                raise ValueError(f"{name} must be a number in [0, 1], got {value!r}")
+        if self.pedestrian_model is not None:
+            check_choice("pedestrian_model", self.pedestrian_model, PEDESTRIAN_MODELS)
         check_number("imitation_learning_rate", self.imitation_learning_rate)
         if not isinstance(self.bootstrap_timeouts, bool):
             raise TypeError(f"bootstrap_timeouts must be a bool, got {self.bootstrap_timeouts!r}")
@@ -245,7 +263,9 @@ def _from_imitation(path: Path, config: ScheduleConfig, env: Any, out: Path) -> 
     model = APGValue.load(path, env=env, tensorboard_log=str(out / "tb"), verbose=1,
                           bootstrap_timeouts=config.bootstrap_timeouts, learning_rate=config.learning_rate,
                           train_freq=config.train_freq, value_target=config.value_target,
-                          exploration_episodes=config.exploration_episodes, overlap_training=config.overlap)
+                          exploration_episodes=config.exploration_episodes, overlap_training=config.overlap,
+                          exploration_initial_eps=config.exploration_initial_eps,
+                          exploration_final_eps=config.exploration_final_eps)
     optimizer_class, optimizer_kwargs = OPTIMIZERS[config.optimizer]
     if model.policy.optimizer_class is not optimizer_class:  # swap the RL optimiser; policy_kwargs follow (save/load)
         model.policy_kwargs.update(optimizer_class=optimizer_class, optimizer_kwargs=optimizer_kwargs)
@@ -254,6 +274,8 @@ def _from_imitation(path: Path, config: ScheduleConfig, env: Any, out: Path) -> 
                                                  **optimizer_kwargs)
     if (path.parent / "imitation_replay_buffer.npz").exists():
         model.load_replay_buffer(path.parent / "imitation_replay_buffer.npz")
+    else:  # e.g. fine-tuning a trained model: no gradient step on a handful of transitions
+        model.learning_starts = config.refill_steps
     return model
 
 
@@ -264,6 +286,8 @@ def _new(config: ScheduleConfig, env: Any, out: Path) -> APGValue:
                      bootstrap_timeouts=config.bootstrap_timeouts, learning_rate=config.learning_rate,
                      train_freq=config.train_freq, buffer_size=config.buffer_size, value_target=config.value_target,
                      exploration_episodes=config.exploration_episodes,
+                     exploration_initial_eps=config.exploration_initial_eps,
+                     exploration_final_eps=config.exploration_final_eps,
                      imitation_learning_rate=config.imitation_learning_rate, overlap_training=config.overlap,
                      policy_kwargs=dict(optimizer_class=optimizer_class, optimizer_kwargs=optimizer_kwargs,
                                         lookahead_dtype=config.lookahead_dtype))
@@ -316,6 +340,8 @@ def _train(out: Path, config: ScheduleConfig, from_imitation: str | Path | None,
     else:
         model, reset = _new(config, env, out), False
     model.policy.set_lookahead_dtype(config.lookahead_dtype)  # also for a resumed or from_imitation run
+    if config.pedestrian_model is not None:
+        model.policy.set_pedestrian_model(config.pedestrian_model)
     callback = EpisodeCheckpoint(out, config.rl_episodes, config.checkpoint_episodes, config.eval_episodes,
                                  select_by=config.select_by, env_kwargs=env_kwargs, env_id=config.spec.env_id)
     n = model._episode_num
