@@ -215,6 +215,19 @@ def test_timeouts_are_terminal_unless_bootstrapped(bootstrap):
     np.testing.assert_array_equal(done, [0, 0, 0, expected_last] * 2)
 
 
+def test_warm_up_before_learning_starts_acts_with_the_lookahead():
+    # SB3 draws uniform actions before learning_starts; APGValue's warm-up (and a refill) is its ε-greedy lookahead
+    env = gym.make("CrowdNav-v0")
+    model = APGValue("ApgPolicy", env, imitation_episodes=0, seed=0, learning_starts=1_000, buffer_size=200,
+                     exploration_initial_eps=0.0, exploration_final_eps=0.0)
+    model.learn(40)
+    n = model.replay_buffer.pos
+    assert n == 40
+    obs = {k: v[:n, 0] for k, v in model.replay_buffer.observations.items()}
+    greedy = model.policy.action_values(obs).argmax(axis=1)
+    np.testing.assert_array_equal(model.replay_buffer.actions[:n, 0, 0], greedy)
+
+
 def test_loaded_buffer_follows_bootstrap_setting(tmp_path):
     env = gym.make("CrowdNav-v0", num_humans=0, time_limit=1.0)
     model = APGValue("ApgPolicy", env, imitation_episodes=0, seed=0, bootstrap_timeouts=True, learning_starts=100)

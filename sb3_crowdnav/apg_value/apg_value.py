@@ -220,6 +220,14 @@ class APGValue(OffPolicyAlgorithm):
         self._staged = (actions == greedy_actions, best)  # read by _store_transition
         return (actions if robot.ndim == 2 else actions[0]), state
 
+    def _sample_action(self, learning_starts: int, action_noise=None, n_envs: int = 1) -> tuple[np.ndarray, np.ndarray]:
+        """ε-greedy lookahead from the first step: SB3 draws uniform actions before ``learning_starts``, which
+        would fill a warm-up (or a refill after a resume without the buffer) with crashes."""
+        assert self._last_obs is not None, "self._last_obs was not set"
+        actions, _ = self.predict(self._last_obs, deterministic=False)
+        actions = np.asarray(actions).reshape(n_envs)
+        return actions, actions
+
     def _store_transition(self, replay_buffer, buffer_action, new_obs, reward, dones, infos) -> None:  # type: ignore[override]
         if isinstance(replay_buffer, ValueReplayBuffer) and self._staged is not None:
             replay_buffer.stage(*self._staged)
