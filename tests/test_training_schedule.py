@@ -114,6 +114,38 @@ def test_resume_without_replay_buffer_refills_before_training(tmp_path, monkeypa
         assert after._n_updates > before._n_updates
 
 
+def test_fine_tuning_a_trained_model(tmp_path, monkeypatch):
+    """--from-imitation with a trained model and no demonstrations beside it: ε from --epsilon-start, the lookahead
+    with --pedestrian-model, and no gradient step before --refill-steps transitions (then training resumes)."""
+    first, tuned = tmp_path / "first", tmp_path / "tuned"
+    common = ["--il-episodes", "2", "--il-epochs", "1", "--num-humans", "2", "--checkpoint-episodes", "2",
+              "--eval-episodes", "0"]
+    _run(monkeypatch, *common, "--out", str(first), "--rl-episodes", "2")
+    source = tmp_path / "trained.zip"  # a model alone in its folder: no imitation_replay_buffer.npz beside it
+    (first / "final.zip").rename(source)
+    trained = APGValue.load(source)
+    assert trained.policy.pedestrian_model == "constant_velocity"
+    for refill, episodes in ((100_000, 2), (0, 2)):
+        out = tuned / str(refill)
+        _run(monkeypatch, *common, "--out", str(out), "--rl-episodes", str(episodes), "--from-imitation", str(source),
+             "--epsilon-start", "0.05", "--epsilon-end", "0.02", "--exploration-episodes", "10",
+             "--pedestrian-model", "cautious", "--refill-steps", str(refill))
+        model = APGValue.load(out / "final.zip")
+        assert (model.exploration_initial_eps, model.exploration_final_eps) == (0.05, 0.02)
+        assert 0.02 < model.exploration_rate < 0.05  # 2 of 10 decay episodes
+        assert model.policy.pedestrian_model == "cautious"
+        assert model._episode_num == episodes
+        if refill:
+            assert model._n_updates == trained._n_updates  # V untouched while the buffer fills
+        else:
+            assert model._n_updates > trained._n_updates
+    config = ScheduleConfig(exploration_initial_eps=0.2, pedestrian_model="cautious")
+    assert (config.exploration_initial_eps, config.exploration_final_eps, config.pedestrian_model) == (0.2, 0.1, "cautious")
+    for bad in (dict(exploration_initial_eps=1.5), dict(exploration_final_eps=True), dict(pedestrian_model="psychic")):
+        with pytest.raises(ValueError, match=next(iter(bad))):
+            ScheduleConfig(**bad)
+
+
 def test_negative_refill_steps_is_rejected(tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         main(["train", "--variant", "apg_rl", "--out", str(tmp_path / "run"), "--refill-steps", "-1"])
