@@ -120,7 +120,8 @@ def test_fine_tuning_a_trained_model(tmp_path, monkeypatch):
     first, tuned = tmp_path / "first", tmp_path / "tuned"
     common = ["--il-episodes", "2", "--il-epochs", "1", "--num-humans", "2", "--checkpoint-episodes", "2",
               "--eval-episodes", "0"]
-    _run(monkeypatch, *common, "--out", str(first), "--rl-episodes", "2")
+    _run(monkeypatch, *common, "--out", str(first), "--rl-episodes", "2", "--overlap", "off")
+    assert json.loads((first / "config.json").read_text())["overlap"] is False
     source = tmp_path / "trained.zip"  # a model alone in its folder: no imitation_replay_buffer.npz beside it
     (first / "final.zip").rename(source)
     trained = APGValue.load(source)
@@ -293,6 +294,9 @@ def test_a_variant_brings_its_env_settings_and_schedule_and_a_run_overrides_them
 
     paper, warehouse = ScheduleConfig(variant="apg_rl"), ScheduleConfig(variant="apg_warehouse")
     assert (paper.rl_episodes, paper.exploration_episodes) == (10_000, 5_000)
+    assert (paper.train_freq, warehouse.train_freq, ScheduleConfig(variant="sarl").train_freq) == (8, 4, 4)
+    assert paper.overlap == warehouse.overlap == "process"
+    assert ScheduleConfig(variant="apg_rl", train_freq=4).train_freq == 4
     assert (warehouse.rl_episodes, warehouse.exploration_episodes) == (6_000, 3_000)
     assert "progress_reward" not in paper.training_env_kwargs
     assert warehouse.training_env_kwargs["progress_reward"] == 0.1

@@ -85,7 +85,8 @@ def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
                    help="RL episodes in total (default: the variant's: 10000, apg_warehouse 6000)")
     g.add_argument("--n-envs", type=common.positive_int, help="training envs, one batched lookahead (default: 1)")
     g.add_argument("--learning-rate", type=_positive_float, help="RL learning rate (default: 0.001, Table 1)")
-    g.add_argument("--train-freq", type=common.positive_int, help="one gradient step every this many env steps (default: 4)")
+    g.add_argument("--train-freq", type=common.positive_int,
+                   help="one gradient step every this many env steps (default: the variant's: apg_rl 8, the others 4)")
     g.add_argument("--buffer-size", type=common.positive_int, help="replay capacity [transitions] (default: 100000)")
     g.add_argument("--checkpoint-episodes", type=common.positive_int,
                    help="checkpoint and validate every N RL episodes (default: 500)")
@@ -106,9 +107,11 @@ def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
     g.add_argument("--optimizer", choices=sorted(OPTIMIZERS), help="RL optimiser (default: adam; sgd: momentum 0.9)")
     g.add_argument("--value-target", choices=VALUE_TARGETS, help="what V is regressed on in RL (default: td)")
     g.add_argument("--from-imitation", type=Path, metavar="ZIP", help="start from a saved post-imitation model")
-    g.add_argument("--overlap", nargs="?", const=True, choices=OVERLAP_KINDS, metavar="{thread,process}",
-                   help="gradient steps on the second core while acting (APGValue overlap_training), in a thread "
-                        "(default) or a process")
+    g.add_argument("--overlap", nargs="?", const="thread", choices=(*OVERLAP_KINDS, "off"),
+                   metavar="{process,thread,off}",
+                   help="gradient steps on the second core while acting (APGValue overlap_training): in a process "
+                        "(default), in a thread (also a bare --overlap; the same run to the bit, slower), or off "
+                        "(after each env step, on the acting core: another run)")
     g.add_argument("--refill-steps", type=common.nonneg_int,
                    help="resuming without OUT/replay_buffer_<N>.npz, or --from-imitation without "
                         "imitation_replay_buffer.npz beside it: env steps collected before training (default: 5000)")
@@ -152,6 +155,8 @@ def _train_variant(args: argparse.Namespace) -> int:
     given = {name: getattr(args, name) for name in (*SCHEDULE_FLAGS, "imitation_episodes", "imitation_epochs",
                                                      "imitation_learning_rate", "seed")}
     given = {k: v for k, v in given.items() if v is not None and k != "from_imitation"}
+    if given.get("overlap") == "off":
+        given["overlap"] = False
     if num_humans is not None:
         given["num_humans"] = num_humans
     try:
