@@ -7,9 +7,11 @@ ORCA robot policy deciding every step (in the warehouse: obstacle-aware, followi
 are reset as they end, and the reset time is included (a warehouse reset draws a layout, plans routes and
 places the pickers). Usage::
 
-    python benchmarks/env_speed.py [--steps 20000] [--repeats 3] [--reward crowdnav] [--breakdown] [--profile]
+    python benchmarks/env_speed.py [--steps 20000] [--repeats 3] [--reward crowdnav] [--breakdown] [--profile] [--cpu]
 
 ``--breakdown`` adds, per row and env, the steps per episode and the time of a reset and of a step without it.
+``--cpu`` measures every rate and time in CPU seconds of this process (``time.process_time``) instead of wall-clock
+seconds: steadier on a machine that other jobs load.
 """
 
 from __future__ import annotations
@@ -30,9 +32,9 @@ RANDOM = "random"
 
 
 def run(env: gym.Env, steps: int, policy: OrcaPolicy | str | None, seed: int = 0,
-        resets: list[float] | None = None) -> tuple[float, float]:
+        resets: list[float] | None = None, clock=time.perf_counter) -> tuple[float, float]:
     """Steps per wall-clock second and per CPU second of this process over ``steps`` env steps (resets included);
-    the wall-clock time of every reset is appended to ``resets`` when given."""
+    the time of every reset by ``clock`` is appended to ``resets`` when given."""
     obs, _ = env.reset(seed=seed)
     rng = np.random.default_rng(seed)
     action = FIXED_ACTION
@@ -44,25 +46,25 @@ def run(env: gym.Env, steps: int, policy: OrcaPolicy | str | None, seed: int = 0
             action = int(policy.predict(obs)[0])
         obs, _, terminated, truncated, _ = env.step(action)
         if terminated or truncated:
-            began = time.perf_counter()
+            began = clock()
             obs, _ = env.reset()
             if resets is not None:
-                resets.append(time.perf_counter() - began)
+                resets.append(clock() - began)
     return steps / (time.perf_counter() - start), steps / max(time.process_time() - start_cpu, 1e-9)
 
 
-def breakdown(env: gym.Env, steps: int, policy: OrcaPolicy | str | None) -> str:
+def breakdown(env: gym.Env, steps: int, policy: OrcaPolicy | str | None, cpu: bool = False) -> str:
     """Steps per episode, ms per reset and µs per step without resets (the policy's decision included)."""
     resets: list[float] = []
-    rate = run(env, steps, policy, resets=resets)[0]
+    rate = run(env, steps, policy, resets=resets, clock=time.process_time if cpu else time.perf_counter)[int(cpu)]
     per_step = (steps / rate - sum(resets)) / steps
     return f"{steps / max(len(resets), 1):.0f} steps/episode, {1e3 * np.mean(resets):.2f} ms/reset, " \
            f"{1e6 * per_step:.0f} us/step"
 
 
-def best(env: gym.Env, steps: int, policy: OrcaPolicy | str | None, repeats: int) -> float:
-    """The best wall-clock steps/s of ``repeats`` runs."""
-    return max(run(env, steps, policy, seed=i)[0] for i in range(repeats))
+def best(env: gym.Env, steps: int, policy: OrcaPolicy | str | None, repeats: int, cpu: bool = False) -> float:
+    """The best steps/s of ``repeats`` runs (wall-clock, or CPU time with ``cpu``)."""
+    return max(run(env, steps, policy, seed=i)[int(cpu)] for i in range(repeats))
 
 
 def main() -> None:
@@ -73,6 +75,7 @@ def main() -> None:
     parser.add_argument("--num-humans", type=int, default=6)
     parser.add_argument("--breakdown", action="store_true", help="also time resets and steps apart")
     parser.add_argument("--profile", action="store_true", help="cProfile the warehouse's random x 8 run instead")
+    parser.add_argument("--cpu", action="store_true", help="CPU time of this process instead of wall-clock time")
     args = parser.parse_args()
 
     env = gym.make("CrowdNav-v0", num_humans=args.num_humans, reward=args.reward).unwrapped
@@ -85,17 +88,18 @@ def main() -> None:
         prof.runcall(run, warehouse, args.steps, RANDOM)
         pstats.Stats(prof).sort_stats("cumulative").print_stats(30)
         return
-    print(f"{args.num_humans} pedestrians/pickers, reward={args.reward!r}, best of {args.repeats} runs, resets included")
+    print(f"{args.num_humans} pedestrians/pickers, reward={args.reward!r}, best of {args.repeats} runs, resets included, "
+          f"{'CPU' if args.cpu else 'wall-clock'} time")
     print(f"{'robot':<14}{'CrowdNav-v0':>16}{'CrowdNavWarehouse-v0':>24}{'ratio':>8}")
     for label, steps, make in (("fixed action", args.steps, lambda e: None),
                                ("random x 8", args.steps, lambda e: RANDOM),
                                ("ORCA robot", args.steps // 4, lambda e: OrcaPolicy.from_env(e, mapping="constrained"))):
-        open_floor = best(env, steps, make(env), args.repeats)
-        hall = best(warehouse, steps, make(warehouse), args.repeats)
+        open_floor = best(env, steps, make(env), args.repeats, args.cpu)
+        hall = best(warehouse, steps, make(warehouse), args.repeats, args.cpu)
         print(f"{label:<14}{open_floor:>12,.0f} /s{hall:>20,.0f} /s{hall / open_floor:>8.2f}")
         if args.breakdown:
             for name, e in (("CrowdNav-v0", env), ("CrowdNavWarehouse-v0", warehouse)):
-                print(f"{'':<14}{name}: {breakdown(e, steps, make(e))}")
+                print(f"{'':<14}{name}: {breakdown(e, steps, make(e), args.cpu)}")
 
 
 if __name__ == "__main__":

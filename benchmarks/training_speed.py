@@ -2,7 +2,7 @@
 
 Measures (one torch thread, 6 pedestrians):
   (1) ORCA imitation collection [episodes/s] and the imitation regression [s per epoch per 1,000 states];
-  (2) RL training [env steps/s and episodes/h] (ε-greedy lookahead + one batch-100 gradient step every 4 env steps);
+  (2) RL training [env steps/s and episodes/h] (ε-greedy lookahead + one batch-100 gradient step every 8 env steps);
   (3) the projected wall time of 3,000 IL + 10,000 RL episodes, for the measured RL episode length and for
       ``--episode-length`` steps per episode: the mean over the paper's schedule, where ε falls from 0.5 to 0.1
       (default 51.2, the mean of a full APG_RL run; the short run here starts from a 200-episode imitation model
@@ -11,14 +11,15 @@ Measures (one torch thread, 6 pedestrians):
   (4) the bare decision rate (greedy lookaheads per second on real observations, the env not timed) and the
       acting efficiency: RL env steps/s with learning on over that rate, measured in the same run.
 
-Usage: python benchmarks/training_speed.py [--n-envs 1] [--train-freq 4] [--rl-steps 3000] [--il-episodes 200]
-                                          [--dtype float32|bfloat16] [--optimizer adam|sgd] [--overlap [thread|process]]
+Usage: python benchmarks/training_speed.py [--n-envs 1] [--train-freq 8] [--rl-steps 3000] [--il-episodes 200]
+                                          [--dtype float32|bfloat16] [--optimizer adam|sgd] [--overlap [process|thread|off]]
                                           [--from-pretrained apg_rl] [--epsilon 0.1]
 
-``--overlap [thread|process]`` runs the gradient steps in a second thread (or process) while the env collects the
-next steps (``APGValue(overlap_training=...)``): the paper's schedule on both cores. The RL rate is timed after
-the first tenth of the steps, so that a learner process's start-up (a few seconds, once per ``learn()``) is not
-counted in it.
+``--overlap process`` (the default, as ``sb3-crowdnav train --variant``; ``thread``, or ``off``) runs the gradient
+steps in a second process while the env collects the next steps (``APGValue(overlap_training=...)``): the paper's
+schedule on both cores. The defaults (process, one gradient step per 8 env steps) are ``apg_rl``'s schedule.
+The RL rate is timed after the first tenth of the steps, so that a learner process's start-up (a few seconds, once
+per ``learn()``) is not counted in it.
 """
 
 from __future__ import annotations
@@ -76,7 +77,8 @@ class _SteadyClock(BaseCallback):
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__)
     p.add_argument("--n-envs", type=int, default=1)
-    p.add_argument("--train-freq", type=int, default=4, help="one gradient step every this many env steps (per env)")
+    p.add_argument("--train-freq", type=int, default=8,
+                   help="one gradient step every this many env steps (per env; default 8, apg_rl's schedule)")
     p.add_argument("--rl-steps", type=int, default=3000)
     p.add_argument("--il-episodes", type=int, default=200)
     p.add_argument("--imitation-epochs", type=int, default=10)
@@ -89,9 +91,9 @@ def main() -> None:
                    help="mean RL episode length [steps] over the paper's schedule, for the projection")
     p.add_argument("--dtype", default="float32", choices=("float32", "bfloat16"), help="lookahead precision when acting")
     p.add_argument("--optimizer", default="adam", choices=("adam", "sgd"), help="RL optimiser (APGValue's default: adam)")
-    p.add_argument("--overlap", nargs="?", const="thread", default=False, choices=("thread", "process"),
-                   help="APGValue(overlap_training=...): gradient steps on the second core, in a thread (default) or "
-                        "in a process")
+    p.add_argument("--overlap", nargs="?", const="thread", default="process", choices=("thread", "process", "off"),
+                   help="APGValue(overlap_training=...): gradient steps on the second core, in a process (default, "
+                        "as sb3-crowdnav train) or a thread (also a bare --overlap), or off (on the acting core)")
     p.add_argument("--from-pretrained", metavar="NAME",
                    help="start RL from a shipped model's weights (e.g. apg_rl), as the acting-efficiency measurement of "
                         "the issue tracker does; imitation is then only timed, not used")
@@ -105,7 +107,8 @@ def main() -> None:
     eps = {} if args.epsilon is None else dict(exploration_initial_eps=args.epsilon, exploration_final_eps=args.epsilon)
     model = APGValue("ApgPolicy", env, seed=0, imitation_episodes=args.il_episodes, imitation_epochs=2,
                      train_freq=args.train_freq,
-                     policy_kwargs=policy_kwargs, overlap_training=args.overlap, **eps)
+                     policy_kwargs=policy_kwargs, overlap_training=False if args.overlap == "off" else args.overlap,
+                     **eps)
 
     model.set_logger(configure(None, [""]))
     epochs, model.imitation_epochs = model.imitation_epochs, 0

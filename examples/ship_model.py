@@ -2,6 +2,10 @@
 
     python examples/ship_model.py runs/apg_rl/best.zip apg_rl
     python examples/ship_model.py runs/apg_warehouse/best.zip apg_warehouse --pedestrian-model cautious
+    python examples/ship_model.py runs/apg_warehouse/checkpoint_{6000,6500,7000,7500,8000}.zip apg_warehouse
+
+Several checkpoints ship the mean of their weights (``sb3_crowdnav.training.average_checkpoints``; the first
+checkpoint's settings).
 
 The optimiser's momentum buffers are dropped (they only matter to continue training, and a continued run
 starts from its own checkpoint); weights and every constructor setting are kept. A ``best.zip`` is shipped
@@ -22,21 +26,32 @@ import gymnasium as gym
 
 from sb3_crowdnav.models import PRETRAINED, WEIGHTS_DIR, load_model
 from sb3_crowdnav.serialization import read_world, write_spaces
+from sb3_crowdnav.training import average_checkpoints
 
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("checkpoint", type=Path)
+    p.add_argument("checkpoints", type=Path, nargs="+", metavar="checkpoint")
     p.add_argument("name", choices=sorted(PRETRAINED))
     p.add_argument("--pedestrian-model", choices=("constant_velocity", "cautious"),
                    help="ship a value model with this lookahead pedestrian model (default: the checkpoint's)")
     args = p.parse_args()
-    record = args.checkpoint.with_name("best.json")
-    if args.checkpoint.name == "best.zip" and record.exists():
-        expected = json.loads(record.read_text()).get("sha256")
-        if expected and hashlib.sha256(args.checkpoint.read_bytes()).hexdigest() != expected:
-            p.error(f"{args.checkpoint} is not the file {record} recorded: damaged, not shipped")
-    model = load_model(args.checkpoint, algo=PRETRAINED[args.name])
+    for checkpoint in args.checkpoints:
+        record = checkpoint.with_name("best.json")
+        if checkpoint.name == "best.zip" and record.exists():
+            expected = json.loads(record.read_text()).get("sha256")
+            if expected and hashlib.sha256(checkpoint.read_bytes()).hexdigest() != expected:
+                p.error(f"{checkpoint} is not the file {record} recorded: damaged, not shipped")
+    args.checkpoint = args.checkpoints[0]
+    if len(args.checkpoints) > 1:
+        if PRETRAINED[args.name] != "apg_value":
+            p.error(f"checkpoint: averaging several is for value models, {args.name} is {PRETRAINED[args.name]}")
+        try:
+            model = average_checkpoints(args.checkpoints)
+        except ValueError as exc:
+            p.error(str(exc))
+    else:
+        model = load_model(args.checkpoint, algo=PRETRAINED[args.name])
     model.policy.optimizer.state = collections.defaultdict(dict)
     if args.pedestrian_model:
         if not hasattr(model.policy, "set_pedestrian_model"):

@@ -59,15 +59,22 @@ def compact(results_csv: Path, key: str = "method") -> str:
     return "\n".join(lines)
 
 
-def run_wall_time(folder: Path) -> str:
-    """The wall time of a run folder: from ``config.json``, written at its start, to the validation of its
-    ``best.zip`` (the shipped checkpoint), or of its last checkpoint without one."""
+def run_wall_time(folder: Path, episodes: int | None = None) -> str:
+    """The wall time of a run folder: from ``config.json``, written at its start, to the validation of the checkpoint
+    of ``episodes`` RL episodes (the last one a shipped average used) or else of its ``best.zip`` (the shipped
+    checkpoint), or of its last checkpoint without one."""
     if not folder.is_dir():
         return "–"
     config = json.loads((folder / "config.json").read_text())
     if "wall_time_s" in config:  # an --algo run records its own
         return f"{config['wall_time_s'] / 60:.0f} min"
     start = (folder / "config.json").stat().st_mtime
+    if episodes is not None:
+        rows = [json.loads(line) for line in (folder / "eval_curve.jsonl").read_text().splitlines() if line]
+        row = next((r for r in rows if r["episodes"] == episodes), None)
+        if row is None:
+            raise SystemExit(f"--apg-episodes {episodes}: no validation of that checkpoint in {folder}")
+        return f"{(row['wall'] - start) / 60:.0f} min (to the validation of checkpoint {episodes})"
     if (folder / "best.json").is_file():
         best = json.loads((folder / "best.json").read_text())
         return f"{(best['wall'] - start) / 60:.0f} min (to the validation of best.zip, {best['episodes']} RL episodes)"
@@ -83,6 +90,9 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--out", type=Path, default=Path("paper_results/warehouse"))
     p.add_argument("--unshaped", metavar="ZIP", help="also evaluate this model trained without progress shaping")
     p.add_argument("--runs", type=Path, help="folder holding the run folders apg_warehouse and ppo_warehouse")
+    p.add_argument("--apg-episodes", type=int, metavar="N",
+                   help="time the apg_warehouse run to its checkpoint N (the last one a shipped average used; "
+                        "default: its best.zip)")
     p.add_argument("--sweep", type=int, nargs="+", default=SWEEP, help="pickers of the sweep (default: 2 4 6 8 10)")
     p.add_argument("--gif", action=argparse.BooleanOptionalAction, default=True, help="a GIF per policy")
     args = p.parse_args(argv)
@@ -102,7 +112,8 @@ def main(argv: list[str] | None = None) -> None:
     text += [f"## {title}\n\n{compact(path, key)}\n" for title, path, key in sections]
     if args.runs:
         text.append("## Training wall time (2 cores)\n")
-        text += [f"- {name}: {run_wall_time(args.runs / name)}" for name in ("apg_warehouse", "ppo_warehouse")]
+        text += [f"- {name}: {run_wall_time(args.runs / name, args.apg_episodes if name == 'apg_warehouse' else None)}"
+                 for name in ("apg_warehouse", "ppo_warehouse")]
     (args.out / "summary.md").write_text("\n".join(text) + "\n")
     print((args.out / "summary.md").read_text())
 

@@ -292,3 +292,29 @@ def test_a_picker_walks_from_its_slot_to_the_next_along_the_slots_route():
         for i in range(pickers.n):
             if pickers.dwell[i] == 0:  # walking: the route of the slot it left to the slot it walks to ends there
                 assert pickers.routes[i][-1] == pickers.slots[pickers.slot[i]].tolist()
+
+
+def test_observed_segments_and_hit_candidates_come_from_the_stable_order_of_the_distances():
+    """The observed segments are the first of the distances' stable order within range, and the swept-collision
+    candidates the segments closer than the radius + the step, as with the distances themselves."""
+    from sb3_crowdnav.sim.geometry import segment_distance_scalar
+
+    env = gym.make("CrowdNavWarehouse-v0", num_humans=6)
+    sim, rng = env.unwrapped.sim, np.random.default_rng(0)
+    for episode in range(6):
+        env.reset(seed=episode)
+        terminated = truncated = False
+        while not (terminated or truncated):
+            p0 = sim.robot[Robot.POS].tolist()
+            _, _, terminated, truncated, _ = env.step(int(rng.integers(80)))
+            p1 = sim.robot[Robot.POS].tolist()
+            d = sim._distances(*p1)
+            seen = np.argsort(d, kind="stable")[: min(16, int(np.count_nonzero(d <= sim.config.sensor_range)))]
+            segments, mask = sim.observed_obstacles()
+            np.testing.assert_array_equal(segments[: len(seen)], sim.segments[seen])
+            assert mask.sum() == len(seen) and not segments[len(seen):].any()
+            reach = sim.scene.robot_radius + float(np.hypot(p1[0] - p0[0], p1[1] - p0[1]))
+            near = sorted(sim._seg_order[: np.searchsorted(sim._seg_sorted, reach)].tolist())
+            assert near == np.flatnonzero(d < reach).tolist()
+            hit = any(segment_distance_scalar(p0, p1, s[:2], s[2:]) < sim.scene.robot_radius for s in sim.segments.tolist())
+            assert (not hit or terminated) and (hit or not sim.hit_obstacle)

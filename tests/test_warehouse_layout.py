@@ -212,3 +212,124 @@ def test_a_remembered_slot_route_is_the_route_planned_afresh(seed):
     for (i, j), route in zip(pairs, first, strict=True):
         np.testing.assert_array_equal(route, fresh.route(slots.points[i], slots.points[j])[1:])
         assert route[-1] == slots.points[j].tolist()
+
+
+# ---------------------------------------------------------------------- the roadmap's search without networkx's graph
+def _networkx_route(roadmap, start, goal):
+    """The route as the roadmap planned it with networkx: its graph, the ends joined with add_weighted_edges_from
+    (the start's edges, then the goal's), nx.astar_path with the straight distance to the goal, the ends removed."""
+    import networkx as nx
+
+    start, goal = np.asarray(start, dtype=np.float64), np.asarray(goal, dtype=np.float64)
+    if roadmap._visible_one(start, goal):
+        return np.stack([start, goal])
+    (from_start, start_lengths), (to_goal, goal_lengths) = roadmap._joins(start), roadmap._joins(goal)
+    if len(roadmap.corners) and not (from_start and to_goal):
+        if not from_start:
+            nearest = roadmap.corners[np.argmin(np.linalg.norm(roadmap.corners - start, axis=1))]
+            return np.concatenate([start[None], _networkx_route(roadmap, nearest, goal)])
+        nearest = roadmap.corners[np.argmin(np.linalg.norm(roadmap.corners - goal, axis=1))]
+        return np.stack([start, goal]) if (nearest == start).all() else \
+            np.concatenate([_networkx_route(roadmap, start, nearest), goal[None]])
+    graph, n = roadmap.graph, len(roadmap.corners)
+    points = np.concatenate([roadmap.corners, start[None], goal[None]])
+    remaining = np.linalg.norm(points - goal, axis=1).tolist()
+    try:
+        graph.add_weighted_edges_from(itertools.chain(
+            zip([n] * len(from_start), from_start, start_lengths, strict=True),
+            zip([n + 1] * len(to_goal), to_goal, goal_lengths, strict=True)))
+        path = nx.astar_path(graph, n, n + 1, heuristic=lambda u, _: remaining[u])
+    except (nx.NetworkXNoPath, nx.NodeNotFound):
+        raise ValueError("no route") from None
+    finally:
+        graph.remove_nodes_from((n, n + 1))
+    return points[path]
+
+
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("polygons", [False, True])
+def test_routes_are_networkx_astar_paths(seed, polygons):
+    """Routes in floats (``waypoints``) and arrays (``route``) are the former array program's paths (the same one among
+    equally short ones: regular layouts have many) between free points, pick slots, corners, points in racks and
+    outside the hall."""
+    from sb3_crowdnav.sim.config import SceneConfig
+    from sb3_crowdnav.sim.warehouse.pickers import pick_slots
+
+    rng = np.random.default_rng(seed)
+    layout = generate_layout(rng)
+    slots = pick_slots(layout, SceneConfig(scenario="warehouse"))
+    if polygons:
+        layout = _as_polygons(layout)
+    ours, theirs = Roadmap(layout, 0.32), Roadmap(layout, 0.32)
+    points = np.concatenate([_points(rng, layout, 40), slots[rng.integers(len(slots), size=30)],
+                             ours.corners[rng.integers(len(ours.corners), size=10)],
+                             rng.uniform(-20, 20, (5, 2))])
+    rng.shuffle(points)
+    for a, b in itertools.pairwise(points):
+        try:
+            expected = _networkx_route(theirs, a, b)
+        except ValueError:
+            with pytest.raises(ValueError, match="no route"):
+                ours.route(a, b)
+            continue
+        route = ours.route(a, b)
+        np.testing.assert_array_equal(route, expected)
+        assert ours.waypoints(a, b) == expected.tolist()
+
+
+def test_the_search_finds_no_route_where_networkx_finds_none():
+    split = WarehouseLayout(10, 10, (_rect(-5, -0.5, 5, 0.5), _rect(-3, 2, 3, 3)))  # not validated: split in two
+    roadmap = Roadmap(split, ROBOT_RADIUS)
+    for a, b in [((0, -3), (0, 4)), ((-4, 1.5), (0, -2))]:
+        with pytest.raises(ValueError, match="no route"):
+            roadmap.route(a, b)
+        with pytest.raises(ValueError, match="no route"):
+            _networkx_route(Roadmap(split, ROBOT_RADIUS), a, b)
+
+
+def test_route_length_is_numpys():
+    rng = np.random.default_rng(0)
+    for n in range(1, 14):
+        for _ in range(300):
+            route = rng.uniform(-10, 10, (n, 2)) * 10.0 ** rng.uniform(-2, 1, (n, 1))
+            expected = float(np.sum(np.linalg.norm(np.diff(route, axis=0), axis=1)))
+            assert Roadmap.route_length(route) == expected and Roadmap.route_length(route.tolist()) == expected
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_a_layouts_segments_are_its_polygons_edges(seed):
+    """The cached segments (built from one vertex array for a generated layout) are polygon_segments' of the racks and
+    the hall, read-only; a layout built from the same racks one by one has the same racks, segments and boxes."""
+    from sb3_crowdnav.sim.geometry import polygon_segments
+
+    layout = generate_layout(np.random.default_rng(seed))
+    plain = WarehouseLayout(layout.width, layout.height, tuple(np.array(r) for r in layout.racks))
+    for ours in (layout, plain):
+        np.testing.assert_array_equal(ours.segments, polygon_segments([*layout.racks, layout.hall_vertices]))
+        np.testing.assert_array_equal(ours.rack_segments, polygon_segments(layout.rack_vertices))
+        assert not ours.segments.flags.writeable and not any(r.flags.writeable for r in ours.racks)
+    np.testing.assert_array_equal(layout.boxes, plain.boxes)
+    assert all((a == b).all() for a, b in zip(layout.racks, plain.racks, strict=True))
+    with pytest.raises(ValueError, match="non-finite"):
+        WarehouseLayout(10, 10, np.array([_rect(-1, -1, 1, 1) * np.nan]))
+
+
+def test_the_float_clipping_is_segments_miss_boxes():
+    """The roadmap's clipping of one segment in floats (rows, joins, sight) answers as the NumPy clipping, on random
+    segments and on degenerate ones: along the boxes' sides, through their corners, axis-parallel, of zero length."""
+    from sb3_crowdnav.sim.warehouse.boxes import segments_miss_boxes
+    from sb3_crowdnav.sim.warehouse.roadmap import _misses
+
+    rng = np.random.default_rng(0)
+    for _ in range(40):
+        corners = np.sort(rng.uniform(-5, 5, (6, 2, 2)), axis=1)  # (box, lo/hi, x/y)
+        boxes = corners.reshape(6, 4)  # xmin, ymin, xmax, ymax
+        xs = np.concatenate([corners[:, :, 0].ravel(), rng.uniform(-6, 6, 6)])
+        ys = np.concatenate([corners[:, :, 1].ravel(), rng.uniform(-6, 6, 6)])
+        a = np.stack([rng.choice(xs, 500), rng.choice(ys, 500)], axis=1)
+        b = np.stack([rng.choice(xs, 500), rng.choice(ys, 500)], axis=1)
+        b[:100, 0], b[100:200, 1], b[200:220] = a[:100, 0], a[100:200, 1], a[200:220]
+        a, b = np.concatenate([a, rng.uniform(-6, 6, (200, 2))]), np.concatenate([b, rng.uniform(-6, 6, (200, 2))])
+        expected = segments_miss_boxes(a, b, boxes)
+        listed = boxes.tolist()
+        assert [_misses(listed, *p, *q) for p, q in zip(a.tolist(), b.tolist(), strict=True)] == expected.tolist()

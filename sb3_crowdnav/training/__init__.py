@@ -4,9 +4,11 @@
   RL by episodes) with checkpoints, resume, signals, validation and best-model selection
   (``sb3-crowdnav train --variant NAME``);
 - :func:`train_from_hyperparams` and the rl-zoo3 YAML reading (``sb3-crowdnav train --hyperparams FILE``);
+- :func:`average_checkpoints`: one model with the mean weights of a run's checkpoints (weight averaging);
 - :mod:`sb3_crowdnav.training.zoo`: ``apg_value`` added to rl-zoo3 itself (``sb3-crowdnav-zoo``).
 """
 
+from sb3_crowdnav.training.averaging import average_checkpoints
 from sb3_crowdnav.training.callbacks import VALIDATION_SEED_OFFSET, EpisodeCheckpoint
 from sb3_crowdnav.training.hyperparams import load_hyperparams, prepare, safe_eval, train_from_hyperparams
 from sb3_crowdnav.training.schedule import VARIANTS, ScheduleConfig, ScheduleResult, Variant, train_schedule
@@ -18,6 +20,7 @@ __all__ = [
     "ScheduleConfig",
     "ScheduleResult",
     "Variant",
+    "average_checkpoints",
     "load_hyperparams",
     "prepare",
     "safe_eval",

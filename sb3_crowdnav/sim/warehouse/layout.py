@@ -32,6 +32,7 @@ import shapely
 from shapely.geometry import LineString, Polygon, box
 
 from sb3_crowdnav.sim.config import check_int, check_number
+from sb3_crowdnav.sim.geometry import polygon_segments
 from sb3_crowdnav.sim.warehouse.boxes import rack_boxes
 from sb3_crowdnav.sim.warehouse.roadmap import Roadmap  # re-exported: the roadmap of a layout
 
@@ -80,7 +81,8 @@ class WarehouseLayout:
 
     :param width: hall size along x [m]
     :param height: hall size along y [m]
-    :param racks: rack polygons, each a (k, 2) sequence of vertices (k >= 3), inside the hall
+    :param racks: rack polygons, each a (k, 2) sequence of vertices (k >= 3), inside the hall (or one (B, k, 2)
+        float array of them: checked at once)
     """
 
     width: float
@@ -90,6 +92,13 @@ class WarehouseLayout:
     def __post_init__(self) -> None:
         check_number("width", self.width)
         check_number("height", self.height)
+        if isinstance(self.racks, np.ndarray) and self.racks.dtype == np.float64 and self.racks.ndim == 3 and \
+                self.racks.shape[1] >= 3 and self.racks.shape[2] == 2 and np.isfinite(self.racks).all():
+            # racks of as many vertices each in one array (layout_from_sizes'): the same checks at once
+            vertices = np.array(self.racks)
+            vertices.setflags(write=False)
+            object.__setattr__(self, "racks", tuple(vertices))  # read-only views
+            return
         racks = []
         for i, rack in enumerate(self.racks):
             vertices = np.asarray(rack, dtype=np.float64)
@@ -142,6 +151,21 @@ class WarehouseLayout:
         """Every static obstacle (the racks, then the four walls) as a (k, 2) vertex array, counter-clockwise
         (:attr:`rack_vertices`, then :attr:`wall_polygons`)."""
         return [*self.rack_vertices, *self.wall_polygons]
+
+    @functools.cached_property
+    def segments(self) -> np.ndarray:
+        """Every obstacle edge as (S, 4) segments ``[x0, y0, x1, y1]`` (read-only): the racks' (as given), then the
+        hall's four (its inner faces, from :attr:`hall_vertices`); ``polygon_segments`` of them."""
+        segments = polygon_segments([*self.racks, self.hall_vertices])
+        segments.setflags(write=False)
+        return segments
+
+    @functools.cached_property
+    def rack_segments(self) -> np.ndarray:
+        """The edges of :attr:`rack_vertices` (the racks counter-clockwise) as (R, 4) segments (read-only)."""
+        segments = polygon_segments(self.rack_vertices)
+        segments.setflags(write=False)
+        return segments
 
     @functools.cached_property
     def boxes(self) -> np.ndarray | None:
@@ -262,19 +286,26 @@ def layout_from_sizes(rows: int, segments: int, rack_length: float, rack_depth: 
     """The regular layout of ``rows`` x ``segments`` racks with these sizes [m] (the hall fits around them)."""
     width = 2 * cross_aisle_width + segments * rack_length + (segments - 1) * cross_aisle_width
     height = (rows + 1) * aisle_width + rows * rack_depth
-    corners = []  # the four vertices of every rack, in floats; one array of all of them below
+    flat = []  # the four vertices of every rack (_box_vertices' order), then the hall's, in floats: one array below
     for row in range(rows):
         y0 = -height / 2 + aisle_width + row * (rack_depth + aisle_width)
         for seg in range(segments):
             x0 = -width / 2 + cross_aisle_width + seg * (rack_length + cross_aisle_width)
             x1, y1 = x0 + rack_length, y0 + rack_depth
-            corners.append(((x1, y0), (x1, y1), (x0, y1), (x0, y0)))  # _box_vertices' order
-    vertices = np.array(corners, dtype=np.float64).reshape(-1, 4, 2)
-    layout = WarehouseLayout(width=width, height=height, racks=tuple(vertices))
+            flat += (x1, y0, x1, y1, x0, y1, x0, y0)
+    w, h = width / 2, height / 2
+    flat += (w, -h, w, h, -w, h, -w, -h)  # hall_vertices'
+    rings = np.array(flat, dtype=np.float64).reshape(-1, 4, 2)
+    vertices = rings[:-1]
+    layout = WarehouseLayout(width=width, height=height, racks=vertices)
     # the cached properties, known without the checks: [xmin, ymin, xmax, ymax] (what rack_boxes finds), and the
     # racks, counter-clockwise already
     layout.__dict__["boxes"] = vertices[:, [3, 1]].reshape(-1, 4)
     layout.__dict__["rack_vertices"] = list(layout.racks)
+    # and the edges, every vertex with its successor (polygon_segments' rows, copied from the same vertices)
+    segments = np.concatenate([rings, rings[:, [1, 2, 3, 0]]], axis=2).reshape(-1, 4)
+    segments.setflags(write=False)
+    layout.__dict__["segments"], layout.__dict__["rack_segments"] = segments, segments[: 4 * len(vertices)]
     return layout
 
 

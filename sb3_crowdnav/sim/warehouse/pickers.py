@@ -24,7 +24,6 @@ from shapely.geometry import Point
 from shapely.ops import nearest_points
 
 from sb3_crowdnav.sim.config import SceneConfig
-from sb3_crowdnav.sim.geometry import polygon_segments
 from sb3_crowdnav.sim.orca import OrcaCrowd
 from sb3_crowdnav.sim.warehouse.boxes import in_free_space, point_clearance
 from sb3_crowdnav.sim.warehouse.layout import WarehouseLayout
@@ -39,10 +38,9 @@ def pick_slots(layout: WarehouseLayout, scene: SceneConfig) -> np.ndarray:
     spaced by a picker's diameter + 0.2 m, kept where a picker fits; (n, 2)."""
     radius = scene.human_radius
     spacing, offset = 2 * radius + 0.2, radius + SLOT_OFFSET
-    racks = layout.rack_vertices  # counter-clockwise: the normal (dy, -dx) points out
-    if not racks:
+    segments = layout.rack_segments  # of the racks counter-clockwise: the normal (dy, -dx) points out
+    if not len(segments):
         return np.zeros((0, 2))
-    segments = polygon_segments(racks)
     (ax, ay), (ex, ey) = segments[:, :2].T, (segments[:, 2:] - segments[:, :2]).T
     length = np.hypot(ex, ey)
     count = np.where(length >= spacing, length // spacing, 0.0).astype(np.int64)  # slots per edge
@@ -73,6 +71,7 @@ class PickSlots:
         self.layout = layout
         self.points = pick_slots(layout, scene)
         self.roadmap = Roadmap(layout, clearance)
+        self._point_list = self.points.tolist()
         self._routes: dict[tuple[int, int], list[list[float]] | None] = {}
 
     def route(self, i: int, j: int) -> list[list[float]] | None:
@@ -81,7 +80,7 @@ class PickSlots:
         key = (i, j)
         if key not in self._routes:
             try:
-                self._routes[key] = self.roadmap.route(self.points[i], self.points[j])[1:].tolist()
+                self._routes[key] = self.roadmap.waypoints(self._point_list[i], self._point_list[j])[1:]
             except ValueError:
                 self._routes[key] = None
         return self._routes[key]

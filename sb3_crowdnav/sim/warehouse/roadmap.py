@@ -14,7 +14,7 @@ import shapely
 from shapely.geometry import Point
 
 from sb3_crowdnav.sim.config import check_number
-from sb3_crowdnav.sim.warehouse.boxes import segment_meets_box, segments_miss_boxes, separated
+from sb3_crowdnav.sim.warehouse.boxes import segments_miss_boxes, separated
 
 if TYPE_CHECKING:
     from sb3_crowdnav.sim.warehouse.layout import WarehouseLayout
@@ -27,14 +27,15 @@ def _pairs(n: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 class Roadmap:
-    """Shortest routes through the free space of a disc of radius ``clearance``: a visibility graph (``networkx``).
+    """Shortest routes through the free space of a disc of radius ``clearance``: A* on a visibility graph.
 
     The nodes are the corners of the free space shrunk by ``clearance`` (racks grown with square, mitred
     corners, so every corner is a point the disc can reach); two corners are joined when the straight segment
     between them stays in that free space (a segment along its boundary counts as inside), weighted by its
     length. A route adds the start and the goal to the graph, joined to the corners they see, and takes the A*
-    path: the shortest polygonal path around the obstacles. A start or goal outside the shrunk free space (a
-    picker pressed against a rack) is joined to its nearest corner, from which the route goes on as from a start.
+    path (``networkx.astar_path``): the shortest polygonal path around the obstacles. A start or goal outside the
+    shrunk free space (a picker pressed against a rack) is joined to its nearest corner, from which the route goes
+    on as from a start.
 
     When the racks are boxes whose grown copies stay apart and off the walls (every generated layout), the free
     space is the shrunk hall minus the boxes grown by ``clearance`` (shapely's mitred buffers of the racks, whose
@@ -55,18 +56,19 @@ class Roadmap:
         if self.grown is not None:
             x0, y0, x1, y1 = self._hall
             self._grown_list = self.grown.tolist()
-            node_list = [corner for gx0, gy0, gx1, gy1 in self._grown_list  # each rack counter-clockwise
-                         for corner in ((gx0, gy0), (gx1, gy0), (gx1, gy1), (gx0, gy1))]
-            self.corners = np.array([(x0, y0), (x0, y1), (x1, y1), (x1, y0), *node_list]).reshape(-1, 2)
-            # a segment leaving a rack's corner along (dx, dy) passes it on the outside when side * dx * dy <= 0
-            side_list = [1.0, -1.0, 1.0, -1.0] * len(self._grown_list)
-            self._sides = np.array([0.0] * 4 + side_list)
+            # the hall's corners, then each rack's counter-clockwise from (xmin, ymin)
+            self.corners = np.concatenate([[(x0, y0), (x0, y1), (x1, y1), (x1, y0)],
+                                           self.grown[:, [0, 1, 2, 1, 2, 3, 0, 3]].reshape(-1, 2)])
             self._nodes = np.arange(4, len(self.corners))
-            self._node_rows = [(k, cx, cy, side)  # every node: its number, corner and side, for the joins in floats
-                               for k, ((cx, cy), side) in enumerate(zip(node_list, side_list, strict=True), 4)]
+            # every node: its number, corner and side, for the joins in floats (a segment leaving a rack's corner
+            # along (dx, dy) passes it on the outside when side * dx * dy <= 0)
+            self._corner_list = self.corners.tolist()
+            self._node_rows = [(k, cx, cy, side) for k, (cx, cy), side in
+                               zip(range(4, len(self.corners)), self._corner_list[4:],
+                                   [1.0, -1.0, 1.0, -1.0] * len(self._grown_list), strict=True)]
             # touching a grown rack is allowed
-            self._open_list = [(a + 1e-6, b + 1e-6, c - 1e-6, d - 1e-6) for a, b, c, d in self._grown_list]
-            self._open = np.array(self._open_list).reshape(-1, 4)
+            self._open = self.grown + np.array([1e-6, 1e-6, -1e-6, -1e-6])
+            self._open_list = self._open.tolist()
         else:
             self._cover = self.free.buffer(1e-6)  # segments along the boundary count as inside
             shapely.prepare(self._cover)
@@ -74,6 +76,7 @@ class Roadmap:
                      for ring in (poly.exterior, *poly.interiors)]
             self.corners = np.concatenate([np.asarray(r.coords)[:-1] for r in rings]) if rings else np.zeros((0, 2))
             self._nodes = np.arange(len(self.corners))
+            self._corner_list = self.corners.tolist()
 
     @functools.cached_property
     def graph(self) -> nx.Graph:
@@ -85,7 +88,8 @@ class Roadmap:
         return graph
 
     def _edges(self) -> tuple[list[int], list[int], list[float]]:
-        """The graph's edges: both corners and the length of every pair of corners that see each other.
+        """The graph's edges: both corners and the length of every pair of corners that see each other, in the order
+        of ``np.triu_indices``.
 
         With boxes only the bitangents: a segment leaving a rack's corner along (dx, dy) passes it on the outside
         of the rack (both sides of the rack at the corner on one side of the segment, as each segment of a shortest
@@ -99,7 +103,8 @@ class Roadmap:
             visible = self._visible(a, b)
         else:
             turn = d[:, 0] * d[:, 1]
-            keep = (self._sides[i] * turn <= 0) & (self._sides[j] * turn <= 0)
+            sides = np.array([0.0] * 4 + [1.0, -1.0, 1.0, -1.0] * len(self._grown_list))  # around each rack
+            keep = (sides[i] * turn <= 0) & (sides[j] * turn <= 0)
             i, j, a, b, d = i[keep], j[keep], a[keep], b[keep], d[keep]
             visible = segments_miss_boxes(a, b, self._open)
         lengths = np.linalg.norm(d[visible], axis=1)
@@ -143,21 +148,15 @@ class Roadmap:
     def _visible_one(self, a: np.ndarray, b: np.ndarray) -> bool:
         """:meth:`_visible` of the one segment ``a``-``b`` (in floats when the racks are boxes)."""
         if self.grown is None:
-            return bool(self._visible(a[None], b[None])[0])
-        (ax, ay), (bx, by), (x0, y0, x1, y1) = a.tolist(), b.tolist(), self._hall
+            return bool(self._visible(np.asarray(a, dtype=np.float64)[None], np.asarray(b, dtype=np.float64)[None])[0])
+        (ax, ay), (bx, by), (x0, y0, x1, y1) = _floats(a), _floats(b), self._hall
         inside = x0 - 1e-6 <= min(ax, bx) and max(ax, bx) <= x1 + 1e-6 and y0 - 1e-6 <= min(ay, by) and \
             max(ay, by) <= y1 + 1e-6
         return inside and self._misses_racks(ax, ay, bx, by)
 
     def _misses_racks(self, ax: float, ay: float, bx: float, by: float) -> bool:
         """Whether the segment enters none of the grown racks (floats; racks beside its bounding box skipped)."""
-        (sx0, sx1), (sy0, sy1) = (ax, bx) if ax < bx else (bx, ax), (ay, by) if ay < by else (by, ay)
-        for box in self._open_list:  # (a plain loop: any() over a generator costs twice as much here)
-            x0, y0, x1, y1 = box
-            if x0 < sx1 and sx0 < x1 and y0 < sy1 and sy0 < y1 and \
-                    segment_meets_box(ax, ay, bx - ax, by - ay, box, interior=True):
-                return False
-        return True
+        return _misses(self._open_list, ax, ay, bx, by)
 
     def _joins(self, point: np.ndarray) -> tuple[list[int], list[float]]:
         """The graph's corners a route's end at ``point`` sees (and passes on the outside) and the edges' lengths;
@@ -183,20 +182,25 @@ class Roadmap:
     def route(self, start: Sequence[float], goal: Sequence[float]) -> np.ndarray:
         """Waypoints (n, 2) from ``start`` to ``goal`` (both included) through the free space; ``ValueError`` when
         no route exists."""
-        start, goal = np.asarray(start, dtype=np.float64), np.asarray(goal, dtype=np.float64)
+        return np.array(self.waypoints(start, goal), dtype=np.float64).reshape(-1, 2)
+
+    def waypoints(self, start: Sequence[float], goal: Sequence[float]) -> list[list[float]]:
+        """:meth:`route` as a list of ``[x, y]`` floats (the same values)."""
+        start, goal = [float(start[0]), float(start[1])], [float(goal[0]), float(goal[1])]
         if self._visible_one(start, goal):
-            return np.stack([start, goal])
+            return [start, goal]
         (from_start, start_lengths), (to_goal, goal_lengths) = self._joins(start), self._joins(goal)
         if len(self.corners) and not (from_start and to_goal):  # an end outside the free space: via its nearest corner
             if not from_start:
-                nearest = self.corners[np.argmin(np.linalg.norm(self.corners - start, axis=1))]
-                return np.concatenate([start[None], self.route(nearest, goal)])
-            nearest = self.corners[np.argmin(np.linalg.norm(self.corners - goal, axis=1))]
-            return np.stack([start, goal]) if (nearest == start).all() else \
-                np.concatenate([self.route(start, nearest), goal[None]])
+                nearest = self.corners[np.argmin(np.linalg.norm(self.corners - start, axis=1))].tolist()
+                return [start, *self.waypoints(nearest, goal)]
+            nearest = self.corners[np.argmin(np.linalg.norm(self.corners - goal, axis=1))].tolist()
+            return [start, goal] if nearest == start else [*self.waypoints(start, nearest), goal]
         graph, n = self.graph, len(self.corners)
-        points = np.concatenate([self.corners, start[None], goal[None]])
-        remaining = np.linalg.norm(points - goal, axis=1).tolist()  # the A* heuristic of every node
+        points = [*self._corner_list, start, goal]
+        gx, gy = goal
+        # the A* heuristic of every node (np.linalg.norm's operations, in floats)
+        remaining = [math.sqrt((x - gx) * (x - gx) + (y - gy) * (y - gy)) for x, y in points]
         try:
             graph.add_weighted_edges_from(itertools.chain(  # (one call: networkx clears its caches once)
                 zip([n] * len(from_start), from_start, start_lengths, strict=True),
@@ -206,11 +210,49 @@ class Roadmap:
             raise ValueError(f"no route from {tuple(start)} to {tuple(goal)} in the free space") from None
         finally:
             graph.remove_nodes_from((n, n + 1))
-        return points[path]
+        return [[*points[k]] for k in path]  # (copies: the corners' lists stay the roadmap's)
 
     @staticmethod
-    def route_length(route: np.ndarray) -> float:
-        return float(np.sum(np.linalg.norm(np.diff(route, axis=0), axis=1)))
+    def route_length(route: np.ndarray | list[list[float]]) -> float:
+        """The length [m] of the polyline ``route`` (n, 2): ``np.sum`` of ``np.linalg.norm`` of ``np.diff``; in floats
+        below 8 segments (NumPy adds fewer than 8 values one after the other, from 0; more pairwise)."""
+        if len(route) > 8:
+            return float(np.sum(np.linalg.norm(np.diff(np.asarray(route, dtype=np.float64), axis=0), axis=1)))
+        points = route.tolist() if isinstance(route, np.ndarray) else route
+        total = 0.0
+        for (x0, y0), (x1, y1) in itertools.pairwise(points):
+            dx, dy = x1 - x0, y1 - y0
+            total += math.sqrt(dx * dx + dy * dy)
+        return total
+
+
+def _floats(point: Sequence[float]) -> list[float]:
+    return point.tolist() if isinstance(point, np.ndarray) else point
+
+
+def _misses(boxes: list[list[float]], ax: float, ay: float, bx: float, by: float) -> bool:
+    """Whether the segment from (ax, ay) to (bx, by) enters none of the open ``boxes`` (:func:`segments_miss_boxes` of
+    one segment, in floats): boxes beside its bounding box are skipped, the others clipped as
+    ``segment_meets_box(..., interior=True)`` does, written out (along an axis the segment does not move in, it is
+    strictly inside the box's slab when their bounding boxes overlap: no constraint)."""
+    (sx0, sx1), (sy0, sy1) = (ax, bx) if ax < bx else (bx, ax), (ay, by) if ay < by else (by, ay)
+    dx, dy = bx - ax, by - ay
+    for x0, y0, x1, y1 in boxes:  # (a plain loop: any() over a generator costs twice as much here)
+        if x0 < sx1 and sx0 < x1 and y0 < sy1 and sy0 < y1:
+            enter, leave = 0.0, 1.0
+            if dx != 0:
+                t0, t1 = (x0 - ax) / dx, (x1 - ax) / dx
+                if t1 < t0:
+                    t0, t1 = t1, t0
+                enter, leave = (t0 if t0 > 0.0 else 0.0), (t1 if t1 < 1.0 else 1.0)
+            if dy != 0:
+                t0, t1 = (y0 - ay) / dy, (y1 - ay) / dy
+                if t1 < t0:
+                    t0, t1 = t1, t0
+                enter, leave = (t0 if t0 > enter else enter), (t1 if t1 < leave else leave)
+            if enter < leave:
+                return False
+    return True
 
 
 __all__ = ["Roadmap"]

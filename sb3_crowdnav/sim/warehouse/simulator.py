@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections.abc import Sequence
 
@@ -13,7 +14,6 @@ from sb3_crowdnav.sim.config import RewardConfig, SceneConfig
 from sb3_crowdnav.sim.geometry import (
     SEGMENT_DIM,
     point_segment_distance_scalar,
-    polygon_segments,
     segment_distance_scalar,
 )
 from sb3_crowdnav.sim.observation import HUMAN_DIM, ROBOT_DIM, Human, Robot
@@ -60,7 +60,9 @@ class WarehouseSimulator(CrowdSimulator):
         self.max_steps = 1
         self.pickers: PickerCrowd | None = None
         self.segments = np.zeros((0, 4))
-        self._seg_dist = np.zeros(0)  # distance from the robot's centre to every segment, kept current
+        self._segments_of: WarehouseLayout | None = None  # the layout whose segments are cached (see reset)
+        self._seg_dist = np.zeros(0)  # distance from the robot's centre to every segment, kept current (_sense)
+        self._seg_order, self._seg_sorted = np.zeros(0, dtype=np.int64), []  # their stable order, sorted in floats
         self.hit_obstacle = False
         self.layout: WarehouseLayout | None = config.layout
         self._fixed: tuple[Roadmap, PickSlots] | None = None
@@ -90,19 +92,20 @@ class WarehouseSimulator(CrowdSimulator):
         cfg, s = self.config, self.scene
         self.layout = cfg.layout if cfg.layout is not None else generate_layout(rng, cfg.layout_ranges)
         self.robot_map, picks = self._maps(self.layout)
-        self.segments = polygon_segments([*self.layout.racks, self.layout.hall_vertices])
-        self._sight = None  # where the robot's centre may go (shapely), built when _in_sight needs it
-        boxes = self.layout.boxes
-        self._boxes = None if boxes is None else [tuple(b) for b in boxes.tolist()]
-        self._segment_list = self.segments.tolist()
-        seg_ab = self.segments[:, 2:] - self.segments[:, :2]
-        self._seg_len2 = np.maximum(np.sum(seg_ab**2, axis=1), 1e-18)
-        (self._seg_ax, self._seg_ay), (self._seg_abx, self._seg_aby) = self.segments[:, :2].T.copy(), seg_ab.T.copy()
+        if self._segments_of is not self.layout:  # the segments and what the steps compute from them, per layout
+            self._segments_of, self.segments = self.layout, self.layout.segments
+            self._sight = None  # where the robot's centre may go (shapely), built when _in_sight needs it
+            boxes = self.layout.boxes
+            self._boxes = None if boxes is None else [tuple(b) for b in boxes.tolist()]
+            self._segment_list = self.segments.tolist()
+            seg_ab = self.segments[:, 2:] - self.segments[:, :2]
+            self._seg_len2 = np.maximum(np.sum(seg_ab**2, axis=1), 1e-18)
+            (self._seg_ax, self._seg_ay), (self._seg_abx, self._seg_aby) = self.segments[:, :2].T.copy(), seg_ab.T.copy()
         start, goal = self._stations(rng)
-        self._set_route(self.robot_map.route(start, goal))
+        self._set_route(self.robot_map.waypoints(start, goal))
         self.route_index, self.replans = 1, 0
         self._obstacles_of = (None, *self._obstacles_of[1:])  # another layout's segments
-        self.route_length = self.robot_map.route_length(self.route)
+        self.route_length = self.robot_map.route_length(self._route_points)
         self.max_steps = math.ceil((cfg.time_limit_slack + cfg.time_limit_factor * self.route_length / s.robot_v_pref)
                                    / s.time_step)
         first = self.route[1]
@@ -128,7 +131,7 @@ class WarehouseSimulator(CrowdSimulator):
         self._walk_dir = [(1.0, 0.0)] * self.num_humans
         self._walk_age = [s.history_length] * self.num_humans
         self.steps = 0
-        self._seg_dist = self._distances(*start.tolist())
+        self._sense(*start.tolist())
 
     def _stations(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         """Start and goal: free points (uniform) at least ``min_route_distance`` apart. Points are drawn uniformly
@@ -173,13 +176,20 @@ class WarehouseSimulator(CrowdSimulator):
         t = np.minimum(np.maximum((dx * abx + dy * aby) / self._seg_len2, 0.0), 1.0)
         return np.hypot(dx - t * abx, dy - t * aby)
 
+    def _sense(self, x: float, y: float) -> None:
+        """The distances from the robot's centre at (x, y) to every segment, their stable order and the sorted
+        distances in floats (the observed segments and the candidates of the swept collision are prefixes of it)."""
+        self._seg_dist = self._distances(x, y)
+        self._seg_order = np.argsort(self._seg_dist, kind="stable")
+        self._seg_sorted = self._seg_dist[self._seg_order].tolist()
+
     def observed_obstacles(self) -> tuple[np.ndarray, np.ndarray]:
         """The ``max_obstacles`` segments nearest the robot within ``sensor_range``: (M, 4), mask (M,)
-        (:func:`~sb3_crowdnav.sim.geometry.nearest_segments`' rule on the cached distances; kept while the same
-        segments are seen in the same order: the observation copies them)."""
+        (:func:`~sb3_crowdnav.sim.geometry.nearest_segments`' rule on the cached distances: the first of their stable
+        order, as many as are within range; kept while the same segments are seen in the same order: the observation
+        copies them)."""
         m = self.config.max_obstacles
-        seen = np.argsort(self._seg_dist, kind="stable")[: min(m, int(np.count_nonzero(
-            self._seg_dist <= self.config.sensor_range)))]
+        seen = self._seg_order[: min(m, bisect.bisect_right(self._seg_sorted, self.config.sensor_range))]
         key = seen.tobytes()
         if key != self._obstacles_of[0]:
             out, mask = np.zeros((m, SEGMENT_DIM)), np.zeros(m, dtype=bool)
@@ -198,11 +208,11 @@ class WarehouseSimulator(CrowdSimulator):
         return self._waypoints_of[2]
 
     # ------------------------------------------------------------------ step
-    def _blocked(self, p: list[float], q: list[float], candidates: np.ndarray) -> bool:
+    def _blocked(self, p: list[float], q: list[float], candidates: list[int]) -> bool:
         """Whether the robot's disc moving straight from ``p`` to ``q`` touches one of the ``candidates`` segments
         (:func:`~sb3_crowdnav.sim.geometry.segment_distance` below the radius; in floats, the same operations)."""
         radius = self.scene.robot_radius
-        for k in np.flatnonzero(candidates).tolist():
+        for k in candidates:
             x0, y0, x1, y1 = self._segment_list[k]
             if segment_distance_scalar(p, q, (x0, y0), (x1, y1)) < radius:
                 return True
@@ -220,8 +230,8 @@ class WarehouseSimulator(CrowdSimulator):
             shapely.prepare(self._sight)
         return bool(self._sight.covers(LineString([a, b])))
 
-    def _set_route(self, route: np.ndarray) -> None:
-        self.route, self._route_points = route, route.tolist()
+    def _set_route(self, points: list[list[float]]) -> None:
+        self.route, self._route_points = np.array(points, dtype=np.float64), points
 
     def _advance_route(self, pos: list[float]) -> None:
         """Pass reached waypoints (:func:`next_waypoints`' rule); plan again when the route is lost: the robot at
@@ -234,7 +244,7 @@ class WarehouseSimulator(CrowdSimulator):
         off = point_segment_distance_scalar(pos, points[self.route_index - 1], current) > self.config.replan_distance
         if off or not self._in_sight(pos, current):
             try:
-                self._set_route(self.robot_map.route(pos, self.route[-1]))
+                self._set_route(self.robot_map.waypoints(pos, self._route_points[-1]))
                 self.route_index, self.replans = 1, self.replans + 1
             except ValueError:  # the robot is cornered: keep the old route
                 pass
@@ -251,8 +261,11 @@ class WarehouseSimulator(CrowdSimulator):
         waypoint = self.route[self.route_index]  # the observed current waypoint (replanning replaces the array)
         terms = super().step(action)
         p1 = self.robot[Robot.POS].tolist()
-        self._seg_dist = self._distances(*p1)
-        hit = self._blocked(p0, p1, self._seg_dist < self.scene.robot_radius + math.dist(p0, p1))
+        self._sense(*p1)
+        # the candidates: the segments closer to p1 than the radius + the step (a prefix of the sorted distances)
+        reach, near = self.scene.robot_radius + math.dist(p0, p1), self._seg_sorted
+        hit = bool(near) and near[0] < reach and \
+            self._blocked(p0, p1, self._seg_order[: bisect.bisect_left(near, reach)].tolist())
         if hit:  # (without a hit, with_obstacle_collision returns the terms unchanged)
             terms = with_obstacle_collision(terms, np.bool_(hit), self.config.obstacle_collision_penalty)
         self.hit_obstacle = hit and not bool(terms.min_distance < 0)
