@@ -147,6 +147,18 @@ def test_fine_tuning_a_trained_model(tmp_path, monkeypatch):
             ScheduleConfig(**bad)
 
 
+def test_a_resumed_run_keeps_its_own_settings_and_says_so(tmp_path, monkeypatch, capsys):
+    out = tmp_path / "run"
+    common = ["--out", str(out), "--il-episodes", "2", "--il-epochs", "1", "--num-humans", "2",
+              "--checkpoint-episodes", "2", "--eval-episodes", "0", "--overlap", "off"]
+    _run(monkeypatch, *common, "--rl-episodes", "2", "--train-freq", "4")
+    capsys.readouterr()
+    _run(monkeypatch, *common, "--rl-episodes", "4")  # apg_rl's default is 8: the run goes on with 4
+    assert "the run keeps its own train_freq=4 (given or default: 8)" in capsys.readouterr().out
+    assert APGValue.load(out / "final.zip").train_freq.frequency == 4
+    assert json.loads((out / "config.json").read_text())["train_freq"] == 4
+
+
 def test_negative_refill_steps_is_rejected(tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         main(["train", "--variant", "apg_rl", "--out", str(tmp_path / "run"), "--refill-steps", "-1"])

@@ -236,6 +236,15 @@ def _resume(out: Path, episodes: int, has_buffer: bool, config: ScheduleConfig, 
     except (ValueError, OSError, zipfile.BadZipFile) as exc:
         raise RuntimeError(f"cannot resume from {path}: {exc}; remove it to resume from the checkpoint before") from exc
     log(f"resuming from {path} at episode {model._episode_num}, {model.num_timesteps} steps")
+    own = {"train_freq": model.train_freq.frequency, "learning_rate": model.learning_rate,
+           "exploration_episodes": model.exploration_episodes, "exploration_initial_eps": model.exploration_initial_eps,
+           "exploration_final_eps": model.exploration_final_eps}
+    kept = {name: value for name, value in own.items() if value != getattr(config, name)}
+    for name, value in kept.items():  # a run keeps the settings it started with
+        log(f"the run keeps its own {name}={value} (given or default: {getattr(config, name)})")
+    recorded = read_json(out / "config.json")
+    if kept and recorded is not None:  # config.json records what the run does
+        write_json(out / "config.json", {**recorded, **kept})
     if has_buffer:
         model.load_replay_buffer(buffer_path(out, episodes))
     else:  # a run carried to another machine without its (large) buffer: refill it before the next gradient step
