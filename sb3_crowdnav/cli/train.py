@@ -96,17 +96,18 @@ def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
                    help="end timed-out episodes with zero future value (the field's reference code)")
     g.add_argument("--exploration-episodes", type=common.positive_int,
                    help="RL episodes of the ε decay (default: the variant's: 5000, apg_warehouse 3000)")
-    g.add_argument("--epsilon-start", dest="exploration_initial_eps", type=_probability,
+    g.add_argument("--epsilon-start", dest="exploration_initial_eps", type=_probability, metavar="EPS",
                    help="ε at the first RL episode (default: 0.5, the paper; lower it to fine-tune a model given "
                         "with --from-imitation)")
-    g.add_argument("--epsilon-end", dest="exploration_final_eps", type=_probability,
+    g.add_argument("--epsilon-end", dest="exploration_final_eps", type=_probability, metavar="EPS",
                    help="ε after the decay (default: 0.1, the paper)")
     g.add_argument("--select-by", choices=SELECT_BY,
                    help="best.zip: highest validation success then shortest time (default), or highest return under "
                         "the variant's own reward (use for apg_crl / apg_carl)")
     g.add_argument("--optimizer", choices=sorted(OPTIMIZERS), help="RL optimiser (default: adam; sgd: momentum 0.9)")
     g.add_argument("--value-target", choices=VALUE_TARGETS, help="what V is regressed on in RL (default: td)")
-    g.add_argument("--from-imitation", type=Path, metavar="ZIP", help="start from a saved post-imitation model")
+    g.add_argument("--from-imitation", type=Path, metavar="ZIP",
+                   help="start RL from a saved post-imitation model, or from any trained value model (fine-tuning)")
     g.add_argument("--overlap", nargs="?", const="thread", choices=(*OVERLAP_KINDS, "off"),
                    metavar="{process,thread,off}",
                    help="gradient steps on the second core while acting (APGValue overlap_training): in a process "
