@@ -5,8 +5,9 @@ from Python::
 
     from sb3_crowdnav.training import ScheduleConfig, train_schedule
 
-    result = train_schedule("runs/apg_rl", ScheduleConfig(variant="apg_rl"))  # 3,000 IL + 10,000 RL episodes
-    result = train_schedule("runs/apg_rl", ScheduleConfig(variant="apg_rl"))  # again: resumes, or nothing is left
+    if __name__ == "__main__":  # the learner process (overlap="process", the default) starts by ``spawn``
+        result = train_schedule("runs/apg_rl", ScheduleConfig(variant="apg_rl"))  # 3,000 IL + 10,000 RL episodes
+        result = train_schedule("runs/apg_rl", ScheduleConfig(variant="apg_rl"))  # again: resumes, or nothing left
 
 The run folder (:mod:`sb3_crowdnav.training.run_folder` has the file protocol) holds:
 
