@@ -42,7 +42,7 @@ def main() -> None:
             expected = json.loads(record.read_text()).get("sha256")
             if expected and hashlib.sha256(checkpoint.read_bytes()).hexdigest() != expected:
                 p.error(f"{checkpoint} is not the file {record} recorded: damaged, not shipped")
-    args.checkpoint = args.checkpoints[0]
+    first = args.checkpoints[0]
     if len(args.checkpoints) > 1:
         if PRETRAINED[args.name] != "apg_value":
             p.error(f"checkpoint: averaging several is for value models, {args.name} is {PRETRAINED[args.name]}")
@@ -51,15 +51,15 @@ def main() -> None:
         except ValueError as exc:
             p.error(str(exc))
     else:
-        model = load_model(args.checkpoint, algo=PRETRAINED[args.name])
+        model = load_model(first, algo=PRETRAINED[args.name])
     model.policy.optimizer.state = collections.defaultdict(dict)
     if args.pedestrian_model:
         if not hasattr(model.policy, "set_pedestrian_model"):
-            p.error(f"--pedestrian-model: {args.checkpoint} is not a value-lookahead model")
+            p.error(f"--pedestrian-model: {first} is not a value-lookahead model")
         model.policy.set_pedestrian_model(args.pedestrian_model)
     out = WEIGHTS_DIR / f"{args.name}.zip"
     model.save(out)
-    world = read_world(args.checkpoint)
+    world = read_world(first)
     env_id = "CrowdNavWarehouse-v0" if "obstacles" in model.observation_space.spaces else "CrowdNav-v0"
     env = gym.make(env_id, **(world or {}))  # the world it was trained in, recorded with its spaces
     write_spaces(out, model.observation_space, model.action_space, env)

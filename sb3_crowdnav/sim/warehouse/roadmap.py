@@ -14,7 +14,7 @@ import shapely
 from shapely.geometry import Point
 
 from sb3_crowdnav.sim.config import check_number
-from sb3_crowdnav.sim.warehouse.boxes import segments_miss_boxes, separated
+from sb3_crowdnav.sim.warehouse.boxes import segment_meets_box, segments_miss_boxes, separated
 
 if TYPE_CHECKING:
     from sb3_crowdnav.sim.warehouse.layout import WarehouseLayout
@@ -232,26 +232,13 @@ def _floats(point: Sequence[float]) -> list[float]:
 
 def _misses(boxes: list[list[float]], ax: float, ay: float, bx: float, by: float) -> bool:
     """Whether the segment from (ax, ay) to (bx, by) enters none of the open ``boxes`` (:func:`segments_miss_boxes` of
-    one segment, in floats): boxes beside its bounding box are skipped, the others clipped as
-    ``segment_meets_box(..., interior=True)`` does, written out (along an axis the segment does not move in, it is
-    strictly inside the box's slab when their bounding boxes overlap: no constraint)."""
+    one segment, in floats; boxes beside its bounding box are skipped)."""
     (sx0, sx1), (sy0, sy1) = (ax, bx) if ax < bx else (bx, ax), (ay, by) if ay < by else (by, ay)
-    dx, dy = bx - ax, by - ay
-    for x0, y0, x1, y1 in boxes:  # (a plain loop: any() over a generator costs twice as much here)
-        if x0 < sx1 and sx0 < x1 and y0 < sy1 and sy0 < y1:
-            enter, leave = 0.0, 1.0
-            if dx != 0:
-                t0, t1 = (x0 - ax) / dx, (x1 - ax) / dx
-                if t1 < t0:
-                    t0, t1 = t1, t0
-                enter, leave = (t0 if t0 > 0.0 else 0.0), (t1 if t1 < 1.0 else 1.0)
-            if dy != 0:
-                t0, t1 = (y0 - ay) / dy, (y1 - ay) / dy
-                if t1 < t0:
-                    t0, t1 = t1, t0
-                enter, leave = (t0 if t0 > enter else enter), (t1 if t1 < leave else leave)
-            if enter < leave:
-                return False
+    for box in boxes:  # (a plain loop: any() over a generator costs twice as much here)
+        x0, y0, x1, y1 = box
+        if x0 < sx1 and sx0 < x1 and y0 < sy1 and sy0 < y1 and \
+                segment_meets_box(ax, ay, bx - ax, by - ay, box, interior=True):
+            return False
     return True
 
 
