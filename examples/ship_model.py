@@ -3,9 +3,11 @@
     python examples/ship_model.py runs/apg_rl/best.zip apg_rl
     python examples/ship_model.py runs/apg_warehouse/best.zip apg_warehouse --pedestrian-model cautious
     python examples/ship_model.py runs/apg_warehouse/checkpoint_{6000,6500,7000,7500,8000}.zip apg_warehouse
+    python examples/ship_model.py runs/a/checkpoint_7000.zip runs/b/checkpoint_6500.zip apg_warehouse --ensemble
 
-Several checkpoints ship the mean of their weights (``sb3_crowdnav.training.average_checkpoints``; the first
-checkpoint's settings).
+Several checkpoints ship the mean of their weights (``sb3_crowdnav.training.average_checkpoints``: checkpoints
+of one run), or with ``--ensemble`` a value ensemble, the mean of their values (``ensemble_models``: models of
+different runs); either way with the first checkpoint's settings.
 
 The optimiser's momentum buffers are dropped (they only matter to continue training, and a continued run
 starts from its own checkpoint); weights and every constructor setting are kept. A ``best.zip`` is shipped
@@ -26,7 +28,7 @@ import gymnasium as gym
 
 from sb3_crowdnav.models import PRETRAINED, WEIGHTS_DIR, load_model
 from sb3_crowdnav.serialization import read_world, write_spaces
-from sb3_crowdnav.training import average_checkpoints
+from sb3_crowdnav.training import average_checkpoints, ensemble_models
 
 
 def main() -> None:
@@ -35,6 +37,8 @@ def main() -> None:
     p.add_argument("name", choices=sorted(PRETRAINED))
     p.add_argument("--pedestrian-model", choices=("constant_velocity", "cautious"),
                    help="ship a value model with this lookahead pedestrian model (default: the checkpoint's)")
+    p.add_argument("--ensemble", action="store_true",
+                   help="several checkpoints: ship their value ensemble instead of their mean weights")
     args = p.parse_args()
     for checkpoint in args.checkpoints:
         record = checkpoint.with_name("best.json")
@@ -43,11 +47,13 @@ def main() -> None:
             if expected and hashlib.sha256(checkpoint.read_bytes()).hexdigest() != expected:
                 p.error(f"{checkpoint} is not the file {record} recorded: damaged, not shipped")
     first = args.checkpoints[0]
+    if args.ensemble and len(args.checkpoints) < 2:
+        p.error("--ensemble: give two or more checkpoints")
     if len(args.checkpoints) > 1:
         if PRETRAINED[args.name] != "apg_value":
-            p.error(f"checkpoint: averaging several is for value models, {args.name} is {PRETRAINED[args.name]}")
+            p.error(f"checkpoint: combining several is for value models, {args.name} is {PRETRAINED[args.name]}")
         try:
-            model = average_checkpoints(args.checkpoints)
+            model = (ensemble_models if args.ensemble else average_checkpoints)(args.checkpoints)
         except ValueError as exc:
             p.error(str(exc))
     else:

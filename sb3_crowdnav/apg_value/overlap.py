@@ -35,6 +35,7 @@ import torch as th
 from stable_baselines3.common.utils import polyak_update
 
 from sb3_crowdnav.apg_value.learner import Batch, ValueLearner
+from sb3_crowdnav.apg_value.policies import bfloat16_extractors
 
 OVERLAP_KINDS = ("thread", "process")
 
@@ -42,9 +43,9 @@ OVERLAP_KINDS = ("thread", "process")
 def _acting_copy(value_net: th.nn.Module, bfloat16_acting: bool) -> th.nn.Module:
     """V's copy that acts while V trains; with ``bfloat16_acting`` it runs its APG encoder in bfloat16, V in float32."""
     acting_net = copy.deepcopy(value_net).train(False)
-    if hasattr(acting_net.features_extractor, "bfloat16_inference"):
-        acting_net.features_extractor.bfloat16_inference = bfloat16_acting
-        value_net.features_extractor.bfloat16_inference = False
+    for acting, training in zip(bfloat16_extractors(acting_net), bfloat16_extractors(value_net), strict=True):
+        acting.bfloat16_inference = bfloat16_acting
+        training.bfloat16_inference = False
     return acting_net
 
 
@@ -120,8 +121,7 @@ def _serve(conn: Any, policy: Any, learner_kwargs: dict[str, Any], shared: dict[
     from sb3_crowdnav.nn import configure_cpu
 
     configure_cpu(num_threads=num_threads)
-    extractor = policy.value_net.features_extractor
-    if hasattr(extractor, "bfloat16_inference"):  # V trains in float32
+    for extractor in bfloat16_extractors(policy.value_net):  # V trains in float32
         extractor.bfloat16_inference = False
     policy.set_training_mode(True)
     learner = ValueLearner(policy, **learner_kwargs)

@@ -36,6 +36,30 @@ class ValueNetwork(nn.Module):
         return self.head(self.features_extractor(obs)).squeeze(-1)
 
 
+class ValueEnsemble(nn.Module):
+    """V(s) as the mean of several :class:`ValueNetwork` members (``members``), one forward pass each.
+
+    Independently trained value networks err in different places; the lookahead on their mean picks fewer actions
+    that one member overrates. Built from trained models by :func:`sb3_crowdnav.training.ensemble_models`; a policy
+    with ``ensemble_size > 1`` that is trained further fits the mean (one loss, gradients to every member).
+    """
+
+    def __init__(self, members: list[ValueNetwork]):
+        super().__init__()
+        if len(members) < 2:
+            raise ValueError(f"members: a ValueEnsemble needs at least two networks, got {len(members)}")
+        self.members = nn.ModuleList(members)
+
+    def forward(self, obs: dict[str, th.Tensor]) -> th.Tensor:
+        """:return: the members' mean value (batch,)"""
+        return th.stack([member(obs) for member in self.members]).mean(dim=0)
+
+
+def bfloat16_extractors(net: nn.Module) -> list[nn.Module]:
+    """The feature extractors of ``net`` (a :class:`ValueNetwork` or :class:`ValueEnsemble`) that can act in bfloat16."""
+    return [module for module in net.modules() if hasattr(module, "bfloat16_inference")]
+
+
 class ValueLookaheadPolicy(BasePolicy):
     """State-value policy acting by one-step lookahead (paper Eq. 1).
 
@@ -73,6 +97,9 @@ class ValueLookaheadPolicy(BasePolicy):
         :class:`PropagationModel`): ``"constant_velocity"`` (the paper, default) or ``"cautious"`` (also charges
         a collision with a pedestrian who stands still instead; :meth:`set_pedestrian_model` switches a loaded
         model)
+    :param ensemble_size: number of value networks whose mean is V (:class:`ValueEnsemble`; 1, the paper: one
+        :class:`ValueNetwork`). Each decision costs one forward pass per member. Ensembles are made of trained models
+        with :func:`sb3_crowdnav.training.ensemble_models`
     """
 
     LOOKAHEAD_DTYPES = ("float32", "bfloat16")
@@ -98,6 +125,7 @@ class ValueLookaheadPolicy(BasePolicy):
         lookahead_dtype: str = "float32",
         obstacles: dict[str, float] | None = None,
         pedestrian_model: str = "constant_velocity",
+        ensemble_size: int = 1,
     ) -> None:
         schema = ObservationSchema.from_space(observation_space)
         self.history_length, self.max_humans = schema.history_length, schema.max_humans
@@ -106,6 +134,9 @@ class ValueLookaheadPolicy(BasePolicy):
         if pedestrian_model not in PropagationModel.PEDESTRIAN_MODELS:
             raise ValueError(f"pedestrian_model must be one of {PropagationModel.PEDESTRIAN_MODELS}, got "
                              f"{pedestrian_model!r}")
+        if isinstance(ensemble_size, bool) or not isinstance(ensemble_size, (int, np.integer)) or ensemble_size < 1:
+            raise ValueError(f"ensemble_size must be an int >= 1, got {ensemble_size!r}")
+        self.ensemble_size = int(ensemble_size)
         if not isinstance(action_space, spaces.Discrete) or action_space.n != N_ACTIONS:
             raise ValueError(f"ValueLookaheadPolicy needs Discrete({N_ACTIONS}) actions, got {action_space}")
         if kinematics not in KINEMATICS:
@@ -145,15 +176,15 @@ class ValueLookaheadPolicy(BasePolicy):
         """Switch the acting lookahead between ``"float32"`` and ``"bfloat16"`` (see the class docstring)."""
         if dtype not in self.LOOKAHEAD_DTYPES:
             raise ValueError(f"lookahead_dtype must be one of {self.LOOKAHEAD_DTYPES}, got {dtype!r}")
-        extractor = self.value_net.features_extractor
+        extractors = bfloat16_extractors(self.value_net)
         if dtype == "bfloat16":
-            if not hasattr(extractor, "bfloat16_inference"):
+            if not extractors:
                 raise ValueError(f"lookahead_dtype='bfloat16' is implemented for the APG encoder only, not "
-                                 f"{type(extractor).__name__}")
+                                 f"{self.features_extractor_class.__name__}")
             if not bfloat16_supported():
                 raise ValueError("lookahead_dtype='bfloat16' needs a CPU with native bfloat16 matrix kernels "
                                  "(AVX-512 BF16 or AMX) and torch's oneDNN; use 'float32'")
-        if hasattr(extractor, "bfloat16_inference"):
+        for extractor in extractors:
             extractor.bfloat16_inference = dtype == "bfloat16"
         self.lookahead_dtype = dtype
 
@@ -167,9 +198,15 @@ class ValueLookaheadPolicy(BasePolicy):
         self.propagation = PropagationModel(self.time_step, self.kinematics, self.rotation_range, self.reward_config,
                                             self.history_length, self.gamma, self.obstacles, pedestrian_model)
 
+    def make_value_net(self) -> ValueNetwork | ValueEnsemble:
+        """A new V: one :class:`ValueNetwork`, or a :class:`ValueEnsemble` of ``ensemble_size`` of them."""
+        members = [ValueNetwork(self.make_features_extractor(), self.net_arch, self.activation_fn)
+                   for _ in range(self.ensemble_size)]
+        return members[0] if self.ensemble_size == 1 else ValueEnsemble(members)
+
     def _build(self, lr_schedule: Schedule) -> None:
-        self.value_net = ValueNetwork(self.make_features_extractor(), self.net_arch, self.activation_fn)
-        self.value_net_target = ValueNetwork(self.make_features_extractor(), self.net_arch, self.activation_fn)
+        self.value_net = self.make_value_net()
+        self.value_net_target = self.make_value_net()
         self.value_net_target.load_state_dict(self.value_net.state_dict())
         self.value_net_target.train(False)
         self.optimizer = self.optimizer_class(self.value_net.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs)
@@ -192,6 +229,8 @@ class ValueLookaheadPolicy(BasePolicy):
             data["obstacles"] = self.obstacles
         if self.pedestrian_model != "constant_velocity":  # (files of the paper's model keep their entries)
             data["pedestrian_model"] = self.pedestrian_model
+        if self.ensemble_size != 1:
+            data["ensemble_size"] = self.ensemble_size
         return data
 
     # ------------------------------------------------------------------ values

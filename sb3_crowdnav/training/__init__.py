@@ -5,10 +5,11 @@
   (``sb3-crowdnav train --variant NAME``);
 - :func:`train_from_hyperparams` and the rl-zoo3 YAML reading (``sb3-crowdnav train --hyperparams FILE``);
 - :func:`average_checkpoints`: one model with the mean weights of a run's checkpoints (weight averaging);
+- :func:`ensemble_models`: one model whose V is the mean value of several runs' networks (a value ensemble);
 - :mod:`sb3_crowdnav.training.zoo`: ``apg_value`` added to rl-zoo3 itself (``sb3-crowdnav-zoo``).
 """
 
-from sb3_crowdnav.training.averaging import average_checkpoints
+from sb3_crowdnav.training.averaging import average_checkpoints, ensemble_models
 from sb3_crowdnav.training.callbacks import VALIDATION_SEED_OFFSET, EpisodeCheckpoint
 from sb3_crowdnav.training.hyperparams import load_hyperparams, prepare, safe_eval, train_from_hyperparams
 from sb3_crowdnav.training.schedule import VARIANTS, ScheduleConfig, ScheduleResult, Variant, train_schedule
@@ -21,6 +22,7 @@ __all__ = [
     "ScheduleResult",
     "Variant",
     "average_checkpoints",
+    "ensemble_models",
     "load_hyperparams",
     "prepare",
     "safe_eval",

@@ -1,4 +1,6 @@
-"""Weight averaging over the checkpoints of one run (stochastic weight averaging, Izmailov et al., 2018).
+"""Combining trained value models: weight averaging over one run's checkpoints, value ensembles across runs.
+
+Weight averaging (stochastic weight averaging, Izmailov et al., 2018):
 
 A value run's checkpoints near its best validation differ by the noise of the last few hundred episodes' updates;
 the mean of their weights (with ``torch.optim.swa_utils.AveragedModel``) is one network of the same architecture,
@@ -11,6 +13,15 @@ usually flatter and steadier than any one of them. Example::
 
 The first checkpoint gives everything but V's weights (settings, spaces, episode and step counts); V_target is set
 to the average too, and the optimiser state is dropped (a continued run would start its own).
+
+Value ensembles (:func:`ensemble_models`): models of *different* runs have unrelated weights (their mean is no
+network), but the mean of their values is a value: one model whose V is a
+:class:`~sb3_crowdnav.apg_value.policies.ValueEnsemble` of theirs. Each decision costs one forward pass per member::
+
+    from sb3_crowdnav.training import ensemble_models
+
+    model = ensemble_models(["runs/apg_warehouse/checkpoint_7000.zip", "runs/apg_warehouse_b/checkpoint_6500.zip"])
+    model.save("runs/apg_warehouse_ensemble.zip")  # loads like any APGValue model
 """
 
 from __future__ import annotations
@@ -23,6 +34,7 @@ import torch as th
 from torch.optim.swa_utils import AveragedModel
 
 from sb3_crowdnav.apg_value import APGValue
+from sb3_crowdnav.apg_value.policies import ValueEnsemble
 
 
 def average_checkpoints(paths: Sequence[str | Path], **load_kwargs) -> APGValue:
@@ -54,4 +66,53 @@ def average_checkpoints(paths: Sequence[str | Path], **load_kwargs) -> APGValue:
         base.policy.value_net.load_state_dict(average.module.state_dict())
         base.policy.value_net_target.load_state_dict(average.module.state_dict())
     base.policy.optimizer.state = collections.defaultdict(dict)
+    return base
+
+
+# the settings every member of an ensemble must share: the lookahead's world and the network's architecture
+_SHARED_POLICY_SETTINGS = ("time_step", "gamma", "kinematics", "rotation_range", "reward", "obstacles", "net_arch",
+                           "activation_fn", "features_extractor_class", "features_extractor_kwargs")
+
+
+def ensemble_models(paths: Sequence[str | Path], **load_kwargs) -> APGValue:
+    """One model whose V is the mean of the value networks of all ``paths`` (a value ensemble).
+
+    The result is the model of ``paths[0]`` (settings, spaces, counters, pedestrian model) with
+    ``policy_kwargs["ensemble_size"]`` the total number of members (a member that is an ensemble itself contributes
+    its members); V_target holds the same networks and the optimiser state is empty. It saves and loads like any
+    :class:`~sb3_crowdnav.apg_value.APGValue` model.
+
+    :param paths: two or more saved ``APGValue`` models (typically of independent runs) of the same world and
+        architecture
+    :param load_kwargs: passed to :meth:`APGValue.load` for every path (e.g. ``env``)
+    :raises ValueError: fewer than two paths, or models whose observation spaces, lookahead settings (time step,
+        discount, kinematics, action fan, reward, obstacle settings) or network architecture differ
+    """
+    paths = [Path(p) for p in paths]
+    if len(paths) < 2:
+        raise ValueError(f"paths: ensemble_models needs at least two models, got {len(paths)}")
+    models = [APGValue.load(path, **load_kwargs) for path in paths]
+    base = models[0]
+    settings = base.policy._get_constructor_parameters()
+    members: list[th.nn.Module] = []
+    for path, model in zip(paths, models, strict=True):
+        if model.observation_space != base.observation_space:
+            raise ValueError(f"paths: {path} observes another space than {paths[0]}")
+        other = model.policy._get_constructor_parameters()
+        for name in _SHARED_POLICY_SETTINGS:
+            if other.get(name) != settings.get(name):
+                raise ValueError(f"paths: {path} has {name} = {other.get(name)!r}, {paths[0]} has "
+                                 f"{settings.get(name)!r}; an ensemble's members must share it")
+        net = model.policy.value_net
+        members.extend(net.members if isinstance(net, ValueEnsemble) else [net])
+    base.policy_kwargs["ensemble_size"] = len(members)
+    policy = base.policy_class(base.observation_space, base.action_space, base.lr_schedule, **base.policy_kwargs)
+    policy.set_pedestrian_model(base.policy.pedestrian_model)
+    policy.set_lookahead_dtype(base.policy.lookahead_dtype)
+    with th.no_grad():
+        for target in (policy.value_net, policy.value_net_target):
+            for slot, member in zip(target.members, members, strict=True):
+                slot.load_state_dict(member.state_dict())
+    base.policy = policy.to(base.device)
+    base.policy.set_training_mode(False)
     return base
