@@ -12,8 +12,11 @@ training, which used the env's own stream from seed 0, nor in validation, seeds 
 * ``OUT/layout_file``: the same policies in the fixed layout of ``examples/warehouse_layout.yaml``;
 * ``OUT/unshaped``: with ``--unshaped ZIP``, a model trained without the route-progress shaping.
 
-``OUT/summary.md`` collects the tables (the README's warehouse section is copied from it) and, with ``--runs
-DIR``, the training wall times read from the run folders ``DIR/apg_warehouse`` and ``DIR/ppo_warehouse``.
+``OUT/summary.md`` collects the tables (the README's warehouse section is copied from it) and the training wall
+times. These are read from run folders: ``--runs DIR`` times ``DIR/apg_warehouse`` and ``DIR/ppo_warehouse``, and
+``--time-run NAME=FOLDER[:N]`` any run (to the validation of its checkpoint N, else of its ``best.zip``). Each is
+recorded in ``OUT/wall_times.json``, which keeps the times of runs whose folders are no longer on this machine; the
+summary lists every recorded time. Without ``--unshaped`` the summary keeps an earlier ``OUT/unshaped`` table.
 """
 
 from __future__ import annotations
@@ -83,6 +86,17 @@ def run_wall_time(folder: Path, episodes: int | None = None) -> str:
     return f"{(end - start) / 60:.0f} min (to the last validation, {curve[-1]['episodes']} RL episodes)"
 
 
+def parse_time_run(parser: argparse.ArgumentParser, spec: str) -> tuple[str, Path, int | None]:
+    """``NAME=FOLDER[:N]`` of ``--time-run``: the name, the run folder and the checkpoint (None: its best.zip)."""
+    name, _, rest = spec.partition("=")
+    folder, _, episodes = rest.rpartition(":") if rest.rpartition(":")[2].isdigit() else (rest, "", "")
+    if not name or not folder:
+        parser.error(f"--time-run: expected NAME=FOLDER[:N], got {spec!r}")
+    if not (Path(folder) / "config.json").is_file():
+        parser.error(f"--time-run: {folder} is not a run folder (no config.json)")
+    return name, Path(folder), int(episodes) if episodes else None
+
+
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--episodes", type=int, default=500)
@@ -93,9 +107,15 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--apg-episodes", type=int, metavar="N",
                    help="time the apg_warehouse run to its checkpoint N (the last one a shipped average used; "
                         "default: its best.zip)")
+    p.add_argument("--time-run", action="append", default=[], metavar="NAME=FOLDER[:N]",
+                   help="record the wall time of this run folder as NAME (to its checkpoint N; repeatable)")
     p.add_argument("--sweep", type=int, nargs="+", default=SWEEP, help="pickers of the sweep (default: 2 4 6 8 10)")
     p.add_argument("--gif", action=argparse.BooleanOptionalAction, default=True, help="a GIF per policy")
     args = p.parse_args(argv)
+    timed = [parse_time_run(p, spec) for spec in args.time_run]  # (bad input refused before any episode runs)
+    if args.runs:
+        timed = [("apg_warehouse", args.runs / "apg_warehouse", args.apg_episodes),
+                 ("ppo_warehouse", args.runs / "ppo_warehouse", None), *timed]
 
     benchmark(args.out / "generated", POLICIES, args.episodes, args.workers,
               ["--sweep", *map(str, args.sweep), *([] if args.gif else ["--no-gif"])])
@@ -107,13 +127,17 @@ def main(argv: list[str] | None = None) -> None:
                 (f"The layout file {LAYOUT_FILE.name}, 6 pickers", args.out / "layout_file" / "results.csv", "method")]
     if args.unshaped:
         benchmark(args.out / "unshaped", [args.unshaped], args.episodes, args.workers, ["--no-gif"])
+    if (args.out / "unshaped" / "results.csv").is_file():
         sections.append(("Trained without the progress shaping", args.out / "unshaped" / "results.csv", "method"))
     text = [f"# CrowdNavWarehouse-v0, {args.episodes} test episodes per row (seeds 1,000,000 + i)\n"]
     text += [f"## {title}\n\n{compact(path, key)}\n" for title, path, key in sections]
-    if args.runs:
+    times_file = args.out / "wall_times.json"
+    times = json.loads(times_file.read_text()) if times_file.is_file() else {}
+    times.update({name: run_wall_time(folder, episodes) for name, folder, episodes in timed})
+    if times:
+        times_file.write_text(json.dumps(times, indent=1) + "\n")
         text.append("## Training wall time (2 cores)\n")
-        text += [f"- {name}: {run_wall_time(args.runs / name, args.apg_episodes if name == 'apg_warehouse' else None)}"
-                 for name in ("apg_warehouse", "ppo_warehouse")]
+        text += [f"- {name}: {time}" for name, time in times.items()]
     (args.out / "summary.md").write_text("\n".join(text) + "\n")
     print((args.out / "summary.md").read_text())
 

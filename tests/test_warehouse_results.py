@@ -3,22 +3,61 @@
 from __future__ import annotations
 
 import importlib.util
+import json
+import os
 from pathlib import Path
+
+import pytest
 
 SCRIPT = Path(__file__).resolve().parents[1] / "examples" / "warehouse_results.py"
 
 
-def test_the_script_writes_every_table(tmp_path):
+def _script():
     spec = importlib.util.spec_from_file_location("warehouse_results", SCRIPT)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
-    module.main(["--episodes", "2", "--workers", "1", "--sweep", "2", "--no-gif", "--out", str(tmp_path)])
-    summary = (tmp_path / "summary.md").read_text()
+    return module
+
+
+def _run_folder(path, start, validations):
+    """A run folder as ``sb3-crowdnav train`` leaves it: config.json written at ``start``, one validation per row."""
+    path.mkdir()
+    (path / "config.json").write_text("{}")
+    os.utime(path / "config.json", (start, start))
+    (path / "eval_curve.jsonl").write_text("".join(json.dumps({"episodes": e, "wall": start + s}) + "\n"
+                                                   for e, s in validations))
+    return path
+
+
+def test_the_script_writes_every_table(tmp_path):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "wall_times.json").write_text(json.dumps({"earlier run": "67 min"}))  # a run no longer on this machine
+    run = _run_folder(tmp_path / "run", 1_000_000.0, [(500, 600.0), (1000, 1500.0)])
+    _script().main(["--episodes", "2", "--workers", "1", "--sweep", "2", "--no-gif", "--out", str(out),
+                    "--time-run", f"second run={run}:500"])
+    summary = (out / "summary.md").read_text()
+    assert "- earlier run: 67 min" in summary and "- second run: 10 min (to the validation of checkpoint 500)" in summary
+    assert json.loads((out / "wall_times.json").read_text())["second run"].startswith("10 min")
     for title in ("Generated layouts, 6 pickers", "apg_warehouse with 2 pickers", "warehouse_layout.yaml"):
         assert title in summary
-    generated = (tmp_path / "generated" / "results.md").read_text()
+    generated = (out / "generated" / "results.md").read_text()
     for row in ("APG_WAREHOUSE", "PPO_WAREHOUSE", "ORCA", "ORCA-constrained"):
         assert f"| {row} |" in generated
     assert "obstacle collision" in generated  # the warehouse columns
-    assert (tmp_path / "layout_file" / "results.md").read_text().count("| 2 |") == 4  # 4 policies, 2 episodes each
-    assert (tmp_path / "generated" / "trajectories.png").stat().st_size > 0
+    assert (out / "layout_file" / "results.md").read_text().count("| 2 |") == 4  # 4 policies, 2 episodes each
+    assert (out / "generated" / "trajectories.png").stat().st_size > 0
+
+
+@pytest.mark.parametrize("spec", ["no-equals-sign", "name=", "=folder"])
+def test_a_bad_time_run_is_refused_before_any_episode(tmp_path, spec, capsys):
+    with pytest.raises(SystemExit) as exc:
+        _script().main(["--out", str(tmp_path), "--time-run", spec])
+    assert exc.value.code == 2 and "--time-run" in capsys.readouterr().err
+    assert not any(tmp_path.iterdir())  # nothing ran
+
+
+def test_time_run_refuses_a_folder_that_is_no_run(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exc:
+        _script().main(["--out", str(tmp_path / "out"), "--time-run", f"x={tmp_path}"])
+    assert exc.value.code == 2 and "not a run folder" in capsys.readouterr().err
