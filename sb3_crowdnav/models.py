@@ -49,7 +49,7 @@ PRETRAINED_SHA256 = {
     "ppo_apg": "b94d155294700d0b283f655d846783022276dcf9290edcf6dd5c1b6b96154d2f",
     "dqn_apg": "4002a0bdffcb70e967655d430a72a5d1f45a04918dacf247f0c87c78d7ebf94e",
     "ppo_warehouse": "e71d387a6b327616c7d26df7b92ed14f7166616286530fcc8ed31c5a293df208",
-    "apg_warehouse": "1b4b1a1937b7fbd54bc38f56690b5e77fcdc3852062b48cc5d744364a298b429",
+    "apg_warehouse": "e1e2ae06da71b01fe614afe609866df603dda9f5a74e1f10030430387395254c",
 }
 
 
