@@ -50,3 +50,24 @@ def test_shipped_apg_rl_navigates():
     assert "apg_rl" in sb3_crowdnav.available_pretrained()
     records = run_episodes("pretrained:apg_rl", 10)
     assert sum(r.outcome == "success" for r in records) >= 8
+
+
+def test_shipped_apg_warehouse_is_the_documented_cautious_value_ensemble_and_navigates():
+    """The README's apg_warehouse: V the mean of two networks, the cautious lookahead; it drives test episodes home."""
+    import torch as th
+
+    from sb3_crowdnav.apg_value.policies import ValueEnsemble
+    from sb3_crowdnav.evaluation import run_episodes
+
+    model = sb3_crowdnav.pretrained("apg_warehouse")
+    value_net = model.policy.value_net
+    assert isinstance(value_net, ValueEnsemble) and len(value_net.members) == 2
+    assert model.policy.pedestrian_model == "cautious"
+    obs, _ = gym.make("CrowdNavWarehouse-v0").reset(seed=1_000_000)
+    tensors = {k: th.as_tensor(v[None], dtype=th.float32) for k, v in obs.items()}
+    with th.no_grad():
+        values = [member(tensors) for member in value_net.members]
+        assert not th.allclose(values[0], values[1])  # two different networks
+        th.testing.assert_close(value_net(tensors), (values[0] + values[1]) / 2)
+    records = run_episodes("pretrained:apg_warehouse", 10, env_id="CrowdNavWarehouse-v0")
+    assert sum(r.outcome == "success" for r in records) >= 8
