@@ -295,9 +295,9 @@ def test_a_picker_walks_from_its_slot_to_the_next_along_the_slots_route():
 
 
 def test_observed_segments_and_hit_candidates_come_from_the_stable_order_of_the_distances():
-    """The observed segments are the first of the distances' stable order within range, and the swept-collision
-    candidates the segments closer than the radius + the step, as with the distances themselves."""
-    from sb3_crowdnav.sim.geometry import segment_distance_scalar
+    """The observed segments are the first of the distances' stable order within range, and a rack or wall hit is
+    the swept disc touching a segment, as with the distances themselves."""
+    from sb3_crowdnav.sim.geometry import point_segment_distance, segment_distance_scalar
 
     env = gym.make("CrowdNavWarehouse-v0", num_humans=6)
     sim, rng = env.unwrapped.sim, np.random.default_rng(0)
@@ -308,13 +308,13 @@ def test_observed_segments_and_hit_candidates_come_from_the_stable_order_of_the_
             p0 = sim.robot[Robot.POS].tolist()
             _, _, terminated, truncated, _ = env.step(int(rng.integers(80)))
             p1 = sim.robot[Robot.POS].tolist()
-            d = sim._distances(*p1)
+            d = sim._seg_dist
+            np.testing.assert_allclose(d, point_segment_distance(np.array(p1), sim.segments[:, :2], sim.segments[:, 2:]),
+                                       rtol=0, atol=1e-12)
+            np.testing.assert_array_equal(sim._seg_order, np.argsort(d, kind="stable"))
             seen = np.argsort(d, kind="stable")[: min(16, int(np.count_nonzero(d <= sim.config.sensor_range)))]
             segments, mask = sim.observed_obstacles()
             np.testing.assert_array_equal(segments[: len(seen)], sim.segments[seen])
             assert mask.sum() == len(seen) and not segments[len(seen):].any()
-            reach = sim.scene.robot_radius + float(np.hypot(p1[0] - p0[0], p1[1] - p0[1]))
-            near = sorted(sim._seg_order[: np.searchsorted(sim._seg_sorted, reach)].tolist())
-            assert near == np.flatnonzero(d < reach).tolist()
             hit = any(segment_distance_scalar(p0, p1, s[:2], s[2:]) < sim.scene.robot_radius for s in sim.segments.tolist())
             assert (not hit or terminated) and (hit or not sim.hit_obstacle)

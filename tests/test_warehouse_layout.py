@@ -314,11 +314,12 @@ def test_a_layouts_segments_are_its_polygons_edges(seed):
         WarehouseLayout(10, 10, np.array([_rect(-1, -1, 1, 1) * np.nan]))
 
 
-def test_the_float_clipping_is_segments_miss_boxes():
-    """The roadmap's clipping of one segment in floats (rows, joins, sight) answers as the NumPy clipping, on random
-    segments and on degenerate ones: along the boxes' sides, through their corners, axis-parallel, of zero length."""
+def test_the_one_segment_clippings_are_segments_miss_boxes():
+    """The roadmap's clippings of one segment (kernels.misses_boxes: joins, sight; kernels._misses_all: the graph's
+    edges) answer as the NumPy clipping, on random segments and on degenerate ones: along the boxes' sides, through
+    their corners, axis-parallel, of zero length."""
     from sb3_crowdnav.sim.warehouse.boxes import segments_miss_boxes
-    from sb3_crowdnav.sim.warehouse.roadmap import _misses
+    from sb3_crowdnav.sim.warehouse.kernels import _misses_all, misses_boxes
 
     rng = np.random.default_rng(0)
     for _ in range(40):
@@ -330,6 +331,6 @@ def test_the_float_clipping_is_segments_miss_boxes():
         b = np.stack([rng.choice(xs, 500), rng.choice(ys, 500)], axis=1)
         b[:100, 0], b[100:200, 1], b[200:220] = a[:100, 0], a[100:200, 1], a[200:220]
         a, b = np.concatenate([a, rng.uniform(-6, 6, (200, 2))]), np.concatenate([b, rng.uniform(-6, 6, (200, 2))])
-        expected = segments_miss_boxes(a, b, boxes)
-        listed = boxes.tolist()
-        assert [_misses(listed, *p, *q) for p, q in zip(a.tolist(), b.tolist(), strict=True)] == expected.tolist()
+        expected = segments_miss_boxes(a, b, boxes).tolist()
+        assert [misses_boxes(*p, *q, boxes) for p, q in zip(a.tolist(), b.tolist(), strict=True)] == expected
+        assert [_misses_all(*p, *q, boxes) for p, q in zip(a.tolist(), b.tolist(), strict=True)] == expected

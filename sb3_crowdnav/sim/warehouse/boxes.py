@@ -25,6 +25,8 @@ from typing import Any
 import numpy as np
 import shapely
 
+from sb3_crowdnav.sim.warehouse import kernels
+
 BAND = 1e-3  # [m] an exact distance this close to a round free space's radius is left to shapely's polygon
 
 
@@ -101,7 +103,8 @@ def in_free_space(layout: Any, points: np.ndarray, clearance: float) -> np.ndarr
     if boxes is None:
         d, unsure = None, np.ones(len(points), dtype=bool)
     else:
-        d = points_clearance(points, boxes, (layout.width / 2, layout.height / 2))
+        d = kernels.points_clearance(np.ascontiguousarray(points, dtype=np.float64), boxes, layout.width / 2,
+                                     layout.height / 2)  # points_clearance's values
         unsure = np.abs(d - clearance) <= BAND
     inside = np.zeros(len(points), dtype=bool) if d is None else d > clearance
     if unsure.any():

@@ -25,6 +25,7 @@ from shapely.ops import nearest_points
 
 from sb3_crowdnav.sim.config import SceneConfig
 from sb3_crowdnav.sim.orca import OrcaCrowd
+from sb3_crowdnav.sim.warehouse import kernels
 from sb3_crowdnav.sim.warehouse.boxes import in_free_space, point_clearance
 from sb3_crowdnav.sim.warehouse.layout import WarehouseLayout
 from sb3_crowdnav.sim.warehouse.roadmap import Roadmap
@@ -41,15 +42,7 @@ def pick_slots(layout: WarehouseLayout, scene: SceneConfig) -> np.ndarray:
     segments = layout.rack_segments  # of the racks counter-clockwise: the normal (dy, -dx) points out
     if not len(segments):
         return np.zeros((0, 2))
-    (ax, ay), (ex, ey) = segments[:, :2].T, (segments[:, 2:] - segments[:, :2]).T
-    length = np.hypot(ex, ey)
-    count = np.where(length >= spacing, length // spacing, 0.0).astype(np.int64)  # slots per edge
-    edge = np.repeat(np.arange(len(count)), count)  # the edge of every slot
-    k = np.arange(len(edge)) - np.repeat(np.cumsum(count) - count, count)  # its number along the edge
-    ax, ay, ex, ey, length = ax[edge], ay[edge], ex[edge], ey[edge], length[edge]
-    t = (k + 0.5) * length / count[edge]  # [m] along the edge (the operations of a loop in floats, in its order)
-    points = np.stack([ax + ex * (t / length) + ey / length * offset,  # out along the normal (ey, -ex) / length
-                       ay + ey * (t / length) + -ex / length * offset], axis=1)
+    points = kernels.slot_points(segments, spacing, offset)  # (k + 0.5) * length / count along each edge, then out
     return points[in_free_space(layout, points, radius + 1e-3)]
 
 

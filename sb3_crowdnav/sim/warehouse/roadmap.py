@@ -14,7 +14,8 @@ import shapely
 from shapely.geometry import Point
 
 from sb3_crowdnav.sim.config import check_number
-from sb3_crowdnav.sim.warehouse.boxes import segment_meets_box, segments_miss_boxes, separated
+from sb3_crowdnav.sim.warehouse import kernels
+from sb3_crowdnav.sim.warehouse.boxes import segments_miss_boxes, separated
 
 if TYPE_CHECKING:
     from sb3_crowdnav.sim.warehouse.layout import WarehouseLayout
@@ -24,6 +25,27 @@ if TYPE_CHECKING:
 def _pairs(n: int) -> tuple[np.ndarray, np.ndarray]:
     """``np.triu_indices(n, k=1)``, remembered (a roadmap of n nodes is built every episode)."""
     return np.triu_indices(n, k=1)
+
+
+class _BuiltGraph(nx.Graph):
+    """An undirected ``networkx`` graph handed its node and adjacency dicts built at once (the ``node_dict_factory``
+    and ``adjlist_outer_dict_factory`` hooks networkx documents for subclasses): the graph ``add_nodes_from(nodes)``
+    then ``add_weighted_edges_from(zip(i, j, weights))`` gives, the same dicts in the same order (each node's
+    neighbours in the order of the edges; the two directions of an edge share one attribute dict), without the
+    per-edge work of those methods. A visibility graph of a few dozen corners is built every episode."""
+
+    def __init__(self, nodes: list | None = None, i: list | None = None, j: list | None = None,
+                 weights: list | None = None) -> None:
+        node_dict = {n: {} for n in nodes or ()}
+        adjacency: dict = {n: {} for n in node_dict}
+        for u, v, w in zip(i or (), j or (), weights or (), strict=True):
+            adjacency[u][v] = adjacency[v][u] = {"weight": w}
+        self.node_dict_factory = lambda: node_dict
+        self.adjlist_outer_dict_factory = lambda: adjacency
+        super().__init__()
+
+    def __reduce__(self):  # copies and pickles as a plain graph (the factories above are per instance)
+        return nx.Graph, (nx.to_dict_of_dicts(self),)
 
 
 class Roadmap:
@@ -60,15 +82,12 @@ class Roadmap:
             self.corners = np.concatenate([[(x0, y0), (x0, y1), (x1, y1), (x1, y0)],
                                            self.grown[:, [0, 1, 2, 1, 2, 3, 0, 3]].reshape(-1, 2)])
             self._nodes = np.arange(4, len(self.corners))
-            # every node: its number, corner and side, for the joins in floats (a segment leaving a rack's corner
-            # along (dx, dy) passes it on the outside when side * dx * dy <= 0)
             self._corner_list = self.corners.tolist()
-            self._node_rows = [(k, cx, cy, side) for k, (cx, cy), side in
-                               zip(range(4, len(self.corners)), self._corner_list[4:],
-                                   [1.0, -1.0, 1.0, -1.0] * len(self._grown_list), strict=True)]
+            # the side of every corner around its rack (0: the hall's): a segment leaving a rack's corner along
+            # (dx, dy) passes it on the outside when side * dx * dy <= 0
+            self._sides = np.array([0.0] * 4 + [1.0, -1.0, 1.0, -1.0] * len(self._grown_list))
             # touching a grown rack is allowed
             self._open = self.grown + np.array([1e-6, 1e-6, -1e-6, -1e-6])
-            self._open_list = self._open.tolist()
         else:
             self._cover = self.free.buffer(1e-6)  # segments along the boundary count as inside
             shapely.prepare(self._cover)
@@ -82,10 +101,7 @@ class Roadmap:
     def graph(self) -> nx.Graph:
         """The visibility graph of the corners, built when a route first needs it (a route's ends that see each other
         need none)."""
-        graph = nx.Graph()
-        graph.add_nodes_from(self._nodes.tolist())
-        graph.add_weighted_edges_from(zip(*self._edges(), strict=True))
-        return graph
+        return _BuiltGraph(self._nodes.tolist(), *self._edges())
 
     def _edges(self) -> tuple[list[int], list[int], list[float]]:
         """The graph's edges: both corners and the length of every pair of corners that see each other, in the order
@@ -96,18 +112,13 @@ class Roadmap:
         route does at a corner it bends around) when side * dx * dy <= 0, at either end (the product keeps its
         sign along -(dx, dy)); and the corners are inside the hall, so the segment is in it.
         """
+        if self.grown is not None:  # (kernels.bitangent_edges: the loops of this NumPy form, the same values)
+            i, j, lengths = kernels.bitangent_edges(self.corners, self._sides, 4, self._open)
+            return i.tolist(), j.tolist(), lengths.tolist()
         i, j = (self._nodes[k] for k in _pairs(len(self._nodes)))
         a, b = self.corners[i], self.corners[j]
-        d = b - a
-        if self.grown is None:
-            visible = self._visible(a, b)
-        else:
-            turn = d[:, 0] * d[:, 1]
-            sides = np.array([0.0] * 4 + [1.0, -1.0, 1.0, -1.0] * len(self._grown_list))  # around each rack
-            keep = (sides[i] * turn <= 0) & (sides[j] * turn <= 0)
-            i, j, a, b, d = i[keep], j[keep], a[keep], b[keep], d[keep]
-            visible = segments_miss_boxes(a, b, self._open)
-        lengths = np.linalg.norm(d[visible], axis=1)
+        visible = self._visible(a, b)
+        lengths = np.linalg.norm((b - a)[visible], axis=1)
         return i[visible].tolist(), j[visible].tolist(), lengths.tolist()
 
     def _grown_racks(self) -> np.ndarray | None:
@@ -152,11 +163,7 @@ class Roadmap:
         (ax, ay), (bx, by), (x0, y0, x1, y1) = _floats(a), _floats(b), self._hall
         inside = x0 - 1e-6 <= min(ax, bx) and max(ax, bx) <= x1 + 1e-6 and y0 - 1e-6 <= min(ay, by) and \
             max(ay, by) <= y1 + 1e-6
-        return inside and self._misses_racks(ax, ay, bx, by)
-
-    def _misses_racks(self, ax: float, ay: float, bx: float, by: float) -> bool:
-        """Whether the segment enters none of the grown racks (floats; racks beside its bounding box skipped)."""
-        return _misses(self._open_list, ax, ay, bx, by)
+        return inside and kernels.misses_boxes(ax, ay, bx, by, self._open)
 
     def _joins(self, point: np.ndarray) -> tuple[list[int], list[float]]:
         """The graph's corners a route's end at ``point`` sees (and passes on the outside) and the edges' lengths;
@@ -166,14 +173,11 @@ class Roadmap:
         if joins is None and self.grown is None:
             nodes = self._nodes[self._visible(np.broadcast_to(point, self.corners.shape), self.corners)]
             joins = (nodes.tolist(), np.linalg.norm(self.corners[nodes] - point, axis=1).tolist())
-        elif joins is None:  # in floats: a dozen corners against a handful of racks
+        elif joins is None:  # the corners it sees and passes on the outside (kernels.joins), lengths as np.linalg.norm's
             (px, py), (x0, y0, x1, y1), joins = key, self._hall, ([], [])
             if x0 - 1e-6 <= px <= x1 + 1e-6 and y0 - 1e-6 <= py <= y1 + 1e-6:
-                for k, cx, cy, side in self._node_rows:
-                    dx, dy = px - cx, py - cy
-                    if side * dx * dy <= 0 and self._misses_racks(px, py, cx, cy):
-                        joins[0].append(k)
-                        joins[1].append(math.sqrt(dx * dx + dy * dy))  # np.linalg.norm's value
+                nodes, lengths = kernels.joins(px, py, self.corners, self._sides, 4, self._open)
+                joins = (nodes.tolist(), lengths.tolist())
         if len(self._joins_of) >= 4096:  # a fixed layout's roadmap lives for many episodes
             self._joins_of.clear()
         self._joins_of[key] = joins
@@ -228,18 +232,6 @@ class Roadmap:
 
 def _floats(point: Sequence[float]) -> list[float]:
     return point.tolist() if isinstance(point, np.ndarray) else point
-
-
-def _misses(boxes: list[list[float]], ax: float, ay: float, bx: float, by: float) -> bool:
-    """Whether the segment from (ax, ay) to (bx, by) enters none of the open ``boxes`` (:func:`segments_miss_boxes` of
-    one segment, in floats; boxes beside its bounding box are skipped)."""
-    (sx0, sx1), (sy0, sy1) = (ax, bx) if ax < bx else (bx, ax), (ay, by) if ay < by else (by, ay)
-    for box in boxes:  # (a plain loop: any() over a generator costs twice as much here)
-        x0, y0, x1, y1 = box
-        if x0 < sx1 and sx0 < x1 and y0 < sy1 and sy0 < y1 and \
-                segment_meets_box(ax, ay, bx - ax, by - ay, box, interior=True):
-            return False
-    return True
 
 
 __all__ = ["Roadmap"]

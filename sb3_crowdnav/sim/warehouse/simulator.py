@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import bisect
 import math
 from collections.abc import Sequence
 
@@ -14,11 +13,11 @@ from sb3_crowdnav.sim.config import RewardConfig, SceneConfig
 from sb3_crowdnav.sim.geometry import (
     SEGMENT_DIM,
     point_segment_distance_scalar,
-    segment_distance_scalar,
 )
 from sb3_crowdnav.sim.observation import HUMAN_DIM, ROBOT_DIM, Human, Robot
 from sb3_crowdnav.sim.rewards import RewardTerms, with_obstacle_collision, with_route_progress
 from sb3_crowdnav.sim.simulator import CrowdSimulator
+from sb3_crowdnav.sim.warehouse import kernels
 from sb3_crowdnav.sim.warehouse.boxes import segment_clearance
 from sb3_crowdnav.sim.warehouse.config import WarehouseConfig, check_feasible
 from sb3_crowdnav.sim.warehouse.layout import Roadmap, WarehouseLayout, generate_layout
@@ -62,7 +61,7 @@ class WarehouseSimulator(CrowdSimulator):
         self.segments = np.zeros((0, 4))
         self._segments_of: WarehouseLayout | None = None  # the layout whose segments are cached (see reset)
         self._seg_dist = np.zeros(0)  # distance from the robot's centre to every segment, kept current (_sense)
-        self._seg_order, self._seg_sorted = np.zeros(0, dtype=np.int64), []  # their stable order, sorted in floats
+        self._seg_order, self._seen = np.zeros(0, dtype=np.int64), 0  # their stable order, how many are observed
         self.hit_obstacle = False
         self.layout: WarehouseLayout | None = config.layout
         self._fixed: tuple[Roadmap, PickSlots] | None = None
@@ -97,10 +96,11 @@ class WarehouseSimulator(CrowdSimulator):
             self._sight = None  # where the robot's centre may go (shapely), built when _in_sight needs it
             boxes = self.layout.boxes
             self._boxes = None if boxes is None else [tuple(b) for b in boxes.tolist()]
-            self._segment_list = self.segments.tolist()
             seg_ab = self.segments[:, 2:] - self.segments[:, :2]
-            self._seg_len2 = np.maximum(np.sum(seg_ab**2, axis=1), 1e-18)
-            (self._seg_ax, self._seg_ay), (self._seg_abx, self._seg_aby) = self.segments[:, :2].T.copy(), seg_ab.T.copy()
+            # what kernels.sense reads of every segment: start, direction, squared length, the segment
+            self._seg_geometry = np.concatenate([self.segments[:, :2], seg_ab,
+                                                 np.maximum(np.sum(seg_ab**2, axis=1), 1e-18)[:, None], self.segments],
+                                                axis=1)
         start, goal = self._stations(rng)
         self._set_route(self.robot_map.waypoints(start, goal))
         self.route_index, self.replans = 1, 0
@@ -171,17 +171,21 @@ class WarehouseSimulator(CrowdSimulator):
     # ------------------------------------------------------------------ observation
     def _distances(self, x: float, y: float) -> np.ndarray:
         """Distance from the point (x, y) to every segment (S,) (:func:`point_segment_distance` on cached arrays)."""
-        abx, aby = self._seg_abx, self._seg_aby
-        dx, dy = x - self._seg_ax, y - self._seg_ay  # per coordinate: fewer, cheaper NumPy calls, the same values
-        t = np.minimum(np.maximum((dx * abx + dy * aby) / self._seg_len2, 0.0), 1.0)
-        return np.hypot(dx - t * abx, dy - t * aby)
+        return self._sense_at(x, y, x, y, self.scene.robot_radius)[0]
 
-    def _sense(self, x: float, y: float) -> None:
-        """The distances from the robot's centre at (x, y) to every segment, their stable order and the sorted
-        distances in floats (the observed segments and the candidates of the swept collision are prefixes of it)."""
-        self._seg_dist = self._distances(x, y)
-        self._seg_order = np.argsort(self._seg_dist, kind="stable")
-        self._seg_sorted = self._seg_dist[self._seg_order].tolist()
+    def _sense_at(self, x0: float, y0: float, x1: float, y1: float, reach: float) -> tuple:
+        """:func:`~sb3_crowdnav.sim.warehouse.kernels.sense` of the robot moving from (x0, y0) to (x1, y1)."""
+        return kernels.sense(self._seg_geometry, x0, y0, x1, y1, reach, self.scene.robot_radius,
+                             self.config.sensor_range, self.config.max_obstacles)
+
+    def _sense(self, x: float, y: float, p0: list[float] | None = None) -> bool:
+        """Sense from the robot's centre at (x, y), having come from ``p0`` (None: it did not move): the distances
+        to every segment, their stable order and how many of it are observed; whether the robot's disc swept from
+        ``p0`` touched a segment (the candidates: the segments closer than the radius + the step)."""
+        x0, y0 = (x, y) if p0 is None else p0
+        reach = self.scene.robot_radius + (0.0 if p0 is None else math.dist(p0, (x, y)))
+        self._seg_dist, self._seg_order, self._seen, hit = self._sense_at(x0, y0, x, y, reach)
+        return bool(hit) and p0 is not None
 
     def observed_obstacles(self) -> tuple[np.ndarray, np.ndarray]:
         """The ``max_obstacles`` segments nearest the robot within ``sensor_range``: (M, 4), mask (M,)
@@ -189,7 +193,7 @@ class WarehouseSimulator(CrowdSimulator):
         order, as many as are within range; kept while the same segments are seen in the same order: the observation
         copies them)."""
         m = self.config.max_obstacles
-        seen = self._seg_order[: min(m, bisect.bisect_right(self._seg_sorted, self.config.sensor_range))]
+        seen = self._seg_order[: self._seen]
         key = seen.tobytes()
         if key != self._obstacles_of[0]:
             out, mask = np.zeros((m, SEGMENT_DIM)), np.zeros(m, dtype=bool)
@@ -208,16 +212,6 @@ class WarehouseSimulator(CrowdSimulator):
         return self._waypoints_of[2]
 
     # ------------------------------------------------------------------ step
-    def _blocked(self, p: list[float], q: list[float], candidates: list[int]) -> bool:
-        """Whether the robot's disc moving straight from ``p`` to ``q`` touches one of the ``candidates`` segments
-        (:func:`~sb3_crowdnav.sim.geometry.segment_distance` below the radius; in floats, the same operations)."""
-        radius = self.scene.robot_radius
-        for k in candidates:
-            x0, y0, x1, y1 = self._segment_list[k]
-            if segment_distance_scalar(p, q, (x0, y0), (x1, y1)) < radius:
-                return True
-        return False
-
     def _in_sight(self, a: Sequence[float], b: Sequence[float]) -> bool:
         """Whether the robot's disc fits all along the segment ``a``-``b`` (to within 1 µm): with boxes for racks by
         the exact distance to the racks and walls, else shapely's ``covers`` by the free space of its radius + 1 µm."""
@@ -261,11 +255,7 @@ class WarehouseSimulator(CrowdSimulator):
         waypoint = self.route[self.route_index]  # the observed current waypoint (replanning replaces the array)
         terms = super().step(action)
         p1 = self.robot[Robot.POS].tolist()
-        self._sense(*p1)
-        # the candidates: the segments closer to p1 than the radius + the step (a prefix of the sorted distances)
-        reach, near = self.scene.robot_radius + math.dist(p0, p1), self._seg_sorted
-        hit = bool(near) and near[0] < reach and \
-            self._blocked(p0, p1, self._seg_order[: bisect.bisect_left(near, reach)].tolist())
+        hit = self._sense(*p1, p0=p0)
         if hit:  # (without a hit, with_obstacle_collision returns the terms unchanged)
             terms = with_obstacle_collision(terms, np.bool_(hit), self.config.obstacle_collision_penalty)
         self.hit_obstacle = hit and not bool(terms.min_distance < 0)

@@ -1,0 +1,239 @@
+"""Compiled loops (``numba``) of the warehouse's geometry: the robot's sensing and swept collision every step, and the
+visibility tests that build a roadmap and join a route's ends to it every reset.
+
+Each kernel is the loop form of a NumPy or Python-float function of the package and gives its values exactly (the same
+IEEE operations in the same order: no fast-math, divisions by zero giving inf/NaN as NumPy's do; ``math.hypot`` and
+``math.sqrt`` are the C library's, as NumPy's). A kernel stands in for several small NumPy calls on arrays of a few
+dozen values, whose per-call overhead costs more than the arithmetic. The tests compare each kernel with the function
+it replaces (``tests/test_warehouse_kernels.py``).
+
+Kernels compile on their first call and are cached on disk beside this file (``cache=True``): a new process loads them
+in milliseconds.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+_JIT = dict(cache=True, nogil=True, error_model="numpy")  # error_model: x / 0.0 is inf or NaN, as in NumPy
+
+
+@njit(**_JIT)
+def _point_segment(px, py, ax, ay, bx, by):  # pragma: no cover  (compiled)
+    """:func:`~sb3_crowdnav.sim.geometry.point_segment_distance_scalar`."""
+    abx, aby = bx - ax, by - ay
+    length2 = abx * abx + aby * aby
+    t = ((px - ax) * abx + (py - ay) * aby) / (length2 if length2 > 1e-18 else 1.0)
+    t = min(max(t, 0.0), 1.0)
+    dx, dy = px - (ax + t * abx), py - (ay + t * aby)
+    return math.sqrt(dx * dx + dy * dy)
+
+
+@njit(**_JIT)
+def _cross(ox, oy, ax, ay, bx, by):  # pragma: no cover  (compiled)
+    return (ax - ox) * (by - oy) - (ay - oy) * (bx - ox)
+
+
+@njit(**_JIT)
+def segment_distance(p0x, p0y, p1x, p1y, q0x, q0y, q1x, q1y):  # pragma: no cover  (compiled)
+    """:func:`~sb3_crowdnav.sim.geometry.segment_distance_scalar` of the segments p0-p1 and q0-q1."""
+    if _cross(q0x, q0y, q1x, q1y, p0x, p0y) * _cross(q0x, q0y, q1x, q1y, p1x, p1y) < 0 and \
+            _cross(p0x, p0y, p1x, p1y, q0x, q0y) * _cross(p0x, p0y, p1x, p1y, q1x, q1y) < 0:
+        return 0.0
+    return min(_point_segment(p0x, p0y, q0x, q0y, q1x, q1y), _point_segment(p1x, p1y, q0x, q0y, q1x, q1y),
+               _point_segment(q0x, q0y, p0x, p0y, p1x, p1y), _point_segment(q1x, q1y, p0x, p0y, p1x, p1y))
+
+
+@njit(**_JIT)
+def sense(geometry, p0x, p0y, p1x, p1y, reach, radius, sensor_range, max_count):  # pragma: no cover  (compiled)
+    """The robot's sensing after it moved from p0 to p1, against the segments of a layout.
+
+    :param geometry: (S, 9) every segment's start (x, y), direction (dx, dy), squared length (at least 1e-18), and
+        the segment ``[x0, y0, x1, y1]``
+    :param reach: the radius + the step's length: only segments closer than it to p1 can be touched
+    :return: the distance from p1 to every segment (S,) (``np.hypot`` of the clamped projection, as
+        ``WarehouseSimulator``'s NumPy form), its stable order (S,), how many of that order are observed (within
+        ``sensor_range``, at most ``max_count``), and whether the disc of ``radius`` swept from p0 to p1 touches a
+        segment closer than ``reach`` (:func:`segment_distance` below ``radius``)
+    """
+    ax, ay, abx, aby, len2, segments = geometry[:, 0], geometry[:, 1], geometry[:, 2], geometry[:, 3], \
+        geometry[:, 4], geometry[:, 5:]
+    n = ax.shape[0]
+    dist = np.empty(n)
+    for k in range(n):
+        dx, dy = p1x - ax[k], p1y - ay[k]
+        t = min(max((dx * abx[k] + dy * aby[k]) / len2[k], 0.0), 1.0)
+        dist[k] = math.hypot(dx - t * abx[k], dy - t * aby[k])
+    order = np.argsort(dist, kind="mergesort")  # stable
+    seen = 0
+    while seen < n and dist[order[seen]] <= sensor_range:
+        seen += 1
+    hit = False
+    for k in order:
+        if dist[k] >= reach:
+            break
+        if segment_distance(p0x, p0y, p1x, p1y, segments[k, 0], segments[k, 1], segments[k, 2],
+                            segments[k, 3]) < radius:
+            hit = True
+            break
+    return dist, order, min(seen, max_count), hit
+
+
+@njit(**_JIT)
+def _nan_min(a, b):  # pragma: no cover  (compiled)
+    """``np.minimum`` of two floats: NaN when either is."""
+    if a != a:
+        return a
+    if b != b:
+        return b
+    return a if a < b else b
+
+
+@njit(**_JIT)
+def _nan_max(a, b):  # pragma: no cover  (compiled)
+    """``np.maximum`` of two floats: NaN when either is."""
+    if a != a:
+        return a
+    if b != b:
+        return b
+    return a if a > b else b
+
+
+@njit(**_JIT)
+def _misses_all(ax, ay, bx, by, boxes):  # pragma: no cover  (compiled)
+    """:func:`~sb3_crowdnav.sim.warehouse.boxes.segments_miss_boxes` of one segment: Liang-Barsky clipping against
+    the open ``boxes`` (B, 4), divisions by zero and NaNs as NumPy's."""
+    dx, dy = bx - ax, by - ay
+    for k in range(boxes.shape[0]):
+        t_lo, t_hi = (boxes[k, 0] - ax) / dx, (boxes[k, 2] - ax) / dx
+        enter, leave = _nan_max(0.0, _nan_min(t_lo, t_hi)), _nan_min(1.0, _nan_max(t_lo, t_hi))
+        t_lo, t_hi = (boxes[k, 1] - ay) / dy, (boxes[k, 3] - ay) / dy
+        enter, leave = _nan_max(enter, _nan_min(t_lo, t_hi)), _nan_min(leave, _nan_max(t_lo, t_hi))
+        if enter < leave:
+            return False
+    return True
+
+
+@njit(**_JIT)
+def bitangent_edges(corners, sides, first, boxes):  # pragma: no cover  (compiled)
+    """The edges of a box roadmap's visibility graph (``Roadmap._edges``' NumPy form): every pair of corners i < j
+    from ``first`` on, in the order of ``np.triu_indices``, that passes both ends on the outside of their racks
+    (``sides[i] * dx * dy <= 0`` and likewise for j) and enters none of the open ``boxes``.
+
+    :return: i (E,), j (E,), and the lengths (E,) (``np.linalg.norm``'s value, sqrt(dx * dx + dy * dy))
+    """
+    n = corners.shape[0]
+    size = max((n - first) * (n - first - 1) // 2, 0)
+    out_i, out_j, out_len = np.empty(size, np.int64), np.empty(size, np.int64), np.empty(size)
+    count = 0
+    for i in range(first, n):
+        ax, ay = corners[i, 0], corners[i, 1]
+        for j in range(i + 1, n):
+            bx, by = corners[j, 0], corners[j, 1]
+            dx, dy = bx - ax, by - ay
+            turn = dx * dy
+            if sides[i] * turn <= 0 and sides[j] * turn <= 0 and _misses_all(ax, ay, bx, by, boxes):
+                out_i[count], out_j[count], out_len[count] = i, j, math.sqrt(dx * dx + dy * dy)
+                count += 1
+    return out_i[:count], out_j[:count], out_len[:count]
+
+
+@njit(**_JIT)
+def _meets_box_interior(ax, ay, dx, dy, x0, y0, x1, y1):  # pragma: no cover  (compiled)
+    """:func:`~sb3_crowdnav.sim.warehouse.boxes.segment_meets_box` with ``interior=True``."""
+    if dx == 0:
+        if not (x0 < ax < x1):
+            return False
+        enter, leave = 0.0, 1.0
+    else:
+        t0, t1 = (x0 - ax) / dx, (x1 - ax) / dx
+        if t1 < t0:
+            t0, t1 = t1, t0
+        enter, leave = (t0 if t0 > 0.0 else 0.0), (t1 if t1 < 1.0 else 1.0)
+    if dy == 0:
+        if not (y0 < ay < y1):
+            return False
+    else:
+        t0, t1 = (y0 - ay) / dy, (y1 - ay) / dy
+        if t1 < t0:
+            t0, t1 = t1, t0
+        enter, leave = (t0 if t0 > enter else enter), (t1 if t1 < leave else leave)
+    return enter < leave
+
+
+@njit(**_JIT)
+def misses_boxes(ax, ay, bx, by, boxes):  # pragma: no cover  (compiled)
+    """``roadmap._misses``: whether the segment from (ax, ay) to (bx, by) enters none of the open ``boxes`` (B, 4)
+    (boxes beside its bounding box skipped, the others by :func:`segment_meets_box`'s test)."""
+    sx0, sx1 = (ax, bx) if ax < bx else (bx, ax)
+    sy0, sy1 = (ay, by) if ay < by else (by, ay)
+    for k in range(boxes.shape[0]):
+        x0, y0, x1, y1 = boxes[k, 0], boxes[k, 1], boxes[k, 2], boxes[k, 3]
+        if x0 < sx1 and sx0 < x1 and y0 < sy1 and sy0 < y1 and \
+                _meets_box_interior(ax, ay, bx - ax, by - ay, x0, y0, x1, y1):
+            return False
+    return True
+
+
+@njit(**_JIT)
+def joins(px, py, corners, sides, first, boxes):  # pragma: no cover  (compiled)
+    """``Roadmap._joins`` of a point inside the hall: the corners from ``first`` on that (px, py) sees and passes on
+    the outside (``side * dx * dy <= 0`` with (dx, dy) = point - corner, :func:`misses_boxes`), and the lengths."""
+    n = corners.shape[0]
+    out_k, out_len = np.empty(max(n - first, 0), np.int64), np.empty(max(n - first, 0))
+    count = 0
+    for k in range(first, n):
+        cx, cy = corners[k, 0], corners[k, 1]
+        dx, dy = px - cx, py - cy
+        if sides[k] * dx * dy <= 0 and misses_boxes(px, py, cx, cy, boxes):
+            out_k[count], out_len[count] = k, math.sqrt(dx * dx + dy * dy)
+            count += 1
+    return out_k[:count], out_len[:count]
+
+
+@njit(**_JIT)
+def slot_points(segments, spacing, offset):  # pragma: no cover  (compiled)
+    """``pick_slots``' candidate points (n, 2): along every edge (S, 4) ``length // spacing`` points at
+    ``(k + 0.5) * length / count`` from its start, ``offset`` out along its normal (dy, -dx) / length (the NumPy
+    form's operations, element by element)."""
+    n_edges = segments.shape[0]
+    length, count = np.empty(n_edges), np.empty(n_edges, np.int64)
+    total = 0
+    for e in range(n_edges):
+        length[e] = math.hypot(segments[e, 2] - segments[e, 0], segments[e, 3] - segments[e, 1])
+        count[e] = np.int64(length[e] // spacing) if length[e] >= spacing else 0
+        total += count[e]
+    out = np.empty((total, 2))
+    row = 0
+    for e in range(n_edges):
+        ax, ay = segments[e, 0], segments[e, 1]
+        ex, ey = segments[e, 2] - ax, segments[e, 3] - ay
+        for k in range(count[e]):
+            t = (k + 0.5) * length[e] / count[e]
+            out[row, 0] = ax + ex * (t / length[e]) + ey / length[e] * offset
+            out[row, 1] = ay + ey * (t / length[e]) + -ex / length[e] * offset
+            row += 1
+    return out
+
+
+@njit(**_JIT)
+def points_clearance(points, boxes, w, h):  # pragma: no cover  (compiled)
+    """:func:`~sb3_crowdnav.sim.warehouse.boxes.points_clearance` (its values) of ``points`` (n, 2) in the hall
+    ``[-w, w] x [-h, h]``."""
+    n = points.shape[0]
+    out = np.empty(n)
+    for p in range(n):
+        x, y = points[p, 0], points[p, 1]
+        best = min(min(x + w, w - x), min(y + h, h - y))
+        for k in range(boxes.shape[0]):
+            dx = max(max(boxes[k, 0] - x, x - boxes[k, 2]), 0.0)
+            dy = max(max(boxes[k, 1] - y, y - boxes[k, 3]), 0.0)
+            best = min(best, math.sqrt(dx * dx + dy * dy))
+        out[p] = best
+    return out
+
+
+__all__ = ["bitangent_edges", "joins", "misses_boxes", "points_clearance", "segment_distance", "sense", "slot_points"]

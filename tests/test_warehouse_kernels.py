@@ -1,0 +1,163 @@
+"""The compiled kernels of the warehouse (``sb3_crowdnav.sim.warehouse.kernels``) give the values of the NumPy and
+float forms they replace, exactly, on generated layouts of wide ranges and on random and degenerate inputs; the graph
+built from dicts is the graph networkx's methods build."""
+
+from __future__ import annotations
+
+import copy
+import math
+import pickle
+
+import networkx as nx
+import numpy as np
+import pytest
+
+from sb3_crowdnav.sim.config import SceneConfig
+from sb3_crowdnav.sim.geometry import segment_distance_scalar
+from sb3_crowdnav.sim.warehouse import kernels
+from sb3_crowdnav.sim.warehouse.boxes import points_clearance, segment_meets_box, segments_miss_boxes
+from sb3_crowdnav.sim.warehouse.layout import LayoutRanges, Roadmap, generate_layout
+from sb3_crowdnav.sim.warehouse.pickers import pick_slots
+from sb3_crowdnav.sim.warehouse.roadmap import _BuiltGraph
+
+WIDE = LayoutRanges(rows=(1, 4), segments=(1, 3), rack_length=(1.0, 8.0), rack_depth=(0.5, 2.0),
+                    aisle_width=(1.0, 3.0), cross_aisle_width=(1.0, 3.0))
+
+
+def layouts(count: int, seed: int = 0):
+    rng = np.random.default_rng(seed)
+    return [generate_layout(rng, WIDE if i % 2 else None) for i in range(count)]
+
+
+# ---------------------------------------------------------------- the NumPy and float forms the kernels replace
+def numpy_sense(segments: np.ndarray, p1: np.ndarray):
+    ab = segments[:, 2:] - segments[:, :2]
+    len2 = np.maximum(np.sum(ab**2, axis=1), 1e-18)
+    dx, dy = p1[0] - segments[:, 0], p1[1] - segments[:, 1]
+    t = np.minimum(np.maximum((dx * ab[:, 0] + dy * ab[:, 1]) / len2, 0.0), 1.0)
+    d = np.hypot(dx - t * ab[:, 0], dy - t * ab[:, 1])
+    return d, np.argsort(d, kind="stable")
+
+
+def numpy_edges(corners: np.ndarray, sides: np.ndarray, boxes: np.ndarray):
+    i, j = (np.arange(4, len(corners))[k] for k in np.triu_indices(len(corners) - 4, k=1))
+    a, b = corners[i], corners[j]
+    d = b - a
+    turn = d[:, 0] * d[:, 1]
+    keep = (sides[i] * turn <= 0) & (sides[j] * turn <= 0)
+    i, j, a, b, d = i[keep], j[keep], a[keep], b[keep], d[keep]
+    visible = segments_miss_boxes(a, b, boxes)
+    return i[visible].tolist(), j[visible].tolist(), np.linalg.norm(d[visible], axis=1).tolist()
+
+
+def float_joins(point, corners: np.ndarray, sides: np.ndarray, boxes: np.ndarray):
+    (px, py), nodes, lengths = point, [], []
+    for k in range(4, len(corners)):
+        cx, cy = corners[k].tolist()
+        dx, dy = px - cx, py - cy
+        (sx0, sx1), (sy0, sy1) = sorted((px, cx)), sorted((py, cy))
+        misses = not any(x0 < sx1 and sx0 < x1 and y0 < sy1 and sy0 < y1 and
+                         segment_meets_box(px, py, cx - px, cy - py, (x0, y0, x1, y1), interior=True)
+                         for x0, y0, x1, y1 in boxes.tolist())
+        if sides[k] * dx * dy <= 0 and misses:
+            nodes.append(k)
+            lengths.append(math.sqrt(dx * dx + dy * dy))
+    return nodes, lengths
+
+
+def numpy_slots(segments: np.ndarray, spacing: float, offset: float) -> np.ndarray:
+    (ax, ay), (ex, ey) = segments[:, :2].T, (segments[:, 2:] - segments[:, :2]).T
+    length = np.hypot(ex, ey)
+    count = np.where(length >= spacing, length // spacing, 0.0).astype(np.int64)
+    edge = np.repeat(np.arange(len(count)), count)
+    k = np.arange(len(edge)) - np.repeat(np.cumsum(count) - count, count)
+    ax, ay, ex, ey, length = ax[edge], ay[edge], ex[edge], ey[edge], length[edge]
+    t = (k + 0.5) * length / count[edge]
+    return np.stack([ax + ex * (t / length) + ey / length * offset, ay + ey * (t / length) + -ex / length * offset], axis=1)
+
+
+# ---------------------------------------------------------------- the tests
+def test_sense_is_the_numpy_distances_their_stable_order_and_the_swept_disc_test():
+    rng = np.random.default_rng(1)
+    radius, sensor_range, max_count = 0.3, 4.0, 16
+    hits = 0
+    for layout in layouts(60):
+        segments = layout.segments
+        ab = segments[:, 2:] - segments[:, :2]
+        geometry = np.concatenate([segments[:, :2], ab, np.maximum(np.sum(ab**2, axis=1), 1e-18)[:, None], segments],
+                                  axis=1)
+        w, h = layout.width / 2, layout.height / 2
+        for _ in range(40):
+            p0 = rng.uniform((-w, -h), (w, h))
+            p1 = p0 + rng.normal(size=2) * 0.3
+            reach = radius + math.dist(p0, p1)
+            dist, order, seen, hit = kernels.sense(geometry, *p0, *p1, reach, radius, sensor_range, max_count)
+            expected_d, expected_order = numpy_sense(segments, p1)
+            np.testing.assert_array_equal(dist, expected_d)
+            np.testing.assert_array_equal(order, expected_order)
+            assert seen == min(max_count, int(np.count_nonzero(expected_d <= sensor_range)))
+            swept = any(segment_distance_scalar(p0, p1, s[:2], s[2:]) < radius for s in segments.tolist())
+            assert hit == swept
+            hits += hit
+    assert 0 < hits < 60 * 40  # both answers were asked
+
+
+def test_segment_distance_kernel_is_the_float_form():
+    rng = np.random.default_rng(2)
+    points = rng.choice(np.arange(-3.0, 3.5, 0.5), (3000, 8))  # on a grid: crossing, touching, collinear, degenerate
+    points[:1000] = rng.uniform(-3, 3, (1000, 8))
+    for p in points.tolist():
+        assert kernels.segment_distance(*p) == segment_distance_scalar(p[0:2], p[2:4], p[4:6], p[6:8])
+
+
+@pytest.mark.parametrize("clearance", [0.32, 0.4, 0.25])
+def test_the_roadmaps_edges_and_joins_are_the_numpy_and_float_forms(clearance):
+    rng = np.random.default_rng(3)
+    checked = 0
+    for layout in layouts(80, seed=4):
+        roadmap = Roadmap(layout, clearance)
+        if roadmap.grown is None:
+            continue
+        assert roadmap._edges() == numpy_edges(roadmap.corners, roadmap._sides, roadmap._open)
+        w, h = layout.width / 2, layout.height / 2
+        for point in [*rng.uniform((-w, -h), (w, h), (10, 2)).tolist(), *roadmap.corners[:6].tolist()]:
+            nodes, lengths = kernels.joins(*point, roadmap.corners, roadmap._sides, 4, roadmap._open)
+            assert (nodes.tolist(), lengths.tolist()) == float_joins(point, roadmap.corners, roadmap._sides,
+                                                                    roadmap._open)
+        checked += 1
+    assert checked > 40
+
+
+def test_slot_points_and_clearances_are_the_numpy_forms():
+    rng = np.random.default_rng(5)
+    for layout in layouts(200, seed=6):
+        for radius in (0.25, 0.3, 0.31):
+            spacing, offset = 2 * radius + 0.2, radius + 0.1
+            expected = numpy_slots(layout.rack_segments, spacing, offset)
+            np.testing.assert_array_equal(kernels.slot_points(layout.rack_segments, spacing, offset), expected)
+            w, h = layout.width / 2, layout.height / 2
+            points = np.concatenate([expected, rng.uniform((-w - 1, -h - 1), (w + 1, h + 1), (30, 2))])
+            np.testing.assert_array_equal(kernels.points_clearance(points, layout.boxes, w, h),
+                                          points_clearance(points, layout.boxes, (w, h)))
+    assert len(pick_slots(layouts(1)[0], SceneConfig())) > 10
+
+
+def test_the_built_graph_is_the_graph_networkx_methods_build():
+    """Same nodes, neighbours in the same order, shared edge dicts; A* finds the same paths; it copies and pickles
+    (as a plain graph) and is refused nothing networkx's algorithms ask of a graph."""
+    for layout in layouts(30, seed=7):
+        roadmap = Roadmap(layout, 0.4)
+        nodes, (i, j, w) = roadmap._nodes.tolist(), roadmap._edges()
+        built = _BuiltGraph(nodes, i, j, w)
+        plain = nx.Graph()
+        plain.add_nodes_from(nodes)
+        plain.add_weighted_edges_from(zip(i, j, w, strict=True))
+        assert list(built.nodes) == list(plain.nodes)
+        assert {u: list(nbrs.items()) for u, nbrs in built.adj.items()} == \
+            {u: list(nbrs.items()) for u, nbrs in plain.adj.items()}
+        assert all(built._adj[u][v] is built._adj[v][u] for u, v in built.edges)
+        for source, target in zip(nodes, reversed(nodes), strict=True):
+            if nx.has_path(plain, source, target):
+                assert nx.astar_path(built, source, target) == nx.astar_path(plain, source, target)
+        for other in (copy.deepcopy(built), pickle.loads(pickle.dumps(built)), built.copy()):
+            assert nx.utils.graphs_equal(other, plain)
