@@ -5,7 +5,7 @@ Robots: a fixed action (straight on at full speed; the simulator, rewards and ob
 actions held for 8 steps (drives into the warehouse's aisles and racks like an untrained policy), and the
 ORCA robot policy deciding every step (in the warehouse: obstacle-aware, following the route). Episodes
 are reset as they end, and the reset time is included (a warehouse reset draws a layout, plans routes and
-places the pickers). Usage::
+places the pickers). The two envs' runs alternate, and the best of each is reported. Usage::
 
     python benchmarks/env_speed.py [--steps 20000] [--repeats 3] [--reward crowdnav] [--breakdown] [--profile] [--cpu]
 
@@ -62,9 +62,12 @@ def breakdown(env: gym.Env, steps: int, policy: OrcaPolicy | str | None, cpu: bo
            f"{1e6 * per_step:.0f} us/step"
 
 
-def best(env: gym.Env, steps: int, policy: OrcaPolicy | str | None, repeats: int, cpu: bool = False) -> float:
-    """The best steps/s of ``repeats`` runs (wall-clock, or CPU time with ``cpu``)."""
-    return max(run(env, steps, policy, seed=i)[int(cpu)] for i in range(repeats))
+def best(envs: list[gym.Env], steps: int, policies: list, repeats: int, cpu: bool = False) -> list[float]:
+    """The best steps/s of ``repeats`` runs of each env (wall-clock, or CPU time with ``cpu``), the envs' runs
+    interleaved (a slower spell of a shared machine slows both)."""
+    rates = [[run(env, steps, policy, seed=i)[int(cpu)] for env, policy in zip(envs, policies, strict=True)]
+             for i in range(repeats)]
+    return [max(column) for column in zip(*rates, strict=True)]
 
 
 def main() -> None:
@@ -94,8 +97,7 @@ def main() -> None:
     for label, steps, make in (("fixed action", args.steps, lambda e: None),
                                ("random x 8", args.steps, lambda e: RANDOM),
                                ("ORCA robot", args.steps // 4, lambda e: OrcaPolicy.from_env(e, mapping="constrained"))):
-        open_floor = best(env, steps, make(env), args.repeats, args.cpu)
-        hall = best(warehouse, steps, make(warehouse), args.repeats, args.cpu)
+        open_floor, hall = best([env, warehouse], steps, [make(env), make(warehouse)], args.repeats, args.cpu)
         print(f"{label:<14}{open_floor:>12,.0f} /s{hall:>20,.0f} /s{hall / open_floor:>8.2f}")
         if args.breakdown:
             for name, e in (("CrowdNav-v0", env), ("CrowdNavWarehouse-v0", warehouse)):

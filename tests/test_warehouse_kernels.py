@@ -142,22 +142,102 @@ def test_slot_points_and_clearances_are_the_numpy_forms():
     assert len(pick_slots(layouts(1)[0], SceneConfig())) > 10
 
 
+def adjacency(graph: nx.Graph) -> dict:
+    return {u: list(nbrs.items()) for u, nbrs in graph.adj.items()}
+
+
 def test_the_built_graph_is_the_graph_networkx_methods_build():
     """Same nodes, neighbours in the same order, shared edge dicts; A* finds the same paths; it copies and pickles
-    (as a plain graph) and is refused nothing networkx's algorithms ask of a graph."""
+    (as a plain graph) and is refused nothing networkx's algorithms ask of a graph. With a route's ends: the graph
+    add_weighted_edges_from of the ends' edges makes, the built graph unchanged."""
+    rng = np.random.default_rng(8)
     for layout in layouts(30, seed=7):
         roadmap = Roadmap(layout, 0.4)
         nodes, (i, j, w) = roadmap._nodes.tolist(), roadmap._edges()
-        built = _BuiltGraph(nodes, i, j, w)
+        built = _BuiltGraph.from_edges(nodes, i, j, w)
         plain = nx.Graph()
         plain.add_nodes_from(nodes)
         plain.add_weighted_edges_from(zip(i, j, w, strict=True))
         assert list(built.nodes) == list(plain.nodes)
-        assert {u: list(nbrs.items()) for u, nbrs in built.adj.items()} == \
-            {u: list(nbrs.items()) for u, nbrs in plain.adj.items()}
+        assert adjacency(built) == adjacency(plain)
         assert all(built._adj[u][v] is built._adj[v][u] for u, v in built.edges)
         for source, target in zip(nodes, reversed(nodes), strict=True):
             if nx.has_path(plain, source, target):
                 assert nx.astar_path(built, source, target) == nx.astar_path(plain, source, target)
         for other in (copy.deepcopy(built), pickle.loads(pickle.dumps(built)), built.copy()):
             assert nx.utils.graphs_equal(other, plain)
+        before, n = adjacency(built), len(roadmap.corners)
+        w_, h_ = layout.width / 2, layout.height / 2
+        for start, goal in rng.uniform((-w_, -h_), (w_, h_), (8, 2, 2)).tolist():
+            (a, la), (b, lb) = roadmap._joins(start), roadmap._joins(goal)
+            ended = built.with_ends(n, a, la, b, lb)
+            plain.add_weighted_edges_from([*((n, k, x) for k, x in zip(a, la)), *((n + 1, k, x) for k, x in zip(b, lb))])
+            assert adjacency(ended) == adjacency(plain) and list(ended.nodes) == list(plain.nodes)
+            if a and b and nx.has_path(plain, n, n + 1):
+                assert nx.astar_path(ended, n, n + 1) == nx.astar_path(plain, n, n + 1)
+            plain.remove_nodes_from((n, n + 1))
+            assert adjacency(built) == before
+
+
+def float_pressed(state: np.ndarray, room, grown, boxes, hall, radius) -> list[int]:
+    from sb3_crowdnav.sim.warehouse.boxes import point_clearance as float_clearance
+
+    (x0, y0, x1, y1), out = room, []
+    for i, (x, y) in enumerate(state[:, :2].tolist()):
+        if x0 < x < x1 and y0 < y < y1 and not any(a < x < c and b < y < d for a, b, c, d in grown):
+            continue
+        if float_clearance(x, y, [tuple(b) for b in boxes], hall) < radius:
+            out.append(i)
+    return out
+
+
+def test_the_clearance_kernels_are_the_float_forms():
+    """point_clearance and pressed exactly; segment_clearance within an ulp (its hypot is the C library's) and the same
+    answer to every threshold the simulator asks; route_lost is the two tests of _advance_route."""
+    from sb3_crowdnav.sim.geometry import point_segment_distance_scalar
+    from sb3_crowdnav.sim.warehouse.boxes import point_clearance as float_clearance
+    from sb3_crowdnav.sim.warehouse.boxes import segment_clearance as float_segment_clearance
+
+    rng = np.random.default_rng(9)
+    pressed_seen = lost_seen = 0
+    for layout in layouts(60, seed=10):
+        boxes, (w, h), radius = layout.boxes, (layout.width / 2, layout.height / 2), 0.3
+        listed = [tuple(b) for b in boxes.tolist()]
+        points = np.concatenate([rng.uniform((-w - 0.5, -h - 0.5), (w + 0.5, h + 0.5), (200, 2)),
+                                 boxes[:, :2] + rng.normal(size=(len(boxes), 2)) * 0.3])
+        for x, y in points.tolist():
+            assert kernels.point_clearance(x, y, boxes, w, h) == float_clearance(x, y, listed, (w, h))
+        c = radius - 1e-6
+        room, grown = np.array([-w + c, -h + c, w - c, h - c]), boxes + np.array([-c, -c, c, c])
+        got = kernels.pressed(points, room, grown, boxes, w, h, c).tolist()
+        assert got == float_pressed(points, room.tolist(), grown.tolist(), boxes, (w, h), c)
+        pressed_seen += len(got)
+        for a, b in zip(points[::2].tolist(), points[1::2].tolist(), strict=False):
+            ours, theirs = kernels.segment_clearance(*a, *b, boxes, w, h, radius), float_segment_clearance(
+                a, b, listed, (w, h), radius)
+            assert ours == pytest.approx(theirs, rel=1e-15, abs=1e-15)
+            assert (ours >= radius - 1e-6) == (theirs >= radius - 1e-6)
+            previous = rng.uniform((-w, -h), (w, h))
+            lost = kernels.route_lost(*a, *previous, *b, 0.5, boxes, w, h, radius)
+            assert lost == (point_segment_distance_scalar(a, previous, b) > 0.5 or theirs < radius - 1e-6)
+            lost_seen += lost
+    assert pressed_seen > 0 and 0 < lost_seen
+
+
+def test_the_small_kernels_are_their_numpy_forms():
+    from sb3_crowdnav.sim.warehouse.boxes import separated
+
+    rng = np.random.default_rng(11)
+    for layout in layouts(100, seed=12):
+        w, h = layout.width / 2, layout.height / 2
+        for clearance in (0.0, 0.4, 1.5, 3.0):  # grown until they touch and leave the hall
+            grown, inner = layout.boxes + np.array([-clearance, -clearance, clearance, clearance]), (-w, -h, w, h)
+            assert kernels.separated(grown, *inner) == separated(grown, inner)
+        roadmap = Roadmap(layout, 0.4)
+        points = rng.uniform((-w, -h), (w, h), (64, 2))
+        if roadmap.grown is not None:
+            assert roadmap.free_points(points) == [roadmap.is_free(p) for p in points.tolist()]
+        start, goal = points[0], points[1]
+        expected = np.flatnonzero((np.hypot(*(points - start).T) >= 1.6) & (np.hypot(*(points - goal).T) >= 1.6))
+        np.testing.assert_array_equal(kernels.far_from_both(points, *start, *goal, 1.6), expected)
+        np.testing.assert_array_equal(kernels.distances_to(points, *goal), np.linalg.norm(points - goal, axis=1))

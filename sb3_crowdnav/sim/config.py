@@ -35,7 +35,7 @@ REWARDS = ("crowdnav", "comfort", "comfort_angular")
 
 def check_number(name: str, value: Any, *, positive: bool = True, allow_zero: bool = False) -> None:
     """``TypeError`` unless ``value`` is a real number (not a bool); ``ValueError`` unless finite (and > 0, or >= 0)."""
-    if isinstance(value, bool) or not isinstance(value, Real):
+    if type(value) is not float and (isinstance(value, bool) or not isinstance(value, Real)):
         raise TypeError(f"{name} must be a real number, got {value!r} ({type(value).__name__})")
     if not math.isfinite(value):
         raise ValueError(f"{name} must be finite, got {value!r}")

@@ -51,11 +51,11 @@ class OrcaCrowd:
         if obstacles:
             self.sim.process_obstacles()
         self.n = len(positions)
-        for p, r, v in zip(positions, radii, v_prefs, strict=True):
-            self.sim.add_agent(
-                (float(p[0]), float(p[1])), cfg.orca_neighbor_dist, cfg.orca_max_neighbors,
-                cfg.orca_time_horizon, cfg.orca_time_horizon_obst, float(r), float(v), (0.0, 0.0),
-            )
+        args = (cfg.orca_neighbor_dist, cfg.orca_max_neighbors, cfg.orca_time_horizon, cfg.orca_time_horizon_obst)
+        for (x, y), r, v in zip(np.asarray(positions, dtype=np.float64).reshape(-1, 2).tolist(),
+                                np.asarray(radii, dtype=np.float64).tolist(), np.asarray(v_prefs, dtype=np.float64).tolist(),
+                                strict=True):  # (in floats: one conversion per array)
+            self.sim.add_agent((x, y), *args, r, v, (0.0, 0.0))
         self.robot_id = None
         if robot is not None:
             pos, vel, radius = robot

@@ -236,4 +236,171 @@ def points_clearance(points, boxes, w, h):  # pragma: no cover  (compiled)
     return out
 
 
-__all__ = ["bitangent_edges", "joins", "misses_boxes", "points_clearance", "segment_distance", "sense", "slot_points"]
+@njit(**_JIT)
+def point_clearance(x, y, boxes, w, h):  # pragma: no cover  (compiled)
+    """:func:`~sb3_crowdnav.sim.warehouse.boxes.point_clearance` (its value)."""
+    best = min(x + w, w - x, y + h, h - y)
+    for k in range(boxes.shape[0]):
+        dx, dy = max(boxes[k, 0] - x, 0.0, x - boxes[k, 2]), max(boxes[k, 1] - y, 0.0, y - boxes[k, 3])
+        if dx < best and dy < best:
+            best = min(best, math.sqrt(dx * dx + dy * dy))
+    return best
+
+
+@njit(**_JIT)
+def pressed(state, room, grown, boxes, w, h, radius):  # pragma: no cover  (compiled)
+    """``PickerCrowd._pressed_indices`` with boxes for racks: the rows of ``state`` (n, >= 2: x, y first) whose centre
+    is closer than ``radius`` to a rack or a wall (:func:`point_clearance`), asked only of those outside ``room``
+    (x0, y0, x1, y1; open) or inside one of the ``grown`` boxes (open)."""
+    out = np.empty(state.shape[0], np.int64)
+    count = 0
+    for i in range(state.shape[0]):
+        x, y = state[i, 0], state[i, 1]
+        if room[0] < x < room[2] and room[1] < y < room[3]:
+            near = False
+            for k in range(grown.shape[0]):
+                if grown[k, 0] < x < grown[k, 2] and grown[k, 1] < y < grown[k, 3]:
+                    near = True
+                    break
+            if not near:
+                continue  # farther than the radius from every rack and wall
+        if point_clearance(x, y, boxes, w, h) < radius:
+            out[count] = i
+            count += 1
+    return out[:count]
+
+
+@njit(**_JIT)
+def _point_segment_hypot(px, py, ax, ay, dx, dy):  # pragma: no cover  (compiled)
+    """``boxes._point_segment``: distance from (px, py) to the segment from (ax, ay) along (dx, dy)."""
+    length2 = dx * dx + dy * dy
+    t = 0.0 if length2 <= 1e-18 else min(1.0, max(0.0, ((px - ax) * dx + (py - ay) * dy) / length2))
+    return math.hypot(px - ax - t * dx, py - ay - t * dy)
+
+
+@njit(**_JIT)
+def _meets_box(ax, ay, dx, dy, x0, y0, x1, y1):  # pragma: no cover  (compiled)
+    """:func:`~sb3_crowdnav.sim.warehouse.boxes.segment_meets_box` (the closed box)."""
+    if dx == 0:
+        if not (x0 <= ax <= x1):
+            return False
+        enter, leave = 0.0, 1.0
+    else:
+        t0, t1 = (x0 - ax) / dx, (x1 - ax) / dx
+        if t1 < t0:
+            t0, t1 = t1, t0
+        enter, leave = (t0 if t0 > 0.0 else 0.0), (t1 if t1 < 1.0 else 1.0)
+    if dy == 0:
+        if not (y0 <= ay <= y1):
+            return False
+    else:
+        t0, t1 = (y0 - ay) / dy, (y1 - ay) / dy
+        if t1 < t0:
+            t0, t1 = t1, t0
+        enter, leave = (t0 if t0 > enter else enter), (t1 if t1 < leave else leave)
+    return enter <= leave
+
+
+@njit(**_JIT)
+def segment_clearance(ax, ay, bx, by, boxes, w, h, cap):  # pragma: no cover  (compiled)
+    """:func:`~sb3_crowdnav.sim.warehouse.boxes.segment_clearance` (its operations; ``math.hypot`` is the C library's
+    here and CPython's own there, which differ in the last bit of about one distance in a hundred)."""
+    best = min(cap, ax + w, w - ax, ay + h, h - ay, bx + w, w - bx, by + h, h - by)
+    dx, dy = bx - ax, by - ay
+    sx0, sx1, sy0, sy1 = min(ax, bx), max(ax, bx), min(ay, by), max(ay, by)
+    for k in range(boxes.shape[0]):
+        x0, y0, x1, y1 = boxes[k, 0], boxes[k, 1], boxes[k, 2], boxes[k, 3]
+        if x0 - sx1 >= best or sx0 - x1 >= best or y0 - sy1 >= best or sy0 - y1 >= best:
+            continue
+        if _meets_box(ax, ay, dx, dy, x0, y0, x1, y1):
+            return 0.0
+        best = min(best, math.hypot(max(x0 - ax, 0.0, ax - x1), max(y0 - ay, 0.0, ay - y1)),
+                   math.hypot(max(x0 - bx, 0.0, bx - x1), max(y0 - by, 0.0, by - y1)),
+                   _point_segment_hypot(x0, y0, ax, ay, dx, dy), _point_segment_hypot(x0, y1, ax, ay, dx, dy),
+                   _point_segment_hypot(x1, y0, ax, ay, dx, dy), _point_segment_hypot(x1, y1, ax, ay, dx, dy))
+    return max(best, 0.0)
+
+
+@njit(**_JIT)
+def free_points(points, hall, grown):  # pragma: no cover  (compiled)
+    """``Roadmap.is_free`` of each of ``points`` (n, 2): strictly inside ``hall`` (x0, y0, x1, y1) and in none of the
+    closed ``grown`` boxes (B, 4)."""
+    out = np.empty(points.shape[0], np.bool_)
+    for p in range(points.shape[0]):
+        x, y = points[p, 0], points[p, 1]
+        free = hall[0] < x < hall[2] and hall[1] < y < hall[3]
+        for k in range(grown.shape[0]):
+            if not free:
+                break
+            if grown[k, 0] <= x <= grown[k, 2] and grown[k, 1] <= y <= grown[k, 3]:
+                free = False
+        out[p] = free
+    return out
+
+
+@njit(**_JIT)
+def route_lost(px, py, ax, ay, bx, by, replan_distance, boxes, w, h, radius):  # pragma: no cover  (compiled)
+    """``WarehouseSimulator._advance_route``'s test with boxes for racks: the robot at (px, py) strayed more than
+    ``replan_distance`` from the route's leg from (ax, ay) to its current waypoint (bx, by), or its disc does not fit
+    along the segment to that waypoint (:func:`segment_clearance` below ``radius`` - 1 µm)."""
+    if _point_segment(px, py, ax, ay, bx, by) > replan_distance:
+        return True
+    return not segment_clearance(px, py, bx, by, boxes, w, h, radius) >= radius - 1e-6
+
+
+@njit(**_JIT)
+def separated(boxes, x0, y0, x1, y1):  # pragma: no cover  (compiled)
+    """:func:`~sb3_crowdnav.sim.warehouse.boxes.separated`: ``boxes`` (B, 4) strictly inside the rectangle and
+    pairwise apart (a gap in x or y)."""
+    n = boxes.shape[0]
+    for k in range(n):
+        if not (x0 < boxes[k, 0] and y0 < boxes[k, 1] and boxes[k, 2] < x1 and boxes[k, 3] < y1):
+            return False
+    for k in range(n):
+        for m in range(k + 1, n):
+            if not (boxes[k, 2] < boxes[m, 0] or boxes[m, 2] < boxes[k, 0] or boxes[k, 3] < boxes[m, 1] or
+                    boxes[m, 3] < boxes[k, 1]):
+                return False
+    return True
+
+
+@njit(**_JIT)
+def far_from_both(points, ax, ay, bx, by, gap):  # pragma: no cover  (compiled)
+    """The indices of ``points`` (n, 2) at least ``gap`` from (ax, ay) and from (bx, by) (``np.hypot``)."""
+    out = np.empty(points.shape[0], np.int64)
+    count = 0
+    for p in range(points.shape[0]):
+        if math.hypot(points[p, 0] - ax, points[p, 1] - ay) >= gap and \
+                math.hypot(points[p, 0] - bx, points[p, 1] - by) >= gap:
+            out[count] = p
+            count += 1
+    return out[:count]
+
+
+@njit(**_JIT)
+def distances_to(points, gx, gy):  # pragma: no cover  (compiled)
+    """sqrt((x - gx)^2 + (y - gy)^2) of every row of ``points`` (n, 2) (``np.linalg.norm``'s operations)."""
+    out = np.empty(points.shape[0])
+    for p in range(points.shape[0]):
+        dx, dy = points[p, 0] - gx, points[p, 1] - gy
+        out[p] = math.sqrt(dx * dx + dy * dy)
+    return out
+
+
+__all__ = [
+    "bitangent_edges",
+    "distances_to",
+    "far_from_both",
+    "free_points",
+    "joins",
+    "misses_boxes",
+    "point_clearance",
+    "points_clearance",
+    "pressed",
+    "route_lost",
+    "segment_clearance",
+    "segment_distance",
+    "sense",
+    "separated",
+    "slot_points",
+]

@@ -286,24 +286,29 @@ def layout_from_sizes(rows: int, segments: int, rack_length: float, rack_depth: 
     """The regular layout of ``rows`` x ``segments`` racks with these sizes [m] (the hall fits around them)."""
     width = 2 * cross_aisle_width + segments * rack_length + (segments - 1) * cross_aisle_width
     height = (rows + 1) * aisle_width + rows * rack_depth
-    flat = []  # the four vertices of every rack (_box_vertices' order), then the hall's, in floats: one array below
+    flat, boxes = [], []  # the four vertices of every rack (_box_vertices' order), then the hall's; the racks' bounds
     for row in range(rows):
         y0 = -height / 2 + aisle_width + row * (rack_depth + aisle_width)
         for seg in range(segments):
             x0 = -width / 2 + cross_aisle_width + seg * (rack_length + cross_aisle_width)
             x1, y1 = x0 + rack_length, y0 + rack_depth
             flat += (x1, y0, x1, y1, x0, y1, x0, y0)
+            boxes += (x0, y0, x1, y1)
     w, h = width / 2, height / 2
     flat += (w, -h, w, h, -w, h, -w, -h)  # hall_vertices'
+    # every vertex with its successor along its ring (polygon_segments' rows), from the same floats
+    edges = []
+    for k in range(0, len(flat), 8):
+        ring = flat[k : k + 8]
+        edges += (*ring[0:4], *ring[2:6], *ring[4:8], *ring[6:8], *ring[0:2])
     rings = np.array(flat, dtype=np.float64).reshape(-1, 4, 2)
     vertices = rings[:-1]
     layout = WarehouseLayout(width=width, height=height, racks=vertices)
     # the cached properties, known without the checks: [xmin, ymin, xmax, ymax] (what rack_boxes finds), and the
     # racks, counter-clockwise already
-    layout.__dict__["boxes"] = vertices[:, [3, 1]].reshape(-1, 4)
+    layout.__dict__["boxes"] = np.array(boxes, dtype=np.float64).reshape(-1, 4)
     layout.__dict__["rack_vertices"] = list(layout.racks)
-    # and the edges, every vertex with its successor (polygon_segments' rows, copied from the same vertices)
-    segments = np.concatenate([rings, rings[:, [1, 2, 3, 0]]], axis=2).reshape(-1, 4)
+    segments = np.array(edges, dtype=np.float64).reshape(-1, 4)
     segments.setflags(write=False)
     layout.__dict__["segments"], layout.__dict__["rack_segments"] = segments, segments[: 4 * len(vertices)]
     return layout

@@ -26,7 +26,7 @@ from shapely.ops import nearest_points
 from sb3_crowdnav.sim.config import SceneConfig
 from sb3_crowdnav.sim.orca import OrcaCrowd
 from sb3_crowdnav.sim.warehouse import kernels
-from sb3_crowdnav.sim.warehouse.boxes import in_free_space, point_clearance
+from sb3_crowdnav.sim.warehouse.boxes import in_free_space
 from sb3_crowdnav.sim.warehouse.layout import WarehouseLayout
 from sb3_crowdnav.sim.warehouse.roadmap import Roadmap
 
@@ -98,10 +98,9 @@ class PickerCrowd:
         n = len(starts)
         self.n = n
         layout = self._layout = slots.layout
-        self._boxes = None if layout.boxes is None else layout.boxes.tolist()
         c, w, h = scene.human_radius - 1e-6, layout.width / 2, layout.height / 2
-        self._room, self._hall = (-w + c, -h + c, w - c, h - c), (w, h)  # inside it and outside the grown boxes: clear
-        self._grown = None if self._boxes is None else [(x0 - c, y0 - c, x1 + c, y1 + c) for x0, y0, x1, y1 in self._boxes]
+        self._room, self._hall = np.array([-w + c, -h + c, w - c, h - c]), (w, h)  # inside it, outside the grown boxes:
+        self._grown = None if layout.boxes is None else layout.boxes + np.array([-c, -c, c, c])  # clear of every rack
         self.orca = OrcaCrowd(scene, self.slots[starts], np.full(n, scene.human_radius), np.full(n, scene.human_v_pref),
                               None, obstacles=rvo_obstacles(layout))
         self.slot = np.array(starts, dtype=np.int64)  # a copy: the caller keeps the start slots
@@ -154,11 +153,13 @@ class PickerCrowd:
         dt = self.scene.time_step
         self.orca.set_preferred_velocities(self.preferred_velocities(positions))
         rows = self.orca.advance()  # [(x, y, vx, vy)] per picker
-        for i in self._pressed_indices(rows):  # never seen at Δt <= 0.5 s; a guard
-            p = self._outside(np.array(rows[i][:2]))
+        state = np.array(rows, dtype=np.float64).reshape(self.n, 4)
+        for i in self._pressed_indices(state):  # never seen at Δt <= 0.5 s; a guard
+            p = self._outside(state[i, :2].copy())
             if p is not None:
                 self.orca.move_agent(i, p)
                 rows[i] = (float(p[0]), float(p[1]), *rows[i][2:])
+                state[i, :2] = rows[i][:2]
         dwell, waypoint, routes = self.dwell, self.waypoint, self.routes
         for i, (x, y, _, _) in enumerate(rows):
             if dwell[i] > 0:
@@ -167,35 +168,24 @@ class PickerCrowd:
                     self._next_job(i)
             elif waypoint[i] == len(routes[i]) - 1 and math.dist((x, y), routes[i][-1]) < ARRIVAL:
                 dwell[i] = max(self.rng.uniform(*self.dwell_time), dt)
-        state = np.array(rows, dtype=np.float64).reshape(self.n, 4)
         return state[:, :2], state[:, 2:]
 
     def _pressed(self, positions: np.ndarray) -> np.ndarray:
         """(n,) bool: the pickers at ``positions`` (n, 2) pressed into a rack or a wall (see :meth:`_pressed_indices`)."""
         pressed = np.zeros(len(positions), dtype=bool)
-        pressed[self._pressed_indices(positions.tolist())] = True
+        pressed[self._pressed_indices(np.asarray(positions, dtype=np.float64))] = True
         return pressed
 
-    def _pressed_indices(self, rows: list) -> list[int]:
-        """The pickers (``rows``: x, y first) whose centre is closer than their radius (- 1 µm) to a rack or a wall.
-        With boxes for racks by the exact distance, asked only of the pickers inside a rack grown by that much
-        (square corners) or outside the hall shrunk by it; otherwise outside ``layout.free_space(radius - 1e-6)``."""
+    def _pressed_indices(self, state: np.ndarray) -> list[int]:
+        """The pickers (``state`` (n, >= 2): x, y first) whose centre is closer than their radius (- 1 µm) to a rack or
+        a wall. With boxes for racks by the exact distance (:func:`~sb3_crowdnav.sim.warehouse.kernels.pressed`),
+        asked only of the pickers inside a rack grown by that much (square corners) or outside the hall shrunk by it;
+        otherwise outside ``layout.free_space(radius - 1e-6)``."""
         radius = self.scene.human_radius - 1e-6
         if self._grown is None:
-            return np.flatnonzero(~in_free_space(self._layout, np.array([r[:2] for r in rows]).reshape(-1, 2),
-                                                 radius)).tolist()
-        (x0, y0, x1, y1), grown, hall, out = self._room, self._grown, self._hall, []
-        for i, row in enumerate(rows):
-            x, y = row[0], row[1]
-            if x0 < x < x1 and y0 < y < y1:
-                for a, b, c, d in grown:
-                    if a < x < c and b < y < d:
-                        break
-                else:
-                    continue  # farther than the radius from every rack and wall
-            if point_clearance(x, y, self._boxes, hall) < radius:
-                out.append(i)
-        return out
+            return np.flatnonzero(~in_free_space(self._layout, state[:, :2], radius)).tolist()
+        (w, h), boxes = self._hall, self._layout.boxes
+        return kernels.pressed(state, self._room, self._grown, boxes, w, h, radius).tolist()
 
     def _outside(self, position: np.ndarray) -> np.ndarray | None:
         """Where to put a picker centred at ``position`` that overlaps an obstacle (None: it does not)."""

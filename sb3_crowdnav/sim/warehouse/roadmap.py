@@ -15,7 +15,7 @@ from shapely.geometry import Point
 
 from sb3_crowdnav.sim.config import check_number
 from sb3_crowdnav.sim.warehouse import kernels
-from sb3_crowdnav.sim.warehouse.boxes import segments_miss_boxes, separated
+from sb3_crowdnav.sim.warehouse.boxes import segments_miss_boxes
 
 if TYPE_CHECKING:
     from sb3_crowdnav.sim.warehouse.layout import WarehouseLayout
@@ -28,21 +28,46 @@ def _pairs(n: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 class _BuiltGraph(nx.Graph):
-    """An undirected ``networkx`` graph handed its node and adjacency dicts built at once (the ``node_dict_factory``
-    and ``adjlist_outer_dict_factory`` hooks networkx documents for subclasses): the graph ``add_nodes_from(nodes)``
-    then ``add_weighted_edges_from(zip(i, j, weights))`` gives, the same dicts in the same order (each node's
-    neighbours in the order of the edges; the two directions of an edge share one attribute dict), without the
-    per-edge work of those methods. A visibility graph of a few dozen corners is built every episode."""
+    """An undirected ``networkx`` graph handed its node and adjacency dicts built (the ``node_dict_factory`` and
+    ``adjlist_outer_dict_factory`` hooks networkx documents for subclasses), without the per-edge work of its methods:
+    a visibility graph of a few dozen corners is built every episode, and a route adds its two ends to it.
 
-    def __init__(self, nodes: list | None = None, i: list | None = None, j: list | None = None,
-                 weights: list | None = None) -> None:
-        node_dict = {n: {} for n in nodes or ()}
-        adjacency: dict = {n: {} for n in node_dict}
-        for u, v, w in zip(i or (), j or (), weights or (), strict=True):
-            adjacency[u][v] = adjacency[v][u] = {"weight": w}
+    :meth:`from_edges` gives the dicts ``add_nodes_from(nodes)`` then ``add_weighted_edges_from(zip(i, j, weights))``
+    give (each node's neighbours in the order of the edges, the two directions of an edge sharing one attribute
+    dict), and :meth:`with_ends` those of a route's graph, this one unchanged.
+    """
+
+    def __init__(self, node_dict: dict | None = None, adjacency: dict | None = None) -> None:
+        node_dict = {} if node_dict is None else node_dict
+        adjacency = {} if adjacency is None else adjacency
         self.node_dict_factory = lambda: node_dict
         self.adjlist_outer_dict_factory = lambda: adjacency
         super().__init__()
+
+    @classmethod
+    def from_edges(cls, nodes: list, i: list, j: list, weights: list) -> _BuiltGraph:
+        node_dict = {n: {} for n in nodes}
+        adjacency: dict = {n: {} for n in node_dict}
+        for u, v, w in zip(i, j, weights, strict=True):
+            adjacency[u][v] = adjacency[v][u] = {"weight": w}
+        return cls(node_dict, adjacency)
+
+    def with_ends(self, start: int, start_joins: list, start_lengths: list, goal_joins: list,
+                  goal_lengths: list) -> _BuiltGraph:
+        """A new graph: this one with node ``start`` joined to ``start_joins`` and node ``start + 1`` (the goal) to
+        ``goal_joins``, as ``add_weighted_edges_from`` of the start's edges, then the goal's, would make it (an end
+        without joins is not added); this graph's dicts are shared where unchanged, copied where an end is added."""
+        node_dict, adjacency, base = dict(self._node), dict(self._adj), self._adj
+        for end, joins, lengths in ((start, start_joins, start_lengths), (start + 1, goal_joins, goal_lengths)):
+            if not joins:
+                continue
+            node_dict[end], mine = {}, {}
+            adjacency[end] = mine
+            for k, w in zip(joins, lengths, strict=True):
+                if adjacency[k] is base[k]:
+                    adjacency[k] = dict(base[k])
+                mine[k] = adjacency[k][end] = {"weight": w}
+        return _BuiltGraph(node_dict, adjacency)
 
     def __reduce__(self):  # copies and pickles as a plain graph (the factories above are per instance)
         return nx.Graph, (nx.to_dict_of_dicts(self),)
@@ -79,10 +104,11 @@ class Roadmap:
             x0, y0, x1, y1 = self._hall
             self._grown_list = self.grown.tolist()
             # the hall's corners, then each rack's counter-clockwise from (xmin, ymin)
-            self.corners = np.concatenate([[(x0, y0), (x0, y1), (x1, y1), (x1, y0)],
-                                           self.grown[:, [0, 1, 2, 1, 2, 3, 0, 3]].reshape(-1, 2)])
+            self._corner_list = [[x0, y0], [x0, y1], [x1, y1], [x1, y0]]
+            for gx0, gy0, gx1, gy1 in self._grown_list:
+                self._corner_list += ([gx0, gy0], [gx1, gy0], [gx1, gy1], [gx0, gy1])
+            self.corners = np.array(self._corner_list, dtype=np.float64)
             self._nodes = np.arange(4, len(self.corners))
-            self._corner_list = self.corners.tolist()
             # the side of every corner around its rack (0: the hall's): a segment leaving a rack's corner along
             # (dx, dy) passes it on the outside when side * dx * dy <= 0
             self._sides = np.array([0.0] * 4 + [1.0, -1.0, 1.0, -1.0] * len(self._grown_list))
@@ -101,7 +127,7 @@ class Roadmap:
     def graph(self) -> nx.Graph:
         """The visibility graph of the corners, built when a route first needs it (a route's ends that see each other
         need none)."""
-        return _BuiltGraph(self._nodes.tolist(), *self._edges())
+        return _BuiltGraph.from_edges(self._nodes.tolist(), *self._edges())
 
     def _edges(self) -> tuple[list[int], list[int], list[float]]:
         """The graph's edges: both corners and the length of every pair of corners that see each other, in the order
@@ -128,7 +154,7 @@ class Roadmap:
             return None
         c = self.clearance  # a mitred buffer of a box is the box grown by c (shapely's corners within an ulp)
         grown = boxes + np.array([-c, -c, c, c])
-        return grown if separated(grown, self._hall) else None
+        return grown if kernels.separated(grown, *self._hall) else None
 
     @functools.cached_property
     def free(self) -> Any:
@@ -147,6 +173,12 @@ class Roadmap:
         lo, hi = np.array([x0 - 1e-6, y0 - 1e-6]), np.array([x1 + 1e-6, y1 + 1e-6])
         in_hall = ((a >= lo) & (a <= hi) & (b >= lo) & (b <= hi)).all(axis=1)  # the hall is convex
         return in_hall & segments_miss_boxes(a, b, self._open)
+
+    def free_points(self, points: np.ndarray) -> list[bool]:
+        """:meth:`is_free` of each of ``points`` (n, 2) (with boxes for racks at once, :func:`kernels.free_points`)."""
+        if self.grown is None:
+            return [self.is_free(p) for p in points.tolist()]
+        return kernels.free_points(points, self._hall, self.grown).tolist()
 
     def is_free(self, point: Sequence[float]) -> bool:
         """Whether a disc of radius ``clearance`` centred at ``point`` is in the free space."""
@@ -203,17 +235,14 @@ class Roadmap:
         graph, n = self.graph, len(self.corners)
         points = [*self._corner_list, start, goal]
         gx, gy = goal
-        # the A* heuristic of every node (np.linalg.norm's operations, in floats)
-        remaining = [math.sqrt((x - gx) * (x - gx) + (y - gy) * (y - gy)) for x, y in points]
-        try:
-            graph.add_weighted_edges_from(itertools.chain(  # (one call: networkx clears its caches once)
-                zip([n] * len(from_start), from_start, start_lengths, strict=True),
-                zip([n + 1] * len(to_goal), to_goal, goal_lengths, strict=True)))
-            path = nx.astar_path(graph, n, n + 1, heuristic=lambda u, _: remaining[u])
+        # the A* heuristic of every node (np.linalg.norm's operations)
+        (sx, sy), remaining = start, kernels.distances_to(self.corners, gx, gy).tolist()
+        remaining += (math.sqrt((sx - gx) * (sx - gx) + (sy - gy) * (sy - gy)), 0.0)
+        try:  # (the graph with the ends added: what add_weighted_edges_from would make of it, the graph kept)
+            path = nx.astar_path(graph.with_ends(n, from_start, start_lengths, to_goal, goal_lengths), n, n + 1,
+                                 heuristic=lambda u, _: remaining[u])
         except (nx.NetworkXNoPath, nx.NodeNotFound):
             raise ValueError(f"no route from {tuple(start)} to {tuple(goal)} in the free space") from None
-        finally:
-            graph.remove_nodes_from((n, n + 1))
         return [[*points[k]] for k in path]  # (copies: the corners' lists stay the roadmap's)
 
     @staticmethod

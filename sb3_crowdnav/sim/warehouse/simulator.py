@@ -18,7 +18,6 @@ from sb3_crowdnav.sim.observation import HUMAN_DIM, ROBOT_DIM, Human, Robot
 from sb3_crowdnav.sim.rewards import RewardTerms, with_obstacle_collision, with_route_progress
 from sb3_crowdnav.sim.simulator import CrowdSimulator
 from sb3_crowdnav.sim.warehouse import kernels
-from sb3_crowdnav.sim.warehouse.boxes import segment_clearance
 from sb3_crowdnav.sim.warehouse.config import WarehouseConfig, check_feasible
 from sb3_crowdnav.sim.warehouse.layout import Roadmap, WarehouseLayout, generate_layout
 from sb3_crowdnav.sim.warehouse.pickers import PickerCrowd, PickSlots, pick_slots
@@ -94,8 +93,7 @@ class WarehouseSimulator(CrowdSimulator):
         if self._segments_of is not self.layout:  # the segments and what the steps compute from them, per layout
             self._segments_of, self.segments = self.layout, self.layout.segments
             self._sight = None  # where the robot's centre may go (shapely), built when _in_sight needs it
-            boxes = self.layout.boxes
-            self._boxes = None if boxes is None else [tuple(b) for b in boxes.tolist()]
+            self._boxes = self.layout.boxes
             seg_ab = self.segments[:, 2:] - self.segments[:, :2]
             # what kernels.sense reads of every segment: start, direction, squared length, the segment
             self._seg_geometry = np.concatenate([self.segments[:, :2], seg_ab,
@@ -117,7 +115,7 @@ class WarehouseSimulator(CrowdSimulator):
         lo, hi = s.humans_range
         n = int(rng.integers(lo, hi + 1))
         slots, gap = picks.points, s.robot_radius + s.human_radius + START_GAP
-        usable = np.flatnonzero((np.hypot(*(slots - start).T) >= gap) & (np.hypot(*(slots - goal).T) >= gap))
+        usable = kernels.far_from_both(slots, start[0], start[1], goal[0], goal[1], gap)  # np.hypot of each to both
         starts = self._spread(rng, slots[usable], n, 2 * s.human_radius + 0.2)
         self.num_humans = len(starts)
         self.pickers = PickerCrowd(s, picks, usable, starts, rng, cfg.dwell_time) if n else None
@@ -137,12 +135,12 @@ class WarehouseSimulator(CrowdSimulator):
         """Start and goal: free points (uniform) at least ``min_route_distance`` apart. Points are drawn uniformly
         in the hall, ``STATION_BATCH`` at a time: the first free one is the start, the first free one after it far
         enough away the goal (a new start after ``MAX_TRIES`` free ones too close)."""
-        w, h, is_free, far = self.layout.width / 2, self.layout.height / 2, self.robot_map.is_free, \
-            self.config.min_route_distance
+        w, h, far = self.layout.width / 2, self.layout.height / 2, self.config.min_route_distance
         start, tries = None, 0
         for _ in range(MAX_TRIES * MAX_TRIES // STATION_BATCH):
-            for x, y in rng.uniform((-w, -h), (w, h), (STATION_BATCH, 2)).tolist():
-                if not is_free((x, y)):
+            points = rng.uniform((-w, -h), (w, h), (STATION_BATCH, 2))
+            for (x, y), free in zip(points.tolist(), self.robot_map.free_points(points), strict=True):
+                if not free:
                     continue
                 if start is None:
                     start, tries = (x, y), 0
@@ -216,9 +214,10 @@ class WarehouseSimulator(CrowdSimulator):
         """Whether the robot's disc fits all along the segment ``a``-``b`` (to within 1 µm): with boxes for racks by
         the exact distance to the racks and walls, else shapely's ``covers`` by the free space of its radius + 1 µm."""
         radius = self.scene.robot_radius
-        if self._boxes is not None:
-            hall = (self.layout.width / 2, self.layout.height / 2)
-            return segment_clearance(a, b, self._boxes, hall, radius) >= radius - 1e-6
+        if self._boxes is not None:  # (kernels.segment_clearance: boxes.segment_clearance's operations)
+            (ax, ay), (bx, by) = a, b
+            return kernels.segment_clearance(ax, ay, bx, by, self._boxes, self.layout.width / 2, self.layout.height / 2,
+                                             radius) >= radius - 1e-6
         if self._sight is None:
             self._sight = self.layout.free_space(radius).buffer(1e-6)
             shapely.prepare(self._sight)
@@ -235,8 +234,14 @@ class WarehouseSimulator(CrowdSimulator):
         while self.route_index < last and math.dist(pos, points[self.route_index]) < radius:
             self.route_index += 1
         current = points[self.route_index]
-        off = point_segment_distance_scalar(pos, points[self.route_index - 1], current) > self.config.replan_distance
-        if off or not self._in_sight(pos, current):
+        if self._boxes is not None:  # (kernels.route_lost: the two tests below, compiled)
+            (ax, ay), (bx, by) = points[self.route_index - 1], current
+            lost = kernels.route_lost(pos[0], pos[1], ax, ay, bx, by, self.config.replan_distance, self._boxes,
+                                      self.layout.width / 2, self.layout.height / 2, self.scene.robot_radius)
+        else:
+            lost = point_segment_distance_scalar(pos, points[self.route_index - 1], current) > \
+                self.config.replan_distance or not self._in_sight(pos, current)
+        if lost:
             try:
                 self._set_route(self.robot_map.waypoints(pos, self._route_points[-1]))
                 self.route_index, self.replans = 1, self.replans + 1
