@@ -91,11 +91,13 @@ def test_sense_is_the_numpy_distances_their_stable_order_and_the_swept_disc_test
             p0 = rng.uniform((-w, -h), (w, h))
             p1 = p0 + rng.normal(size=2) * 0.3
             reach = radius + math.dist(p0, p1)
-            dist, order, seen, hit = kernels.sense(geometry, *p0, *p1, reach, radius, sensor_range, max_count)
+            dist, order, hit, observed, mask = kernels.sense(geometry, *p0, *p1, reach, radius, sensor_range, max_count)
             expected_d, expected_order = numpy_sense(segments, p1)
             np.testing.assert_array_equal(dist, expected_d)
             np.testing.assert_array_equal(order, expected_order)
-            assert seen == min(max_count, int(np.count_nonzero(expected_d <= sensor_range)))
+            seen = min(max_count, int(np.count_nonzero(expected_d <= sensor_range)))
+            np.testing.assert_array_equal(observed[:seen], segments[expected_order[:seen]])
+            assert not observed[seen:].any() and mask.tolist() == [True] * seen + [False] * (max_count - seen)
             swept = any(segment_distance_scalar(p0, p1, s[:2], s[2:]) < radius for s in segments.tolist())
             assert hit == swept
             hits += hit

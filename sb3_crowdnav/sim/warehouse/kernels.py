@@ -55,9 +55,10 @@ def sense(geometry, p0x, p0y, p1x, p1y, reach, radius, sensor_range, max_count):
         the segment ``[x0, y0, x1, y1]``
     :param reach: the radius + the step's length: only segments closer than it to p1 can be touched
     :return: the distance from p1 to every segment (S,) (``np.hypot`` of the clamped projection, as
-        ``WarehouseSimulator``'s NumPy form), its stable order (S,), how many of that order are observed (within
-        ``sensor_range``, at most ``max_count``), and whether the disc of ``radius`` swept from p0 to p1 touches a
-        segment closer than ``reach`` (:func:`segment_distance` below ``radius``)
+        ``WarehouseSimulator``'s NumPy form), its stable order (S,), whether the disc of ``radius`` swept from p0 to
+        p1 touches a segment closer than ``reach`` (:func:`segment_distance` below ``radius``), and the observed
+        segments: the first of that order within ``sensor_range``, at most ``max_count``, padded with zeros
+        (max_count, 4), with their mask (max_count,) bool
     """
     ax, ay, abx, aby, len2, segments = geometry[:, 0], geometry[:, 1], geometry[:, 2], geometry[:, 3], \
         geometry[:, 4], geometry[:, 5:]
@@ -68,8 +69,11 @@ def sense(geometry, p0x, p0y, p1x, p1y, reach, radius, sensor_range, max_count):
         t = min(max((dx * abx[k] + dy * aby[k]) / len2[k], 0.0), 1.0)
         dist[k] = math.hypot(dx - t * abx[k], dy - t * aby[k])
     order = np.argsort(dist, kind="mergesort")  # stable
+    observed, mask = np.zeros((max_count, 4)), np.zeros(max_count, np.bool_)
     seen = 0
-    while seen < n and dist[order[seen]] <= sensor_range:
+    while seen < n and seen < max_count and dist[order[seen]] <= sensor_range:
+        observed[seen] = segments[order[seen]]
+        mask[seen] = True
         seen += 1
     hit = False
     for k in order:
@@ -79,7 +83,7 @@ def sense(geometry, p0x, p0y, p1x, p1y, reach, radius, sensor_range, max_count):
                             segments[k, 3]) < radius:
             hit = True
             break
-    return dist, order, min(seen, max_count), hit
+    return dist, order, hit, observed, mask
 
 
 @njit(**_JIT)

@@ -276,8 +276,10 @@ def generate_layout(rng: np.random.Generator, ranges: LayoutRanges | None = None
     r = LayoutRanges() if ranges is None else ranges
     rows = int(rng.integers(r.rows[0], r.rows[1] + 1))
     segments = int(rng.integers(r.segments[0], r.segments[1] + 1))
-    lo, hi = zip(*(getattr(r, k) for k in ("rack_length", "rack_depth", "aisle_width", "cross_aisle_width")), strict=True)
-    length, depth, aisle, cross = rng.uniform(lo, hi).tolist()  # one call: the values of four, in the same order
+    # rng.uniform(lows, highs) of the four sizes as Generator.uniform computes it (low + (high - low) * draw, the
+    # same draws in the same order), without converting the bounds to arrays
+    length, depth, aisle, cross = [lo + (hi - lo) * u for (lo, hi), u in zip(
+        (r.rack_length, r.rack_depth, r.aisle_width, r.cross_aisle_width), rng.random(4).tolist(), strict=True)]
     return layout_from_sizes(rows, segments, length, depth, aisle, cross)
 
 

@@ -60,7 +60,8 @@ class WarehouseSimulator(CrowdSimulator):
         self.segments = np.zeros((0, 4))
         self._segments_of: WarehouseLayout | None = None  # the layout whose segments are cached (see reset)
         self._seg_dist = np.zeros(0)  # distance from the robot's centre to every segment, kept current (_sense)
-        self._seg_order, self._seen = np.zeros(0, dtype=np.int64), 0  # their stable order, how many are observed
+        self._seg_order = np.zeros(0, dtype=np.int64)  # their stable order
+        self._observed = [np.zeros((config.max_obstacles, SEGMENT_DIM)), np.zeros(config.max_obstacles, dtype=bool)]
         self.hit_obstacle = False
         self.layout: WarehouseLayout | None = config.layout
         self._fixed: tuple[Roadmap, PickSlots] | None = None
@@ -70,7 +71,6 @@ class WarehouseSimulator(CrowdSimulator):
         self.replans = 0
         self.progress_term = 0.0
         self._waypoints_of: tuple[np.ndarray | None, int, np.ndarray] = (None, 0, np.zeros((0, 2)))
-        self._obstacles_of: tuple[bytes | None, np.ndarray, np.ndarray] = (None, np.zeros((0, 4)), np.zeros(0, bool))
         self._route_points: list[list[float]] = []  # self.route in floats, for the per-step checks
 
     # ------------------------------------------------------------------ reset
@@ -102,7 +102,6 @@ class WarehouseSimulator(CrowdSimulator):
         start, goal = self._stations(rng)
         self._set_route(self.robot_map.waypoints(start, goal))
         self.route_index, self.replans = 1, 0
-        self._obstacles_of = (None, *self._obstacles_of[1:])  # another layout's segments
         self.route_length = self.robot_map.route_length(self._route_points)
         self.max_steps = math.ceil((cfg.time_limit_slack + cfg.time_limit_factor * self.route_length / s.robot_v_pref)
                                    / s.time_step)
@@ -136,9 +135,13 @@ class WarehouseSimulator(CrowdSimulator):
         in the hall, ``STATION_BATCH`` at a time: the first free one is the start, the first free one after it far
         enough away the goal (a new start after ``MAX_TRIES`` free ones too close)."""
         w, h, far = self.layout.width / 2, self.layout.height / 2, self.config.min_route_distance
+        # rng.uniform((-w, -h), (w, h), (STATION_BATCH, 2)) as Generator.uniform computes it (low + range * draw,
+        # the same draws), without converting the bounds at every call
+        low = np.array([-w, -h])
+        span = np.array([w, h]) - low
         start, tries = None, 0
         for _ in range(MAX_TRIES * MAX_TRIES // STATION_BATCH):
-            points = rng.uniform((-w, -h), (w, h), (STATION_BATCH, 2))
+            points = low + span * rng.random((STATION_BATCH, 2))
             for (x, y), free in zip(points.tolist(), self.robot_map.free_points(points), strict=True):
                 if not free:
                     continue
@@ -182,22 +185,14 @@ class WarehouseSimulator(CrowdSimulator):
         ``p0`` touched a segment (the candidates: the segments closer than the radius + the step)."""
         x0, y0 = (x, y) if p0 is None else p0
         reach = self.scene.robot_radius + (0.0 if p0 is None else math.dist(p0, (x, y)))
-        self._seg_dist, self._seg_order, self._seen, hit = self._sense_at(x0, y0, x, y, reach)
+        self._seg_dist, self._seg_order, hit, *self._observed = self._sense_at(x0, y0, x, y, reach)
         return bool(hit) and p0 is not None
 
     def observed_obstacles(self) -> tuple[np.ndarray, np.ndarray]:
         """The ``max_obstacles`` segments nearest the robot within ``sensor_range``: (M, 4), mask (M,)
-        (:func:`~sb3_crowdnav.sim.geometry.nearest_segments`' rule on the cached distances: the first of their stable
-        order, as many as are within range; kept while the same segments are seen in the same order: the observation
-        copies them)."""
-        m = self.config.max_obstacles
-        seen = self._seg_order[: self._seen]
-        key = seen.tobytes()
-        if key != self._obstacles_of[0]:
-            out, mask = np.zeros((m, SEGMENT_DIM)), np.zeros(m, dtype=bool)
-            out[: len(seen)], mask[: len(seen)] = self.segments[seen], True
-            self._obstacles_of = (key, out, mask)
-        return self._obstacles_of[1], self._obstacles_of[2]
+        (:func:`~sb3_crowdnav.sim.geometry.nearest_segments`' rule on the sensed distances: the first of their stable
+        order, as many as are within range, zeros after them; :func:`~sb3_crowdnav.sim.warehouse.kernels.sense`)."""
+        return self._observed[0], self._observed[1]
 
     def observed_waypoints(self) -> np.ndarray:
         """The current waypoint and the next ones, (K, 2), the goal repeated at the end (kept until the route or the
