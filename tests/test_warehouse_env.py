@@ -233,6 +233,33 @@ def test_a_picker_pressed_into_a_rack_is_pushed_out_to_its_radius():
     assert sim.pickers._outside(np.array(sim.pickers.slots[0])) is None  # a pick slot is clear of every rack
 
 
+def test_a_picker_pressed_during_a_step_is_moved_out_and_the_dwells_still_count_down():
+    """A step whose ORCA result puts a picker inside a rack: the picker ends the step outside it (at its radius from
+    the surface, in the simulator and in RVO2), and the other pickers' dwells count down as in any step."""
+    env = gym.make("CrowdNavWarehouse-v0", num_humans=6)
+    env.reset(seed=5)
+    sim = env.unwrapped.sim
+    pickers, rack = sim.pickers, Polygon(sim.layout.racks[0])
+    inside = np.asarray(rack.exterior.coords[0]) + 0.05
+    advance = pickers.orca.advance
+
+    def pressed_advance():
+        rows = advance()
+        rows[0] = (float(inside[0]), float(inside[1]), *rows[0][2:])
+        return rows
+
+    pickers.orca.advance = pressed_advance
+    dwell = pickers.dwell.copy()
+    env.step(0)
+    position = sim.history[-1, 0, :2]
+    assert not rack.contains(Point(position))
+    assert rack.exterior.distance(Point(position)) == pytest.approx(0.3 + 1e-3, abs=1e-6)
+    np.testing.assert_allclose(pickers.orca.sim.get_agent_position(0).to_tuple(), position, atol=1e-6)  # (RVO2: float)
+    standing = dwell > 0
+    assert standing.any()
+    np.testing.assert_array_equal(pickers.dwell[standing], np.maximum(0.0, dwell[standing] - 0.25))
+
+
 def test_the_fast_geometric_tests_of_a_step_agree_with_shapely_and_numpy():
     """The robot's line of sight, the pickers' overlap guard and the swept-disc hit test, in floats or on boxes,
     give what the shapely predicates and :func:`segment_distance` give."""

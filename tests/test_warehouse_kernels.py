@@ -243,3 +243,76 @@ def test_the_small_kernels_are_their_numpy_forms():
         expected = np.flatnonzero((np.hypot(*(points - start).T) >= 1.6) & (np.hypot(*(points - goal).T) >= 1.6))
         np.testing.assert_array_equal(kernels.far_from_both(points, *start, *goal, 1.6), expected)
         np.testing.assert_array_equal(kernels.distances_to(points, *goal), np.linalg.norm(points - goal, axis=1))
+
+
+def test_py_hypot_is_cpythons_hypot_and_dist():
+    """CPython 3.11's algorithm, bit for bit there (elsewhere within an ulp: later Pythons changed theirs)."""
+    import sys
+
+    rng = np.random.default_rng(13)
+    values = np.concatenate([rng.normal(size=(40_000, 2)) * rng.choice([1e-6, 1e-2, 1.0, 10.0, 1e4], (40_000, 1)),
+                             np.round(rng.normal(size=(20_000, 2)), 2), [[0.0, 0.0], [-0.0, 3.0], [3.0, -4.0]]])
+    ours = np.array([kernels.py_hypot(x, y) for x, y in values.tolist()])
+    theirs = np.array([math.hypot(x, y) for x, y in values.tolist()])
+    if sys.version_info[:2] == (3, 11):
+        np.testing.assert_array_equal(ours, theirs)
+        assert [kernels.py_hypot(x - 0.5, y + 1.25) for x, y in values[:500].tolist()] == \
+            [math.dist((x, y), (0.5, -1.25)) for x, y in values[:500].tolist()]
+    np.testing.assert_allclose(ours, theirs, rtol=2.3e-16, atol=0)
+    assert math.isnan(kernels.py_hypot(math.nan, 1.0)) and kernels.py_hypot(math.inf, math.nan) == math.inf
+
+
+def float_preferences(positions, dwell, waypoint, routes, v_pref, arrival):
+    """PickerCrowd.preferred_velocities in floats (the form the kernel replaces)."""
+    out = []
+    for i, (x, y) in enumerate(positions.tolist()):
+        if dwell[i] > 0:
+            out.append([0.0, 0.0])
+            continue
+        route, w = routes[i], waypoint[i]
+        while w < len(route) - 1 and math.dist((x, y), route[w]) < arrival:
+            w += 1
+        waypoint[i] = w
+        dx, dy = route[w][0] - x, route[w][1] - y
+        norm = math.hypot(dx, dy)
+        if norm > v_pref or (w < len(route) - 1 and norm > 1e-9):
+            dx, dy = dx / norm * v_pref, dy / norm * v_pref
+        out.append([dx, dy])
+    return out
+
+
+def test_the_picker_kernels_are_the_float_loops():
+    """Preferred velocities (waypoints passed within reach, slowing into the last one, zero while standing) and the
+    countdown with its events, against the loops they replace, on random routes and positions near waypoints."""
+    rng = np.random.default_rng(14)
+    events = {1: 0, 2: 0}
+    for _ in range(300):
+        n = int(rng.integers(1, 8))
+        routes = [rng.uniform(-5, 5, (int(rng.integers(1, 6)), 2)).tolist() for _ in range(n)]
+        array, lengths = np.zeros((n, 6, 2)), np.array([len(r) for r in routes], dtype=np.int64)
+        for i, route in enumerate(routes):
+            array[i, : len(route)] = route
+        waypoint = rng.integers(0, lengths)
+        near = np.array([routes[i][min(w + int(rng.integers(0, 2)), len(routes[i]) - 1)] for i, w in enumerate(waypoint)])
+        positions = near + rng.normal(size=(n, 2)) * rng.choice([0.05, 0.2, 2.0])
+        dwell = np.where(rng.random(n) < 0.4, rng.choice([0.1, 0.25, 1.0], n), 0.0)
+        ours_w, theirs_w = waypoint.copy(), waypoint.tolist()
+        ours = kernels.picker_preferences(positions, dwell, ours_w, array, lengths, 1.0, 0.25).tolist()
+        assert ours == float_preferences(positions, dwell, theirs_w, routes, 1.0, 0.25)
+        assert ours_w.tolist() == theirs_w
+        state = np.concatenate([positions, np.zeros((n, 2))], axis=1)
+        ours_d = dwell.copy()
+        which, what = kernels.picker_progress(state, ours_d, ours_w, array, lengths, 0.25, 0.25)
+        expected = []
+        for i, (x, y) in enumerate(positions.tolist()):
+            if dwell[i] > 0:
+                dwell[i] = max(0.0, dwell[i] - 0.25)
+                if dwell[i] == 0:
+                    expected.append((i, 1))
+            elif theirs_w[i] == len(routes[i]) - 1 and math.dist((x, y), routes[i][-1]) < 0.25:
+                expected.append((i, 2))
+        assert list(zip(which.tolist(), what.tolist(), strict=True)) == expected
+        np.testing.assert_array_equal(ours_d, dwell)
+        for _, event in expected:
+            events[event] += 1
+    assert events[1] > 0 and events[2] > 0

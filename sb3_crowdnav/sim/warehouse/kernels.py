@@ -7,6 +7,10 @@ IEEE operations in the same order: no fast-math, divisions by zero giving inf/Na
 dozen values, whose per-call overhead costs more than the arithmetic. The tests compare each kernel with the function
 it replaces (``tests/test_warehouse_kernels.py``).
 
+Where the replaced code calls CPython's ``math.hypot`` or ``math.dist`` (correctly rounded in most cases, unlike the
+C library's ``hypot``), the kernel calls :func:`py_hypot`, CPython 3.11's algorithm for two values, so that the kernel
+gives the same values on the Python the package is tested with.
+
 Kernels compile on their first call and are cached on disk beside this file (``cache=True``): a new process loads them
 in milliseconds.
 """
@@ -19,6 +23,55 @@ import numpy as np
 from numba import njit
 
 _JIT = dict(cache=True, nogil=True, error_model="numpy")  # error_model: x / 0.0 is inf or NaN, as in NumPy
+
+
+_T27 = 134217729.0  # 2 ** 27 + 1: Veltkamp-Dekker splitting
+
+
+@njit(**_JIT)
+def _two_sum_into(csum, frac, v):  # pragma: no cover  (compiled)
+    """csum + v and the error of that sum added to ``frac`` (|csum| >= |v|)."""
+    total = csum + v
+    return total, frac + ((csum - total) + v)
+
+
+@njit(**_JIT)
+def py_hypot(x, y):  # pragma: no cover  (compiled)
+    """CPython 3.11's ``math.hypot(x, y)`` (``vector_norm`` of two values: scaled by a power of two, squared exactly
+    with Veltkamp-Dekker splitting, summed with separate error terms, then one differential correction of the square
+    root); also ``math.dist`` of two points, the hypot of their differences."""
+    x, y = abs(x), abs(y)
+    mx = 0.0
+    if x > mx:
+        mx = x
+    if y > mx:
+        mx = y
+    if math.isinf(mx):
+        return mx
+    if math.isnan(x) or math.isnan(y):
+        return math.nan
+    if mx == 0.0:
+        return mx
+    e = math.frexp(mx)[1]
+    scale = math.ldexp(1.0, -e)  # (CPython's path for subnormal maxima is not reproduced: no distance here has one)
+    csum, frac1, frac2, frac3 = 1.0, 0.0, 0.0, 0.0
+    for v in (x, y):
+        v *= scale
+        t = v * _T27
+        hi = t - (t - v)
+        lo = v - hi
+        csum, frac1 = _two_sum_into(csum, frac1, hi * hi)
+        csum, frac2 = _two_sum_into(csum, frac2, 2.0 * hi * lo)
+        frac3 += lo * lo
+    h = math.sqrt(csum - 1.0 + (frac1 + frac2 + frac3))
+    t = h * _T27
+    hi = t - (t - h)
+    lo = h - hi
+    csum, frac1 = _two_sum_into(csum, frac1, -hi * hi)
+    csum, frac2 = _two_sum_into(csum, frac2, -2.0 * hi * lo)
+    csum, frac3 = _two_sum_into(csum, frac3, -lo * lo)
+    v = csum - 1.0 + (frac1 + frac2 + frac3)
+    return (h + v / (2.0 * h)) / scale
 
 
 @njit(**_JIT)
@@ -391,6 +444,68 @@ def distances_to(points, gx, gy):  # pragma: no cover  (compiled)
     return out
 
 
+@njit(**_JIT)
+def picker_preferences(positions, dwell, waypoint, routes, lengths, v_pref, arrival):  # pragma: no cover
+    """``PickerCrowd.preferred_velocities``: (n, 2) towards each walking picker's current waypoint at ``v_pref``
+    (slowing into the last one), zero for a standing one (``dwell`` > 0); a walking picker first passes the
+    waypoints within ``arrival`` (never the last), ``waypoint`` (n,) updated in place.
+
+    :param routes: (n, K, 2) each picker's waypoints, the first ``lengths[i]`` of row i
+    """
+    out = np.zeros((positions.shape[0], 2))
+    for i in range(positions.shape[0]):
+        if dwell[i] > 0:
+            continue
+        x, y, w, last = positions[i, 0], positions[i, 1], waypoint[i], lengths[i] - 1
+        while w < last and py_hypot(x - routes[i, w, 0], y - routes[i, w, 1]) < arrival:
+            w += 1
+        waypoint[i] = w
+        dx, dy = routes[i, w, 0] - x, routes[i, w, 1] - y
+        norm = py_hypot(dx, dy)
+        if norm > v_pref or (w < last and norm > 1e-9):
+            dx, dy = dx / norm * v_pref, dy / norm * v_pref
+        out[i, 0], out[i, 1] = dx, dy
+    return out
+
+
+@njit(**_JIT)
+def picker_progress(state, dwell, waypoint, routes, lengths, dt, arrival):  # pragma: no cover  (compiled)
+    """After a step: a standing picker's dwell counts down by ``dt`` (to 0 at least; ``dwell`` updated in place); the
+    pickers with something to do next, in order, (k,), and what: 1 its dwell is over (a new job), 2 it walked within
+    ``arrival`` of the last waypoint of its route (it stands: a dwell is drawn), (k,)."""
+    n = state.shape[0]
+    which, what = np.empty(n, np.int64), np.empty(n, np.int64)
+    count = 0
+    for i in range(n):
+        event = 0
+        if dwell[i] > 0:
+            dwell[i] = max(0.0, dwell[i] - dt)
+            if dwell[i] == 0:
+                event = 1
+        else:
+            last = lengths[i] - 1
+            if waypoint[i] == last and py_hypot(state[i, 0] - routes[i, last, 0], state[i, 1] - routes[i, last, 1]) < \
+                    arrival:
+                event = 2
+        if event:
+            which[count], what[count] = i, event
+            count += 1
+    return which[:count], what[:count]
+
+
+@njit(**_JIT)
+def picker_after_step(state, room, grown, boxes, w, h, radius, dwell, waypoint, routes, lengths, dt,
+                      arrival):  # pragma: no cover  (compiled)
+    """:func:`pressed`, then, when no picker is pressed into a rack (always so far), :func:`picker_progress`: the
+    pressed pickers, and the pickers with something to do next and what (both empty when some are pressed: the caller
+    moves them out first, then asks :func:`picker_progress`)."""
+    out = pressed(state, room, grown, boxes, w, h, radius)
+    if out.shape[0]:
+        return out, np.empty(0, np.int64), np.empty(0, np.int64)
+    which, what = picker_progress(state, dwell, waypoint, routes, lengths, dt, arrival)
+    return out, which, what
+
+
 __all__ = [
     "bitangent_edges",
     "distances_to",
@@ -398,9 +513,13 @@ __all__ = [
     "free_points",
     "joins",
     "misses_boxes",
+    "picker_after_step",
+    "picker_preferences",
+    "picker_progress",
     "point_clearance",
     "points_clearance",
     "pressed",
+    "py_hypot",
     "route_lost",
     "segment_clearance",
     "segment_distance",

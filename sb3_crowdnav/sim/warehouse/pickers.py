@@ -16,8 +16,6 @@ its :class:`PickSlots`).
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import shapely
 from shapely.geometry import Point
@@ -105,8 +103,11 @@ class PickerCrowd:
                               None, obstacles=rvo_obstacles(layout))
         self.slot = np.array(starts, dtype=np.int64)  # a copy: the caller keeps the start slots
         self.routes: list[list[list[float]]] = [[p] for p in self.slots[starts].tolist()]  # waypoints, in floats
-        self.waypoint = [0] * n
-        self.dwell = [0.0] * n  # [s] left standing at the slot; 0 while walking
+        # the same waypoints for the kernels: row i holds the first _route_lengths[i] of (n, K, 2)
+        self._route_array, self._route_lengths = np.zeros((n, 8, 2)), np.ones(n, dtype=np.int64)
+        self._route_array[:, 0] = self.slots[starts]
+        self.waypoint = np.zeros(n, dtype=np.int64)  # the index of each picker's current waypoint
+        self.dwell = np.zeros(n)  # [s] left standing at the slot; 0 while walking
         standing = rng.random(n) < 0.5
         for i in range(n):
             if standing[i]:
@@ -117,7 +118,7 @@ class PickerCrowd:
     @property
     def standing(self) -> np.ndarray:
         """(n,) bool: the pickers standing at a pick face now."""
-        return np.array(self.dwell, dtype=np.float64).reshape(self.n) > 0
+        return self.dwell > 0
 
     def _next_job(self, i: int) -> None:
         """Send picker ``i`` from its slot to another one along the slots' route (its dwell is over)."""
@@ -126,27 +127,19 @@ class PickerCrowd:
             k = int(self.rng.integers(0, len(self.slots) - 1))
             self.slot[i] = k + (k >= here)
         route = self._map.route(self._ids[here], self._ids[self.slot[i]])
-        self.routes[i] = route if route is not None else [self.slots[self.slot[i]].tolist()]
+        self.routes[i] = route = route if route is not None else [self.slots[self.slot[i]].tolist()]
+        if len(route) > self._route_array.shape[1]:  # (room for longer routes)
+            grown = np.zeros((self.n, 2 * len(route), 2))
+            grown[:, : self._route_array.shape[1]] = self._route_array
+            self._route_array = grown
+        self._route_array[i, : len(route)], self._route_lengths[i] = route, len(route)
         self.waypoint[i] = 0
 
-    def preferred_velocities(self, positions: np.ndarray) -> list[tuple[float, float]]:
-        """Towards the current waypoint at v_pref (slowing into the last one); zero while standing."""
-        v_pref, out, dwell, routes, waypoint = self.scene.human_v_pref, [], self.dwell, self.routes, self.waypoint
-        for i, (x, y) in enumerate(positions.tolist()):
-            if dwell[i] > 0:
-                out.append((0.0, 0.0))
-                continue
-            route, w = routes[i], waypoint[i]
-            while w < len(route) - 1 and math.dist((x, y), route[w]) < ARRIVAL:
-                w += 1
-            waypoint[i] = w
-            gx, gy = route[w]
-            dx, dy = gx - x, gy - y
-            norm = math.hypot(dx, dy)
-            if norm > v_pref or (w < len(route) - 1 and norm > 1e-9):
-                dx, dy = dx / norm * v_pref, dy / norm * v_pref
-            out.append((dx, dy))
-        return out
+    def preferred_velocities(self, positions: np.ndarray) -> list[list[float]]:
+        """Towards the current waypoint at v_pref (slowing into the last one); zero while standing
+        (:func:`~sb3_crowdnav.sim.warehouse.kernels.picker_preferences`; passes the waypoints within reach)."""
+        return kernels.picker_preferences(positions, self.dwell, self.waypoint, self._route_array,
+                                          self._route_lengths, self.scene.human_v_pref, ARRIVAL).tolist()
 
     def step(self, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """One ORCA step from ``positions`` (n, 2); new positions and velocities, each (n, 2)."""
@@ -154,20 +147,28 @@ class PickerCrowd:
         self.orca.set_preferred_velocities(self.preferred_velocities(positions))
         rows = self.orca.advance()  # [(x, y, vx, vy)] per picker
         state = np.array(rows, dtype=np.float64).reshape(self.n, 4)
-        for i in self._pressed_indices(state):  # never seen at Δt <= 0.5 s; a guard
+        # the overlap guard, then the dwells count down; a picker whose dwell is over gets its next job, one at the
+        # last waypoint of its route stands for a dwell drawn now (in the pickers' order: the same draws)
+        progress = (self.dwell, self.waypoint, self._route_array, self._route_lengths, dt, ARRIVAL)
+        if self._grown is not None:  # (one kernel for both when no picker is pressed)
+            (w, h), radius = self._hall, self.scene.human_radius - 1e-6
+            pressed, which, what = kernels.picker_after_step(state, self._room, self._grown, self._layout.boxes, w, h,
+                                                             radius, *progress)
+            pressed = pressed.tolist()
+        else:
+            pressed, which, what = self._pressed_indices(state), None, None
+        for i in pressed:  # never seen at Δt <= 0.5 s; a guard
             p = self._outside(state[i, :2].copy())
             if p is not None:
                 self.orca.move_agent(i, p)
-                rows[i] = (float(p[0]), float(p[1]), *rows[i][2:])
-                state[i, :2] = rows[i][:2]
-        dwell, waypoint, routes = self.dwell, self.waypoint, self.routes
-        for i, (x, y, _, _) in enumerate(rows):
-            if dwell[i] > 0:
-                dwell[i] = max(0.0, dwell[i] - dt)
-                if dwell[i] == 0:
-                    self._next_job(i)
-            elif waypoint[i] == len(routes[i]) - 1 and math.dist((x, y), routes[i][-1]) < ARRIVAL:
-                dwell[i] = max(self.rng.uniform(*self.dwell_time), dt)
+                state[i, :2] = p
+        if which is None or pressed:
+            which, what = kernels.picker_progress(state, *progress)
+        for i, event in zip(which.tolist(), what.tolist(), strict=True):
+            if event == 1:
+                self._next_job(i)
+            else:
+                self.dwell[i] = max(self.rng.uniform(*self.dwell_time), dt)
         return state[:, :2], state[:, 2:]
 
     def _pressed(self, positions: np.ndarray) -> np.ndarray:

@@ -54,10 +54,19 @@ class _BuiltGraph(nx.Graph):
 
     def with_ends(self, start: int, start_joins: list, start_lengths: list, goal_joins: list,
                   goal_lengths: list) -> _BuiltGraph:
-        """A new graph: this one with node ``start`` joined to ``start_joins`` and node ``start + 1`` (the goal) to
-        ``goal_joins``, as ``add_weighted_edges_from`` of the start's edges, then the goal's, would make it (an end
-        without joins is not added); this graph's dicts are shared where unchanged, copied where an end is added."""
-        node_dict, adjacency, base = dict(self._node), dict(self._adj), self._adj
+        """The route's graph: this one with node ``start`` joined to ``start_joins`` and node ``start + 1`` (the goal)
+        to ``goal_joins``, as ``add_weighted_edges_from`` of the start's edges, then the goal's, would make it (an end
+        without joins is not added); this graph unchanged, its dicts shared where unchanged, copied where an end is
+        added. One graph object serves every route of this graph (its dicts refilled: the previous route's is gone)."""
+        route = self.__dict__.get("_route")
+        if route is None:
+            route = self.__dict__["_route"] = _BuiltGraph()
+        node_dict, adjacency, base = route._node, route._adj, self._adj
+        node_dict.clear()
+        node_dict.update(self._node)
+        adjacency.clear()
+        adjacency.update(base)
+        route.__networkx_cache__.clear()
         for end, joins, lengths in ((start, start_joins, start_lengths), (start + 1, goal_joins, goal_lengths)):
             if not joins:
                 continue
@@ -67,7 +76,7 @@ class _BuiltGraph(nx.Graph):
                 if adjacency[k] is base[k]:
                     adjacency[k] = dict(base[k])
                 mine[k] = adjacency[k][end] = {"weight": w}
-        return _BuiltGraph(node_dict, adjacency)
+        return route
 
     def __reduce__(self):  # copies and pickles as a plain graph (the factories above are per instance)
         return nx.Graph, (nx.to_dict_of_dicts(self),)

@@ -183,9 +183,10 @@ class WarehouseSimulator(CrowdSimulator):
         """Sense from the robot's centre at (x, y), having come from ``p0`` (None: it did not move): the distances
         to every segment, their stable order and how many of it are observed; whether the robot's disc swept from
         ``p0`` touched a segment (the candidates: the segments closer than the radius + the step)."""
-        x0, y0 = (x, y) if p0 is None else p0
-        reach = self.scene.robot_radius + (0.0 if p0 is None else math.dist(p0, (x, y)))
-        self._seg_dist, self._seg_order, hit, *self._observed = self._sense_at(x0, y0, x, y, reach)
+        (x0, y0), radius = (x, y) if p0 is None else p0, self.scene.robot_radius
+        reach = radius + (0.0 if p0 is None else math.dist(p0, (x, y)))
+        self._seg_dist, self._seg_order, hit, *self._observed = kernels.sense(
+            self._seg_geometry, x0, y0, x, y, reach, radius, self.config.sensor_range, self.config.max_obstacles)
         return bool(hit) and p0 is not None
 
     def observed_obstacles(self) -> tuple[np.ndarray, np.ndarray]:
