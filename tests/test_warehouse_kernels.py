@@ -173,7 +173,8 @@ def test_the_built_graph_is_the_graph_networkx_methods_build():
         for start, goal in rng.uniform((-w_, -h_), (w_, h_), (8, 2, 2)).tolist():
             (a, la), (b, lb) = roadmap._joins(start), roadmap._joins(goal)
             ended = built.with_ends(n, a, la, b, lb)
-            plain.add_weighted_edges_from([*((n, k, x) for k, x in zip(a, la)), *((n + 1, k, x) for k, x in zip(b, lb))])
+            plain.add_weighted_edges_from([*((n, k, x) for k, x in zip(a, la, strict=True)),
+                                           *((n + 1, k, x) for k, x in zip(b, lb, strict=True))])
             assert adjacency(ended) == adjacency(plain) and list(ended.nodes) == list(plain.nodes)
             if a and b and nx.has_path(plain, n, n + 1):
                 assert nx.astar_path(ended, n, n + 1) == nx.astar_path(plain, n, n + 1)
