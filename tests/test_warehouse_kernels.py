@@ -91,7 +91,8 @@ def test_sense_is_the_numpy_distances_their_stable_order_and_the_swept_disc_test
             p0 = rng.uniform((-w, -h), (w, h))
             p1 = p0 + rng.normal(size=2) * 0.3
             reach = radius + math.dist(p0, p1)
-            dist, order, hit, observed, mask = kernels.sense(geometry, *p0, *p1, reach, radius, sensor_range, max_count)
+            dist, order = np.zeros(len(segments)), np.zeros(len(segments), dtype=np.int64)
+            hit, observed, mask = kernels.sense(geometry, *p0, *p1, reach, radius, sensor_range, max_count, dist, order)
             expected_d, expected_order = numpy_sense(segments, p1)
             np.testing.assert_array_equal(dist, expected_d)
             np.testing.assert_array_equal(order, expected_order)
@@ -298,7 +299,9 @@ def test_the_picker_kernels_are_the_float_loops():
         positions = near + rng.normal(size=(n, 2)) * rng.choice([0.05, 0.2, 2.0])
         dwell = np.where(rng.random(n) < 0.4, rng.choice([0.1, 0.25, 1.0], n), 0.0)
         ours_w, theirs_w = waypoint.copy(), waypoint.tolist()
-        ours = kernels.picker_preferences(positions, dwell, ours_w, array, lengths, 1.0, 0.25).tolist()
+        ours = np.full((n, 2), np.nan)
+        kernels.picker_preferences(positions, dwell, ours_w, array, lengths, 1.0, 0.25, ours)
+        ours = ours.tolist()
         assert ours == float_preferences(positions, dwell, theirs_w, routes, 1.0, 0.25)
         assert ours_w.tolist() == theirs_w
         state = np.concatenate([positions, np.zeros((n, 2))], axis=1)

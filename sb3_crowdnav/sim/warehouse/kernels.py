@@ -101,27 +101,28 @@ def segment_distance(p0x, p0y, p1x, p1y, q0x, q0y, q1x, q1y):  # pragma: no cove
 
 
 @njit(**_JIT)
-def sense(geometry, p0x, p0y, p1x, p1y, reach, radius, sensor_range, max_count):  # pragma: no cover  (compiled)
+def sense(geometry, p0x, p0y, p1x, p1y, reach, radius, sensor_range, max_count, dist,
+          order):  # pragma: no cover  (compiled)
     """The robot's sensing after it moved from p0 to p1, against the segments of a layout.
 
     :param geometry: (S, 9) every segment's start (x, y), direction (dx, dy), squared length (at least 1e-18), and
         the segment ``[x0, y0, x1, y1]``
     :param reach: the radius + the step's length: only segments closer than it to p1 can be touched
-    :return: the distance from p1 to every segment (S,) (``np.hypot`` of the clamped projection, as
-        ``WarehouseSimulator``'s NumPy form), its stable order (S,), whether the disc of ``radius`` swept from p0 to
-        p1 touches a segment closer than ``reach`` (:func:`segment_distance` below ``radius``), and the observed
-        segments: the first of that order within ``sensor_range``, at most ``max_count``, padded with zeros
-        (max_count, 4), with their mask (max_count,) bool
+    :param dist: (S,) filled with the distance from p1 to every segment (``np.hypot`` of the clamped projection, as
+        ``WarehouseSimulator``'s NumPy form)
+    :param order: (S,) filled with the stable order of ``dist``
+    :return: whether the disc of ``radius`` swept from p0 to p1 touches a segment closer than ``reach``
+        (:func:`segment_distance` below ``radius``), and the observed segments: the first of that order within
+        ``sensor_range``, at most ``max_count``, padded with zeros (max_count, 4), with their mask (max_count,) bool
     """
     ax, ay, abx, aby, len2, segments = geometry[:, 0], geometry[:, 1], geometry[:, 2], geometry[:, 3], \
         geometry[:, 4], geometry[:, 5:]
     n = ax.shape[0]
-    dist = np.empty(n)
     for k in range(n):
         dx, dy = p1x - ax[k], p1y - ay[k]
         t = min(max((dx * abx[k] + dy * aby[k]) / len2[k], 0.0), 1.0)
         dist[k] = math.hypot(dx - t * abx[k], dy - t * aby[k])
-    order = np.argsort(dist, kind="mergesort")  # stable
+    order[:] = np.argsort(dist, kind="mergesort")  # stable
     observed, mask = np.zeros((max_count, 4)), np.zeros(max_count, np.bool_)
     seen = 0
     while seen < n and seen < max_count and dist[order[seen]] <= sensor_range:
@@ -136,7 +137,7 @@ def sense(geometry, p0x, p0y, p1x, p1y, reach, radius, sensor_range, max_count):
                             segments[k, 3]) < radius:
             hit = True
             break
-    return dist, order, hit, observed, mask
+    return hit, observed, mask
 
 
 @njit(**_JIT)
@@ -445,15 +446,15 @@ def distances_to(points, gx, gy):  # pragma: no cover  (compiled)
 
 
 @njit(**_JIT)
-def picker_preferences(positions, dwell, waypoint, routes, lengths, v_pref, arrival):  # pragma: no cover
-    """``PickerCrowd.preferred_velocities``: (n, 2) towards each walking picker's current waypoint at ``v_pref``
-    (slowing into the last one), zero for a standing one (``dwell`` > 0); a walking picker first passes the
+def picker_preferences(positions, dwell, waypoint, routes, lengths, v_pref, arrival, out):  # pragma: no cover
+    """``PickerCrowd.preferred_velocities`` into ``out`` (n, 2): towards each walking picker's current waypoint at
+    ``v_pref`` (slowing into the last one), zero for a standing one (``dwell`` > 0); a walking picker first passes the
     waypoints within ``arrival`` (never the last), ``waypoint`` (n,) updated in place.
 
     :param routes: (n, K, 2) each picker's waypoints, the first ``lengths[i]`` of row i
     """
-    out = np.zeros((positions.shape[0], 2))
     for i in range(positions.shape[0]):
+        out[i, 0] = out[i, 1] = 0.0
         if dwell[i] > 0:
             continue
         x, y, w, last = positions[i, 0], positions[i, 1], waypoint[i], lengths[i] - 1
@@ -465,7 +466,6 @@ def picker_preferences(positions, dwell, waypoint, routes, lengths, v_pref, arri
         if norm > v_pref or (w < last and norm > 1e-9):
             dx, dy = dx / norm * v_pref, dy / norm * v_pref
         out[i, 0], out[i, 1] = dx, dy
-    return out
 
 
 @njit(**_JIT)
@@ -494,16 +494,23 @@ def picker_progress(state, dwell, waypoint, routes, lengths, dt, arrival):  # pr
 
 
 @njit(**_JIT)
-def picker_after_step(state, room, grown, boxes, w, h, radius, dwell, waypoint, routes, lengths, dt,
+def picker_after_step(state, geometry, w, h, radius, dwell, waypoint, routes, lengths, dt,
                       arrival):  # pragma: no cover  (compiled)
-    """:func:`pressed`, then, when no picker is pressed into a rack (always so far), :func:`picker_progress`: the
-    pressed pickers, and the pickers with something to do next and what (both empty when some are pressed: the caller
-    moves them out first, then asks :func:`picker_progress`)."""
-    out = pressed(state, room, grown, boxes, w, h, radius)
+    """:func:`pressed`, then, when no picker is pressed into a rack (always so far), :func:`picker_progress`, in one
+    call and one array: ``[p, the p pressed pickers..., then (picker, event) pairs...]`` (no pairs when p > 0: the
+    caller moves the pressed ones out first, then asks :func:`picker_progress`).
+
+    :param geometry: (2B + 1, 4) the ``room`` of :func:`pressed`, then its ``grown`` boxes, then the ``boxes``
+    """
+    b = (geometry.shape[0] - 1) // 2
+    out = pressed(state, geometry[0], geometry[1 : b + 1], geometry[b + 1 :], w, h, radius)
     if out.shape[0]:
-        return out, np.empty(0, np.int64), np.empty(0, np.int64)
+        return np.concatenate((np.array([out.shape[0]]), out))
     which, what = picker_progress(state, dwell, waypoint, routes, lengths, dt, arrival)
-    return out, which, what
+    packed = np.empty(1 + 2 * which.shape[0], np.int64)
+    packed[0] = 0
+    packed[1::2], packed[2::2] = which, what
+    return packed
 
 
 __all__ = [

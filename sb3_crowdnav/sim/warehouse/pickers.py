@@ -99,6 +99,9 @@ class PickerCrowd:
         c, w, h = scene.human_radius - 1e-6, layout.width / 2, layout.height / 2
         self._room, self._hall = np.array([-w + c, -h + c, w - c, h - c]), (w, h)  # inside it, outside the grown boxes:
         self._grown = None if layout.boxes is None else layout.boxes + np.array([-c, -c, c, c])  # clear of every rack
+        # what kernels.picker_after_step reads of them: the room, the grown boxes, the boxes
+        self._guard = None if self._grown is None else np.concatenate([self._room[None], self._grown, layout.boxes])
+        self._preferences = np.zeros((n, 2))  # filled by kernels.picker_preferences
         self.orca = OrcaCrowd(scene, self.slots[starts], np.full(n, scene.human_radius), np.full(n, scene.human_v_pref),
                               None, obstacles=rvo_obstacles(layout))
         self.slot = np.array(starts, dtype=np.int64)  # a copy: the caller keeps the start slots
@@ -138,8 +141,9 @@ class PickerCrowd:
     def preferred_velocities(self, positions: np.ndarray) -> list[list[float]]:
         """Towards the current waypoint at v_pref (slowing into the last one); zero while standing
         (:func:`~sb3_crowdnav.sim.warehouse.kernels.picker_preferences`; passes the waypoints within reach)."""
-        return kernels.picker_preferences(positions, self.dwell, self.waypoint, self._route_array,
-                                          self._route_lengths, self.scene.human_v_pref, ARRIVAL).tolist()
+        kernels.picker_preferences(positions, self.dwell, self.waypoint, self._route_array, self._route_lengths,
+                                   self.scene.human_v_pref, ARRIVAL, self._preferences)
+        return self._preferences.tolist()
 
     def step(self, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """One ORCA step from ``positions`` (n, 2); new positions and velocities, each (n, 2)."""
@@ -152,19 +156,19 @@ class PickerCrowd:
         progress = (self.dwell, self.waypoint, self._route_array, self._route_lengths, dt, ARRIVAL)
         if self._grown is not None:  # (one kernel for both when no picker is pressed)
             (w, h), radius = self._hall, self.scene.human_radius - 1e-6
-            pressed, which, what = kernels.picker_after_step(state, self._room, self._grown, self._layout.boxes, w, h,
-                                                             radius, *progress)
-            pressed = pressed.tolist()
+            packed = kernels.picker_after_step(state, self._guard, w, h, radius, *progress).tolist()
+            pressed, events = packed[1 : 1 + packed[0]], packed[1 + packed[0] :]
         else:
-            pressed, which, what = self._pressed_indices(state), None, None
+            pressed, events = self._pressed_indices(state), None
         for i in pressed:  # never seen at Δt <= 0.5 s; a guard
             p = self._outside(state[i, :2].copy())
             if p is not None:
                 self.orca.move_agent(i, p)
                 state[i, :2] = p
-        if which is None or pressed:
+        if events is None or pressed:
             which, what = kernels.picker_progress(state, *progress)
-        for i, event in zip(which.tolist(), what.tolist(), strict=True):
+            events = [v for pair in zip(which.tolist(), what.tolist(), strict=True) for v in pair]
+        for i, event in zip(events[::2], events[1::2], strict=True):
             if event == 1:
                 self._next_job(i)
             else:

@@ -99,6 +99,8 @@ class WarehouseSimulator(CrowdSimulator):
             self._seg_geometry = np.concatenate([self.segments[:, :2], seg_ab,
                                                  np.maximum(np.sum(seg_ab**2, axis=1), 1e-18)[:, None], self.segments],
                                                 axis=1)
+            # filled by every sensing: the distance from the robot's centre to every segment, their stable order
+            self._seg_dist, self._seg_order = np.zeros(len(self.segments)), np.zeros(len(self.segments), dtype=np.int64)
         start, goal = self._stations(rng)
         self._set_route(self.robot_map.waypoints(start, goal))
         self.route_index, self.replans = 1, 0
@@ -172,12 +174,10 @@ class WarehouseSimulator(CrowdSimulator):
     # ------------------------------------------------------------------ observation
     def _distances(self, x: float, y: float) -> np.ndarray:
         """Distance from the point (x, y) to every segment (S,) (:func:`point_segment_distance` on cached arrays)."""
-        return self._sense_at(x, y, x, y, self.scene.robot_radius)[0]
-
-    def _sense_at(self, x0: float, y0: float, x1: float, y1: float, reach: float) -> tuple:
-        """:func:`~sb3_crowdnav.sim.warehouse.kernels.sense` of the robot moving from (x0, y0) to (x1, y1)."""
-        return kernels.sense(self._seg_geometry, x0, y0, x1, y1, reach, self.scene.robot_radius,
-                             self.config.sensor_range, self.config.max_obstacles)
+        dist, order = np.zeros(len(self.segments)), np.zeros(len(self.segments), dtype=np.int64)
+        kernels.sense(self._seg_geometry, x, y, x, y, self.scene.robot_radius, self.scene.robot_radius,
+                      self.config.sensor_range, self.config.max_obstacles, dist, order)
+        return dist
 
     def _sense(self, x: float, y: float, p0: list[float] | None = None) -> bool:
         """Sense from the robot's centre at (x, y), having come from ``p0`` (None: it did not move): the distances
@@ -185,8 +185,8 @@ class WarehouseSimulator(CrowdSimulator):
         ``p0`` touched a segment (the candidates: the segments closer than the radius + the step)."""
         (x0, y0), radius = (x, y) if p0 is None else p0, self.scene.robot_radius
         reach = radius + (0.0 if p0 is None else math.dist(p0, (x, y)))
-        self._seg_dist, self._seg_order, hit, *self._observed = kernels.sense(
-            self._seg_geometry, x0, y0, x, y, reach, radius, self.config.sensor_range, self.config.max_obstacles)
+        hit, *self._observed = kernels.sense(self._seg_geometry, x0, y0, x, y, reach, radius, self.config.sensor_range,
+                                             self.config.max_obstacles, self._seg_dist, self._seg_order)
         return bool(hit) and p0 is not None
 
     def observed_obstacles(self) -> tuple[np.ndarray, np.ndarray]:
