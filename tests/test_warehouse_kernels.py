@@ -320,3 +320,18 @@ def test_the_picker_kernels_are_the_float_loops():
         for _, event in expected:
             events[event] += 1
     assert events[1] > 0 and events[2] > 0
+
+
+def test_spread_is_the_greedy_float_loop():
+    rng = np.random.default_rng(15)
+    for _ in range(300):
+        points = rng.uniform(-4, 4, (int(rng.integers(1, 40)), 2))
+        points[::3] = np.round(points[::3] / 0.8) * 0.8  # on a grid of the spacing: distances at the threshold
+        permutation, n = rng.permutation(len(points)), int(rng.integers(1, 12))
+        chosen: list[int] = []
+        for i in permutation.tolist():
+            if all(math.hypot(points[i, 0] - points[k, 0], points[i, 1] - points[k, 1]) >= 0.8 for k in chosen):
+                chosen.append(i)
+                if len(chosen) == n:
+                    break
+        assert kernels.spread(points, permutation, n, 0.8).tolist() == chosen

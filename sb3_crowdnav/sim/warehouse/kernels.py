@@ -513,6 +513,27 @@ def picker_after_step(state, geometry, w, h, radius, dwell, waypoint, routes, le
     return packed
 
 
+@njit(**_JIT)
+def spread(points, permutation, n, spacing):  # pragma: no cover  (compiled)
+    """``WarehouseSimulator._spread``: the first ``n`` of ``points`` (u, 2) in the order of ``permutation`` that are
+    pairwise at least ``spacing`` apart (``math.hypot``, :func:`py_hypot`), greedily; fewer when they do not fit."""
+    chosen = np.empty(n, np.int64)
+    count = 0
+    for i in permutation:
+        if count == n:
+            break
+        fits = True
+        for c in range(count):
+            k = chosen[c]
+            if not py_hypot(points[i, 0] - points[k, 0], points[i, 1] - points[k, 1]) >= spacing:
+                fits = False
+                break
+        if fits:
+            chosen[count] = i
+            count += 1
+    return chosen[:count]
+
+
 __all__ = [
     "bitangent_edges",
     "distances_to",
@@ -533,4 +554,5 @@ __all__ = [
     "sense",
     "separated",
     "slot_points",
+    "spread",
 ]

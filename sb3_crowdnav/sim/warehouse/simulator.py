@@ -159,17 +159,12 @@ class WarehouseSimulator(CrowdSimulator):
     @staticmethod
     def _spread(rng: np.random.Generator, slots: np.ndarray, n: int, spacing: float) -> np.ndarray:
         """``n`` slot indices, pairwise at least ``spacing`` apart, in random order."""
-        chosen: list[int] = []
-        points = slots.tolist()
-        for i in rng.permutation(len(slots)).tolist() if n else ():
-            (x, y) = points[i]
-            if all(math.hypot(x - points[k][0], y - points[k][1]) >= spacing for k in chosen):
-                chosen.append(i)
-                if len(chosen) == n:
-                    break
+        if not n:
+            return np.zeros(0, dtype=np.int64)
+        chosen = kernels.spread(slots, rng.permutation(len(slots)), n, spacing)  # greedily, in the permutation's order
         if len(chosen) < n:
             raise RuntimeError(f"only {len(chosen)} of {n} pickers fit (check_feasible should have refused this)")
-        return np.asarray(chosen, dtype=np.int64)
+        return chosen
 
     # ------------------------------------------------------------------ observation
     def _distances(self, x: float, y: float) -> np.ndarray:
