@@ -197,13 +197,13 @@ def float_pressed(state: np.ndarray, room, grown, boxes, hall, radius) -> list[i
 
 def test_the_clearance_kernels_are_the_float_forms():
     """point_clearance and pressed exactly; segment_clearance within an ulp (its hypot is the C library's) and the same
-    answer to every threshold the simulator asks; route_lost is the two tests of _advance_route."""
+    answer to every threshold the simulator asks; sense_and_follow's route bookkeeping is _advance_route's."""
     from sb3_crowdnav.sim.geometry import point_segment_distance_scalar
     from sb3_crowdnav.sim.warehouse.boxes import point_clearance as float_clearance
     from sb3_crowdnav.sim.warehouse.boxes import segment_clearance as float_segment_clearance
 
     rng = np.random.default_rng(9)
-    pressed_seen = lost_seen = 0
+    pressed_seen = seen_off = seen_blocked = 0
     for layout in layouts(60, seed=10):
         boxes, (w, h), radius = layout.boxes, (layout.width / 2, layout.height / 2), 0.3
         listed = [tuple(b) for b in boxes.tolist()]
@@ -221,11 +221,23 @@ def test_the_clearance_kernels_are_the_float_forms():
                 a, b, listed, (w, h), radius)
             assert ours == pytest.approx(theirs, rel=1e-15, abs=1e-15)
             assert (ours >= radius - 1e-6) == (theirs >= radius - 1e-6)
-            previous = rng.uniform((-w, -h), (w, h))
-            lost = kernels.route_lost(*a, *previous, *b, 0.5, boxes, w, h, radius)
-            assert lost == (point_segment_distance_scalar(a, previous, b) > 0.5 or theirs < radius - 1e-6)
-            lost_seen += lost
-    assert pressed_seen > 0 and 0 < lost_seen
+            # the route's bookkeeping of a step that ends at a: waypoints passed, strayed, blocked
+            route = np.concatenate([[a], b + rng.normal(size=(3, 2)) * rng.choice([0.1, 1.0]), [b]])
+            index = int(rng.integers(1, len(route)))
+            dist, order = np.zeros(len(layout.segments)), np.zeros(len(layout.segments), dtype=np.int64)
+            geometry = np.concatenate([layout.segments[:, :2], layout.segments[:, 2:] - layout.segments[:, :2],
+                                       np.ones((len(layout.segments), 1)), layout.segments], axis=1)
+            *_, new_index, off, blocked = kernels.sense_and_follow(
+                geometry, *a, *a, radius, radius, 4.0, 16, dist, order, route, index, 0.5, 0.5, boxes, w, h)
+            expected = index
+            while expected < len(route) - 1 and math.dist(a, route[expected]) < 0.5:
+                expected += 1
+            assert new_index == expected
+            assert off == (point_segment_distance_scalar(a, route[expected - 1], route[expected]) > 0.5)
+            clearance = float_segment_clearance(a, route[expected].tolist(), listed, (w, h), radius)
+            assert blocked == (not off and clearance < radius - 1e-6)
+            seen_off, seen_blocked = seen_off + off, seen_blocked + blocked
+    assert pressed_seen > 0 and seen_off > 0 and seen_blocked > 0  # every answer was asked
 
 
 def test_the_small_kernels_are_their_numpy_forms():

@@ -397,16 +397,6 @@ def free_points(points, hall, grown):  # pragma: no cover  (compiled)
 
 
 @njit(**_JIT)
-def route_lost(px, py, ax, ay, bx, by, replan_distance, boxes, w, h, radius):  # pragma: no cover  (compiled)
-    """``WarehouseSimulator._advance_route``'s test with boxes for racks: the robot at (px, py) strayed more than
-    ``replan_distance`` from the route's leg from (ax, ay) to its current waypoint (bx, by), or its disc does not fit
-    along the segment to that waypoint (:func:`segment_clearance` below ``radius`` - 1 µm)."""
-    if _point_segment(px, py, ax, ay, bx, by) > replan_distance:
-        return True
-    return not segment_clearance(px, py, bx, by, boxes, w, h, radius) >= radius - 1e-6
-
-
-@njit(**_JIT)
 def separated(boxes, x0, y0, x1, y1):  # pragma: no cover  (compiled)
     """:func:`~sb3_crowdnav.sim.warehouse.boxes.separated`: ``boxes`` (B, 4) strictly inside the rectangle and
     pairwise apart (a gap in x or y)."""
@@ -534,6 +524,32 @@ def spread(points, permutation, n, spacing):  # pragma: no cover  (compiled)
     return chosen[:count]
 
 
+@njit(**_JIT)
+def sense_and_follow(geometry, p0x, p0y, p1x, p1y, reach, radius, sensor_range, max_count, dist, order, route, index,
+                     waypoint_radius, replan_distance, boxes, w, h):  # pragma: no cover  (compiled)
+    """A step's :func:`sense`, then the route's bookkeeping of ``WarehouseSimulator._advance_route`` at p1 (what the
+    caller applies unless the step ended the episode): the waypoints passed (``math.dist`` below
+    ``waypoint_radius``, never the last) give the new current ``index``; ``off``: p1 strayed more than
+    ``replan_distance`` from the leg to it; ``blocked`` (asked only when not off, and only of ``boxes`` (B, 4), None
+    for a layout of other racks): the robot's disc does not fit along the segment to it (:func:`segment_clearance`
+    below ``radius`` - 1 µm).
+
+    :param route: (R, 2) the route's waypoints
+    :return: hit, observed segments, their mask (:func:`sense`), the new index, off, blocked
+    """
+    hit, observed, mask = sense(geometry, p0x, p0y, p1x, p1y, reach, radius, sensor_range, max_count, dist, order)
+    last = route.shape[0] - 1
+    while index < last and py_hypot(p1x - route[index, 0], p1y - route[index, 1]) < waypoint_radius:
+        index += 1
+    off = _point_segment(p1x, p1y, route[index - 1, 0], route[index - 1, 1], route[index, 0],
+                         route[index, 1]) > replan_distance
+    blocked = False
+    if not off and boxes is not None:
+        blocked = not segment_clearance(p1x, p1y, route[index, 0], route[index, 1], boxes, w, h, radius) >= \
+            radius - 1e-6
+    return hit, observed, mask, index, off, blocked
+
+
 __all__ = [
     "bitangent_edges",
     "distances_to",
@@ -548,10 +564,10 @@ __all__ = [
     "points_clearance",
     "pressed",
     "py_hypot",
-    "route_lost",
     "segment_clearance",
     "segment_distance",
     "sense",
+    "sense_and_follow",
     "separated",
     "slot_points",
     "spread",

@@ -12,7 +12,6 @@ from shapely.geometry import LineString
 from sb3_crowdnav.sim.config import RewardConfig, SceneConfig
 from sb3_crowdnav.sim.geometry import (
     SEGMENT_DIM,
-    point_segment_distance_scalar,
 )
 from sb3_crowdnav.sim.observation import HUMAN_DIM, ROBOT_DIM, Human, Robot
 from sb3_crowdnav.sim.rewards import RewardTerms, with_obstacle_collision, with_route_progress
@@ -217,22 +216,13 @@ class WarehouseSimulator(CrowdSimulator):
     def _set_route(self, points: list[list[float]]) -> None:
         self.route, self._route_points = np.array(points, dtype=np.float64), points
 
-    def _advance_route(self, pos: list[float]) -> None:
-        """Pass reached waypoints (:func:`next_waypoints`' rule); plan again when the route is lost: the robot at
-        ``pos`` strayed more than ``replan_distance`` from it, or the way to the current waypoint is blocked."""
-        radius, points = self.config.waypoint_radius, self._route_points
-        last = len(points) - 1
-        while self.route_index < last and math.dist(pos, points[self.route_index]) < radius:
-            self.route_index += 1
-        current = points[self.route_index]
-        if self._boxes is not None:  # (kernels.route_lost: the two tests below, compiled)
-            (ax, ay), (bx, by) = points[self.route_index - 1], current
-            lost = kernels.route_lost(pos[0], pos[1], ax, ay, bx, by, self.config.replan_distance, self._boxes,
-                                      self.layout.width / 2, self.layout.height / 2, self.scene.robot_radius)
-        else:
-            lost = point_segment_distance_scalar(pos, points[self.route_index - 1], current) > \
-                self.config.replan_distance or not self._in_sight(pos, current)
-        if lost:
+    def _advance_route(self, pos: list[float], index: int, off: bool, blocked: bool) -> None:
+        """Pass reached waypoints (:func:`next_waypoints`' rule: ``index`` the new current one); plan again when the
+        route is lost: the robot at ``pos`` strayed more than ``replan_distance`` from it (``off``), or the way to the
+        current waypoint is ``blocked`` (asked here of shapely when the racks are not boxes)
+        (:func:`~sb3_crowdnav.sim.warehouse.kernels.sense_and_follow` answers both)."""
+        self.route_index = index
+        if off or blocked or (self._boxes is None and not self._in_sight(pos, self._route_points[index])):
             try:
                 self._set_route(self.robot_map.waypoints(pos, self._route_points[-1]))
                 self.route_index, self.replans = 1, self.replans + 1
@@ -251,7 +241,13 @@ class WarehouseSimulator(CrowdSimulator):
         waypoint = self.route[self.route_index]  # the observed current waypoint (replanning replaces the array)
         terms = super().step(action)
         p1 = self.robot[Robot.POS].tolist()
-        hit = self._sense(*p1, p0=p0)
+        (x0, y0), (x1, y1), radius, cfg = p0, p1, self.scene.robot_radius, self.config
+        # the sensing of the step (the candidates of the swept test: the segments closer than the radius + the step)
+        # and the route's bookkeeping at p1, applied below unless the step ends the episode
+        hit, *self._observed, index, off, blocked = kernels.sense_and_follow(
+            self._seg_geometry, x0, y0, x1, y1, radius + math.dist(p0, p1), radius, cfg.sensor_range,
+            cfg.max_obstacles, self._seg_dist, self._seg_order, self.route, self.route_index, cfg.waypoint_radius,
+            cfg.replan_distance, self._boxes, self.layout.width / 2, self.layout.height / 2)
         if hit:  # (without a hit, with_obstacle_collision returns the terms unchanged)
             terms = with_obstacle_collision(terms, np.bool_(hit), self.config.obstacle_collision_penalty)
         self.hit_obstacle = hit and not bool(terms.min_distance < 0)
@@ -259,7 +255,7 @@ class WarehouseSimulator(CrowdSimulator):
             terms = with_route_progress(terms, np.array(p0), np.array(p1), waypoint, self.config.progress_reward)
         self.progress_term = float(terms.progress_term)
         if not (terms.collision or terms.success):
-            self._advance_route(p1)
+            self._advance_route(p1, index, off, blocked)
         return terms
 
     @property
