@@ -319,7 +319,8 @@ def test_the_one_segment_clippings_are_segments_miss_boxes():
     edges) answer as the NumPy clipping, on random segments and on degenerate ones: along the boxes' sides, through
     their corners, axis-parallel, of zero length."""
     from sb3_crowdnav.sim.warehouse.boxes import segments_miss_boxes
-    from sb3_crowdnav.sim.warehouse.kernels import _misses_all, misses_boxes
+    from sb3_crowdnav.sim.warehouse.kernels import misses_boxes
+    from sb3_crowdnav.sim.warehouse.kernels.base import _misses_all
 
     rng = np.random.default_rng(0)
     for _ in range(40):

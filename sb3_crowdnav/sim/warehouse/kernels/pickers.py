@@ -1,0 +1,189 @@
+"""Kernels of the pickers' side: pick slots, start slots, preferred velocities, dwell countdown, overlap guard."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from sb3_crowdnav.sim.warehouse.kernels.base import _JIT, point_clearance, py_hypot
+
+
+@njit(**_JIT)
+def slot_points(segments, spacing, offset):  # pragma: no cover  (compiled)
+    """``pick_slots``' candidate points (n, 2): along every edge (S, 4) ``length // spacing`` points at
+    ``(k + 0.5) * length / count`` from its start, ``offset`` out along its normal (dy, -dx) / length (the NumPy
+    form's operations, element by element)."""
+    n_edges = segments.shape[0]
+    length, count = np.empty(n_edges), np.empty(n_edges, np.int64)
+    total = 0
+    for e in range(n_edges):
+        length[e] = math.hypot(segments[e, 2] - segments[e, 0], segments[e, 3] - segments[e, 1])
+        count[e] = np.int64(length[e] // spacing) if length[e] >= spacing else 0
+        total += count[e]
+    out = np.empty((total, 2))
+    row = 0
+    for e in range(n_edges):
+        ax, ay = segments[e, 0], segments[e, 1]
+        ex, ey = segments[e, 2] - ax, segments[e, 3] - ay
+        for k in range(count[e]):
+            t = (k + 0.5) * length[e] / count[e]
+            out[row, 0] = ax + ex * (t / length[e]) + ey / length[e] * offset
+            out[row, 1] = ay + ey * (t / length[e]) + -ex / length[e] * offset
+            row += 1
+    return out
+
+
+@njit(**_JIT)
+def points_clearance(points, boxes, w, h):  # pragma: no cover  (compiled)
+    """:func:`~sb3_crowdnav.sim.warehouse.boxes.points_clearance` (its values) of ``points`` (n, 2) in the hall
+    ``[-w, w] x [-h, h]``."""
+    n = points.shape[0]
+    out = np.empty(n)
+    for p in range(n):
+        x, y = points[p, 0], points[p, 1]
+        best = min(min(x + w, w - x), min(y + h, h - y))
+        for k in range(boxes.shape[0]):
+            dx = max(max(boxes[k, 0] - x, x - boxes[k, 2]), 0.0)
+            dy = max(max(boxes[k, 1] - y, y - boxes[k, 3]), 0.0)
+            best = min(best, math.sqrt(dx * dx + dy * dy))
+        out[p] = best
+    return out
+
+
+@njit(**_JIT)
+def pressed(state, room, grown, boxes, w, h, radius):  # pragma: no cover  (compiled)
+    """``PickerCrowd._pressed_indices`` with boxes for racks: the rows of ``state`` (n, >= 2: x, y first) whose centre
+    is closer than ``radius`` to a rack or a wall (:func:`point_clearance`), asked only of those outside ``room``
+    (x0, y0, x1, y1; open) or inside one of the ``grown`` boxes (open)."""
+    out = np.empty(state.shape[0], np.int64)
+    count = 0
+    for i in range(state.shape[0]):
+        x, y = state[i, 0], state[i, 1]
+        if room[0] < x < room[2] and room[1] < y < room[3]:
+            near = False
+            for k in range(grown.shape[0]):
+                if grown[k, 0] < x < grown[k, 2] and grown[k, 1] < y < grown[k, 3]:
+                    near = True
+                    break
+            if not near:
+                continue  # farther than the radius from every rack and wall
+        if point_clearance(x, y, boxes, w, h) < radius:
+            out[count] = i
+            count += 1
+    return out[:count]
+
+
+@njit(**_JIT)
+def far_from_both(points, ax, ay, bx, by, gap):  # pragma: no cover  (compiled)
+    """The indices of ``points`` (n, 2) at least ``gap`` from (ax, ay) and from (bx, by) (``np.hypot``)."""
+    out = np.empty(points.shape[0], np.int64)
+    count = 0
+    for p in range(points.shape[0]):
+        if math.hypot(points[p, 0] - ax, points[p, 1] - ay) >= gap and \
+                math.hypot(points[p, 0] - bx, points[p, 1] - by) >= gap:
+            out[count] = p
+            count += 1
+    return out[:count]
+
+
+@njit(**_JIT)
+def spread(points, permutation, n, spacing):  # pragma: no cover  (compiled)
+    """``WarehouseSimulator._spread``: the first ``n`` of ``points`` (u, 2) in the order of ``permutation`` that are
+    pairwise at least ``spacing`` apart (``math.hypot``, :func:`py_hypot`), greedily; fewer when they do not fit."""
+    chosen = np.empty(n, np.int64)
+    count = 0
+    for i in permutation:
+        if count == n:
+            break
+        fits = True
+        for c in range(count):
+            k = chosen[c]
+            if not py_hypot(points[i, 0] - points[k, 0], points[i, 1] - points[k, 1]) >= spacing:
+                fits = False
+                break
+        if fits:
+            chosen[count] = i
+            count += 1
+    return chosen[:count]
+
+
+@njit(**_JIT)
+def picker_preferences(positions, dwell, waypoint, routes, lengths, v_pref, arrival, out):  # pragma: no cover
+    """``PickerCrowd.preferred_velocities`` into ``out`` (n, 2): towards each walking picker's current waypoint at
+    ``v_pref`` (slowing into the last one), zero for a standing one (``dwell`` > 0); a walking picker first passes the
+    waypoints within ``arrival`` (never the last), ``waypoint`` (n,) updated in place.
+
+    :param routes: (n, K, 2) each picker's waypoints, the first ``lengths[i]`` of row i
+    """
+    for i in range(positions.shape[0]):
+        out[i, 0] = out[i, 1] = 0.0
+        if dwell[i] > 0:
+            continue
+        x, y, w, last = positions[i, 0], positions[i, 1], waypoint[i], lengths[i] - 1
+        while w < last and py_hypot(x - routes[i, w, 0], y - routes[i, w, 1]) < arrival:
+            w += 1
+        waypoint[i] = w
+        dx, dy = routes[i, w, 0] - x, routes[i, w, 1] - y
+        norm = py_hypot(dx, dy)
+        if norm > v_pref or (w < last and norm > 1e-9):
+            dx, dy = dx / norm * v_pref, dy / norm * v_pref
+        out[i, 0], out[i, 1] = dx, dy
+
+
+@njit(**_JIT)
+def picker_progress(state, dwell, waypoint, routes, lengths, dt, arrival):  # pragma: no cover  (compiled)
+    """After a step: a standing picker's dwell counts down by ``dt`` (to 0 at least; ``dwell`` updated in place); the
+    pickers with something to do next, in order, (k,), and what: 1 its dwell is over (a new job), 2 it walked within
+    ``arrival`` of the last waypoint of its route (it stands: a dwell is drawn), (k,)."""
+    n = state.shape[0]
+    which, what = np.empty(n, np.int64), np.empty(n, np.int64)
+    count = 0
+    for i in range(n):
+        event = 0
+        if dwell[i] > 0:
+            dwell[i] = max(0.0, dwell[i] - dt)
+            if dwell[i] == 0:
+                event = 1
+        else:
+            last = lengths[i] - 1
+            if waypoint[i] == last and py_hypot(state[i, 0] - routes[i, last, 0], state[i, 1] - routes[i, last, 1]) < \
+                    arrival:
+                event = 2
+        if event:
+            which[count], what[count] = i, event
+            count += 1
+    return which[:count], what[:count]
+
+
+@njit(**_JIT)
+def picker_after_step(state, geometry, w, h, radius, dwell, waypoint, routes, lengths, dt,
+                      arrival):  # pragma: no cover  (compiled)
+    """:func:`pressed`, then, when no picker is pressed into a rack (always so far), :func:`picker_progress`, in one
+    call and one array: ``[p, the p pressed pickers..., then (picker, event) pairs...]`` (no pairs when p > 0: the
+    caller moves the pressed ones out first, then asks :func:`picker_progress`).
+
+    :param geometry: (2B + 1, 4) the ``room`` of :func:`pressed`, then its ``grown`` boxes, then the ``boxes``
+    """
+    b = (geometry.shape[0] - 1) // 2
+    out = pressed(state, geometry[0], geometry[1 : b + 1], geometry[b + 1 :], w, h, radius)
+    if out.shape[0]:
+        return np.concatenate((np.array([out.shape[0]]), out))
+    which, what = picker_progress(state, dwell, waypoint, routes, lengths, dt, arrival)
+    packed = np.empty(1 + 2 * which.shape[0], np.int64)
+    packed[0] = 0
+    packed[1::2], packed[2::2] = which, what
+    return packed
+
+
+__all__ = [
+    "far_from_both",
+    "picker_after_step",
+    "picker_preferences",
+    "picker_progress",
+    "points_clearance",
+    "pressed",
+    "slot_points",
+    "spread",
+]

@@ -1,0 +1,170 @@
+"""Kernels of the robot's side: a step's sensing and route bookkeeping, the roadmaps' edges and joins, stations."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from sb3_crowdnav.sim.warehouse.kernels.base import (
+    _JIT,
+    _misses_all,
+    _point_segment,
+    misses_boxes,
+    py_hypot,
+    segment_clearance,
+    segment_distance,
+)
+
+
+@njit(**_JIT)
+def sense(geometry, p0x, p0y, p1x, p1y, reach, radius, sensor_range, max_count, dist,
+          order):  # pragma: no cover  (compiled)
+    """The robot's sensing after it moved from p0 to p1, against the segments of a layout.
+
+    :param geometry: (S, 9) every segment's start (x, y), direction (dx, dy), squared length (at least 1e-18), and
+        the segment ``[x0, y0, x1, y1]``
+    :param reach: the radius + the step's length: only segments closer than it to p1 can be touched
+    :param dist: (S,) filled with the distance from p1 to every segment (``np.hypot`` of the clamped projection, as
+        ``WarehouseSimulator``'s NumPy form)
+    :param order: (S,) filled with the stable order of ``dist``
+    :return: whether the disc of ``radius`` swept from p0 to p1 touches a segment closer than ``reach``
+        (:func:`segment_distance` below ``radius``), and the observed segments: the first of that order within
+        ``sensor_range``, at most ``max_count``, padded with zeros (max_count, 4), with their mask (max_count,) bool
+    """
+    ax, ay, abx, aby, len2, segments = geometry[:, 0], geometry[:, 1], geometry[:, 2], geometry[:, 3], \
+        geometry[:, 4], geometry[:, 5:]
+    n = ax.shape[0]
+    for k in range(n):
+        dx, dy = p1x - ax[k], p1y - ay[k]
+        t = min(max((dx * abx[k] + dy * aby[k]) / len2[k], 0.0), 1.0)
+        dist[k] = math.hypot(dx - t * abx[k], dy - t * aby[k])
+    order[:] = np.argsort(dist, kind="mergesort")  # stable
+    observed, mask = np.zeros((max_count, 4)), np.zeros(max_count, np.bool_)
+    seen = 0
+    while seen < n and seen < max_count and dist[order[seen]] <= sensor_range:
+        observed[seen] = segments[order[seen]]
+        mask[seen] = True
+        seen += 1
+    hit = False
+    for k in order:
+        if dist[k] >= reach:
+            break
+        if segment_distance(p0x, p0y, p1x, p1y, segments[k, 0], segments[k, 1], segments[k, 2],
+                            segments[k, 3]) < radius:
+            hit = True
+            break
+    return hit, observed, mask
+
+
+@njit(**_JIT)
+def sense_and_follow(geometry, p0x, p0y, p1x, p1y, reach, radius, sensor_range, max_count, dist, order, route, index,
+                     waypoint_radius, replan_distance, boxes, w, h):  # pragma: no cover  (compiled)
+    """A step's :func:`sense`, then the route's bookkeeping of ``WarehouseSimulator._advance_route`` at p1 (what the
+    caller applies unless the step ended the episode): the waypoints passed (``math.dist`` below
+    ``waypoint_radius``, never the last) give the new current ``index``; ``off``: p1 strayed more than
+    ``replan_distance`` from the leg to it; ``blocked`` (asked only when not off, and only of ``boxes`` (B, 4), None
+    for a layout of other racks): the robot's disc does not fit along the segment to it (:func:`segment_clearance`
+    below ``radius`` - 1 µm).
+
+    :param route: (R, 2) the route's waypoints
+    :return: hit, observed segments, their mask (:func:`sense`), the new index, off, blocked
+    """
+    hit, observed, mask = sense(geometry, p0x, p0y, p1x, p1y, reach, radius, sensor_range, max_count, dist, order)
+    last = route.shape[0] - 1
+    while index < last and py_hypot(p1x - route[index, 0], p1y - route[index, 1]) < waypoint_radius:
+        index += 1
+    off = _point_segment(p1x, p1y, route[index - 1, 0], route[index - 1, 1], route[index, 0],
+                         route[index, 1]) > replan_distance
+    blocked = False
+    if not off and boxes is not None:
+        blocked = not segment_clearance(p1x, p1y, route[index, 0], route[index, 1], boxes, w, h, radius) >= \
+            radius - 1e-6
+    return hit, observed, mask, index, off, blocked
+
+
+@njit(**_JIT)
+def bitangent_edges(corners, sides, first, boxes):  # pragma: no cover  (compiled)
+    """The edges of a box roadmap's visibility graph (``Roadmap._edges``' NumPy form): every pair of corners i < j
+    from ``first`` on, in the order of ``np.triu_indices``, that passes both ends on the outside of their racks
+    (``sides[i] * dx * dy <= 0`` and likewise for j) and enters none of the open ``boxes``.
+
+    :return: i (E,), j (E,), and the lengths (E,) (``np.linalg.norm``'s value, sqrt(dx * dx + dy * dy))
+    """
+    n = corners.shape[0]
+    size = max((n - first) * (n - first - 1) // 2, 0)
+    out_i, out_j, out_len = np.empty(size, np.int64), np.empty(size, np.int64), np.empty(size)
+    count = 0
+    for i in range(first, n):
+        ax, ay = corners[i, 0], corners[i, 1]
+        for j in range(i + 1, n):
+            bx, by = corners[j, 0], corners[j, 1]
+            dx, dy = bx - ax, by - ay
+            turn = dx * dy
+            if sides[i] * turn <= 0 and sides[j] * turn <= 0 and _misses_all(ax, ay, bx, by, boxes):
+                out_i[count], out_j[count], out_len[count] = i, j, math.sqrt(dx * dx + dy * dy)
+                count += 1
+    return out_i[:count], out_j[:count], out_len[:count]
+
+
+@njit(**_JIT)
+def joins(px, py, corners, sides, first, boxes):  # pragma: no cover  (compiled)
+    """``Roadmap._joins`` of a point inside the hall: the corners from ``first`` on that (px, py) sees and passes on
+    the outside (``side * dx * dy <= 0`` with (dx, dy) = point - corner, :func:`misses_boxes`), and the lengths."""
+    n = corners.shape[0]
+    out_k, out_len = np.empty(max(n - first, 0), np.int64), np.empty(max(n - first, 0))
+    count = 0
+    for k in range(first, n):
+        cx, cy = corners[k, 0], corners[k, 1]
+        dx, dy = px - cx, py - cy
+        if sides[k] * dx * dy <= 0 and misses_boxes(px, py, cx, cy, boxes):
+            out_k[count], out_len[count] = k, math.sqrt(dx * dx + dy * dy)
+            count += 1
+    return out_k[:count], out_len[:count]
+
+
+@njit(**_JIT)
+def free_points(points, hall, grown):  # pragma: no cover  (compiled)
+    """``Roadmap.is_free`` of each of ``points`` (n, 2): strictly inside ``hall`` (x0, y0, x1, y1) and in none of the
+    closed ``grown`` boxes (B, 4)."""
+    out = np.empty(points.shape[0], np.bool_)
+    for p in range(points.shape[0]):
+        x, y = points[p, 0], points[p, 1]
+        free = hall[0] < x < hall[2] and hall[1] < y < hall[3]
+        for k in range(grown.shape[0]):
+            if not free:
+                break
+            if grown[k, 0] <= x <= grown[k, 2] and grown[k, 1] <= y <= grown[k, 3]:
+                free = False
+        out[p] = free
+    return out
+
+
+@njit(**_JIT)
+def separated(boxes, x0, y0, x1, y1):  # pragma: no cover  (compiled)
+    """:func:`~sb3_crowdnav.sim.warehouse.boxes.separated`: ``boxes`` (B, 4) strictly inside the rectangle and
+    pairwise apart (a gap in x or y)."""
+    n = boxes.shape[0]
+    for k in range(n):
+        if not (x0 < boxes[k, 0] and y0 < boxes[k, 1] and boxes[k, 2] < x1 and boxes[k, 3] < y1):
+            return False
+    for k in range(n):
+        for m in range(k + 1, n):
+            if not (boxes[k, 2] < boxes[m, 0] or boxes[m, 2] < boxes[k, 0] or boxes[k, 3] < boxes[m, 1] or
+                    boxes[m, 3] < boxes[k, 1]):
+                return False
+    return True
+
+
+@njit(**_JIT)
+def distances_to(points, gx, gy):  # pragma: no cover  (compiled)
+    """sqrt((x - gx)^2 + (y - gy)^2) of every row of ``points`` (n, 2) (``np.linalg.norm``'s operations)."""
+    out = np.empty(points.shape[0])
+    for p in range(points.shape[0]):
+        dx, dy = points[p, 0] - gx, points[p, 1] - gy
+        out[p] = math.sqrt(dx * dx + dy * dy)
+    return out
+
+
+__all__ = ["bitangent_edges", "distances_to", "free_points", "joins", "sense", "sense_and_follow", "separated"]
