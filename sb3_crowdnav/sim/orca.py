@@ -45,7 +45,7 @@ class OrcaCrowd:
                  obstacles: list[np.ndarray] | None = None) -> None:
         """:param obstacles: static obstacles as counter-clockwise (k, 2) vertex arrays, seen by every agent"""
         # (a simulator is never reused with clear_agents(): RVO2's agent tree keeps pointers to the removed agents)
-        self.sim = make_simulator(cfg, float(np.max(v_prefs, initial=cfg.human_v_pref)))
+        self.sim = make_simulator(cfg, max([*np.asarray(v_prefs, dtype=np.float64).tolist(), cfg.human_v_pref]))
         for polygon in obstacles or ():
             self.sim.add_obstacle([(float(x), float(y)) for x, y in np.asarray(polygon).tolist()])
         if obstacles:

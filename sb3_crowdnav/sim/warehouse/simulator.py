@@ -238,7 +238,7 @@ class WarehouseSimulator(CrowdSimulator):
         :attr:`hit_obstacle` tells whether this step's collision was with a rack or a wall.
         """
         p0 = self.robot[Robot.POS].tolist()
-        waypoint = self.route[self.route_index]  # the observed current waypoint (replanning replaces the array)
+        waypoint = self._route_points[self.route_index]  # the observed current waypoint (replanning replaces the route)
         terms = super().step(action)
         p1 = self.robot[Robot.POS].tolist()
         (x0, y0), (x1, y1), radius, cfg = p0, p1, self.scene.robot_radius, self.config
@@ -252,7 +252,7 @@ class WarehouseSimulator(CrowdSimulator):
             terms = with_obstacle_collision(terms, np.bool_(hit), self.config.obstacle_collision_penalty)
         self.hit_obstacle = hit and not bool(terms.min_distance < 0)
         if self.config.progress_reward:  # (with_route_progress returns the terms unchanged without shaping)
-            terms = with_route_progress(terms, np.array(p0), np.array(p1), waypoint, self.config.progress_reward)
+            terms = with_route_progress(terms, np.array(p0), np.array(p1), np.array(waypoint), self.config.progress_reward)
         self.progress_term = float(terms.progress_term)
         if not (terms.collision or terms.success):
             self._advance_route(p1, index, off, blocked)
