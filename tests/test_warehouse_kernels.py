@@ -11,11 +11,11 @@ import pickle
 import networkx as nx
 import numpy as np
 import pytest
+from warehouse_reference import points_clearance, segment_meets_box, segments_miss_boxes
 
 from sb3_crowdnav.sim.config import SceneConfig
 from sb3_crowdnav.sim.geometry import segment_distance_scalar
 from sb3_crowdnav.sim.warehouse import kernels
-from sb3_crowdnav.sim.warehouse.boxes import points_clearance, segment_meets_box, segments_miss_boxes
 from sb3_crowdnav.sim.warehouse.layout import LayoutRanges, Roadmap, generate_layout
 from sb3_crowdnav.sim.warehouse.pickers import pick_slots
 from sb3_crowdnav.sim.warehouse.roadmap import _BuiltGraph
@@ -184,7 +184,7 @@ def test_the_built_graph_is_the_graph_networkx_methods_build():
 
 
 def float_pressed(state: np.ndarray, room, grown, boxes, hall, radius) -> list[int]:
-    from sb3_crowdnav.sim.warehouse.boxes import point_clearance as float_clearance
+    from warehouse_reference import point_clearance as float_clearance
 
     (x0, y0, x1, y1), out = room, []
     for i, (x, y) in enumerate(state[:, :2].tolist()):
@@ -198,9 +198,10 @@ def float_pressed(state: np.ndarray, room, grown, boxes, hall, radius) -> list[i
 def test_the_clearance_kernels_are_the_float_forms():
     """point_clearance and pressed exactly; segment_clearance within an ulp (its hypot is the C library's) and the same
     answer to every threshold the simulator asks; sense_and_follow's route bookkeeping is _advance_route's."""
+    from warehouse_reference import point_clearance as float_clearance
+    from warehouse_reference import segment_clearance as float_segment_clearance
+
     from sb3_crowdnav.sim.geometry import point_segment_distance_scalar
-    from sb3_crowdnav.sim.warehouse.boxes import point_clearance as float_clearance
-    from sb3_crowdnav.sim.warehouse.boxes import segment_clearance as float_segment_clearance
 
     rng = np.random.default_rng(9)
     pressed_seen = seen_off = seen_blocked = 0
@@ -241,7 +242,7 @@ def test_the_clearance_kernels_are_the_float_forms():
 
 
 def test_the_small_kernels_are_their_numpy_forms():
-    from sb3_crowdnav.sim.warehouse.boxes import separated
+    from warehouse_reference import separated
 
     rng = np.random.default_rng(11)
     for layout in layouts(100, seed=12):

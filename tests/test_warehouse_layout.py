@@ -164,7 +164,8 @@ def test_the_box_roadmap_routes_as_the_shapely_one(seed, clearance):
 def test_free_space_tests_of_boxes_agree_with_shapely(seed):
     import shapely
 
-    from sb3_crowdnav.sim.warehouse.boxes import in_free_space, points_clearance, segment_clearance
+    from sb3_crowdnav.sim.warehouse import kernels
+    from sb3_crowdnav.sim.warehouse.boxes import in_free_space
 
     rng = np.random.default_rng(seed)
     layout = generate_layout(rng)
@@ -174,16 +175,16 @@ def test_free_space_tests_of_boxes_agree_with_shapely(seed):
     exact[~shapely.contains_xy(layout.hall, points[:, 0], points[:, 1])] = 0.0
     exact[shapely.contains_xy(shapely.union_all(layout.rack_polygons), points[:, 0], points[:, 1])] = 0.0
     hall = (layout.width / 2, layout.height / 2)
-    np.testing.assert_allclose(np.maximum(points_clearance(points, layout.boxes, hall), 0.0), exact, atol=1e-12)
+    np.testing.assert_allclose(np.maximum(kernels.points_clearance(points, layout.boxes, *hall), 0.0), exact, atol=1e-12)
     for clearance in (0.3 - 1e-6, 0.301, 0.3):
         free = layout.free_space(clearance)
         assert (in_free_space(layout, points, clearance) == shapely.contains_xy(free, points[:, 0], points[:, 1])).all()
-    boxes, racks = layout.boxes.tolist(), shapely.union_all(layout.rack_polygons)
+    boxes, racks = layout.boxes, shapely.union_all(layout.rack_polygons)
     for a, b in itertools.pairwise(points):
         segment = LineString([a, b])
         if layout.hall.covers(segment):
             expected = 0.0 if racks.intersects(segment) else shapely.distance(obstacles, segment)
-            assert segment_clearance(a.tolist(), b.tolist(), boxes, hall, cap=100.0) == pytest.approx(expected, abs=1e-9)
+            assert kernels.segment_clearance(*a, *b, boxes, *hall, 100.0) == pytest.approx(expected, abs=1e-9)
 
 
 def test_polygons_are_oriented_as_shapely_orients_them():
@@ -318,7 +319,8 @@ def test_the_one_segment_clippings_are_segments_miss_boxes():
     """The roadmap's clippings of one segment (kernels.misses_boxes: joins, sight; kernels._misses_all: the graph's
     edges) answer as the NumPy clipping, on random segments and on degenerate ones: along the boxes' sides, through
     their corners, axis-parallel, of zero length."""
-    from sb3_crowdnav.sim.warehouse.boxes import segments_miss_boxes
+    from warehouse_reference import segments_miss_boxes
+
     from sb3_crowdnav.sim.warehouse.kernels import misses_boxes
     from sb3_crowdnav.sim.warehouse.kernels.base import _misses_all
 

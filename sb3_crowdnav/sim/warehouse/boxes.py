@@ -5,10 +5,14 @@ minus the racks, buffered) costs a tenth of a millisecond and each predicate cal
 draws a layout per episode asks many. For boxes in a rectangular hall the same questions are a few comparisons:
 
 * the free space of a disc of radius ``c`` with mitred corners (the roadmaps') is the hall shrunk by ``c`` minus
-  the racks grown by ``c``, each grown rack again a box: :func:`segments_miss_boxes` (NumPy, many segments);
+  the racks grown by ``c``, each grown rack again a box: a segment is in it when it enters none of those boxes
+  (Liang-Barsky clipping);
 * with round corners (the robot's line of sight, the pickers' room, the pick slots) a point or a segment is in
-  it when its distance to every rack and to the walls is at least ``c``: :func:`points_clearance` (NumPy, many
-  points), :func:`segment_clearance` (Python floats: one segment against a handful of boxes).
+  it when its distance to every rack and to the walls is at least ``c``.
+
+The loops that answer them are compiled (:mod:`~sb3_crowdnav.sim.warehouse.kernels`: ``misses_boxes``,
+``bitangent_edges``, ``joins``, ``points_clearance``, ``segment_clearance``, ``pressed``); this module keeps what
+decides which geometry applies (:func:`rack_boxes`) and the pick slots' test (:func:`in_free_space`).
 
 shapely's round buffers approximate the arcs around rack corners by chords (within 0.4 mm at the radii used here).
 The pick slots (:func:`in_free_space`) therefore take the answer of an exact distance only when it is farther than
@@ -18,7 +22,6 @@ and the pickers' overlap guard take the exact distance itself (to within 1 µm o
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -45,57 +48,6 @@ def rack_boxes(racks: Sequence[np.ndarray]) -> np.ndarray | None:
     return np.concatenate([lo, hi], axis=1)
 
 
-def separated(boxes: np.ndarray, inner: tuple[float, float, float, float]) -> bool:
-    """Whether ``boxes`` (B, 4) lie strictly inside the rectangle ``inner`` and pairwise apart (a gap in x or y)."""
-    x0, y0, x1, y1 = inner
-    listed = boxes.tolist()
-    if not all(x0 < a and y0 < b and c < x1 and d < y1 for a, b, c, d in listed):
-        return False
-    return all(p[2] < q[0] or q[2] < p[0] or p[3] < q[1] or q[3] < p[1]
-               for k, p in enumerate(listed) for q in listed[k + 1 :])
-
-
-def segments_miss_boxes(a: np.ndarray, b: np.ndarray, boxes: np.ndarray) -> np.ndarray:
-    """(n,) bool: the segment ``a[k]``-``b[k]`` (each (n, 2)) enters the interior of none of the ``boxes`` (B, 4);
-    running along a box's side or through its corner is allowed (Liang-Barsky clipping against the open boxes).
-
-    Along an axis the segment does not move in, the division by zero gives the right answer by itself: t = ±inf
-    (inside that slab for every t, or for none) or NaN when it runs on the slab's edge, which the NaN-propagating
-    ``minimum``/``maximum`` turn into "misses" (the slab is open).
-    """
-    enter, leave = np.zeros((len(boxes), len(a))), np.ones((len(boxes), len(a)))  # (B, n): the part inside
-    with np.errstate(divide="ignore", invalid="ignore"):
-        for axis in (0, 1):
-            start, d = a[:, axis], b[:, axis] - a[:, axis]  # (n,)
-            t_lo, t_hi = (boxes[:, axis, None] - start) / d, (boxes[:, axis + 2, None] - start) / d  # (B, n)
-            enter = np.maximum(enter, np.minimum(t_lo, t_hi))
-            leave = np.minimum(leave, np.maximum(t_lo, t_hi))
-    return ~(enter < leave).any(axis=0)
-
-
-def points_clearance(points: np.ndarray, boxes: np.ndarray, hall: tuple[float, float]) -> np.ndarray:
-    """(n,) distance from each of ``points`` (n, 2) to the nearest rack (a box of ``boxes`` (B, 4), solid) or wall
-    (the hall ``[-hall[0], hall[0]] x [-hall[1], hall[1]]``); 0 inside a rack, negative outside the hall."""
-    (x, y), (w, h) = points.T, hall
-    out = np.minimum(np.minimum(x + w, w - x), np.minimum(y + h, h - y))
-    if len(boxes):
-        dx = np.maximum(np.maximum(boxes[:, 0, None] - x, x - boxes[:, 2, None]), 0.0)  # (B, n)
-        dy = np.maximum(np.maximum(boxes[:, 1, None] - y, y - boxes[:, 3, None]), 0.0)
-        out = np.minimum(out, np.sqrt(dx * dx + dy * dy).min(axis=0))
-    return out
-
-
-def point_clearance(x: float, y: float, boxes: list[tuple[float, float, float, float]], hall: tuple[float, float]) -> float:
-    """:func:`points_clearance` of one point, in floats."""
-    w, h = hall
-    best = min(x + w, w - x, y + h, h - y)
-    for x0, y0, x1, y1 in boxes:
-        dx, dy = max(x0 - x, 0.0, x - x1), max(y0 - y, 0.0, y - y1)
-        if dx < best and dy < best:
-            best = min(best, math.sqrt(dx * dx + dy * dy))
-    return best
-
-
 def in_free_space(layout: Any, points: np.ndarray, clearance: float) -> np.ndarray:
     """(n,) bool: ``shapely.contains_xy(layout.free_space(clearance), ...)`` of ``points`` (n, 2), the free space
     built only when the racks are not boxes or a point is within :data:`BAND` of its boundary."""
@@ -104,7 +56,7 @@ def in_free_space(layout: Any, points: np.ndarray, clearance: float) -> np.ndarr
         d, unsure = None, np.ones(len(points), dtype=bool)
     else:
         d = kernels.points_clearance(np.ascontiguousarray(points, dtype=np.float64), boxes, layout.width / 2,
-                                     layout.height / 2)  # points_clearance's values
+                                     layout.height / 2)  # the distance to the nearest rack or wall
         unsure = np.abs(d - clearance) <= BAND
     inside = np.zeros(len(points), dtype=bool) if d is None else d > clearance
     if unsure.any():
@@ -114,61 +66,4 @@ def in_free_space(layout: Any, points: np.ndarray, clearance: float) -> np.ndarr
     return inside
 
 
-def segment_clearance(a: Sequence[float], b: Sequence[float], boxes: list[tuple[float, float, float, float]],
-                      hall: tuple[float, float], cap: float) -> float:
-    """Distance from the segment ``a``-``b`` to the nearest rack (a box of ``boxes``) or wall (see
-    :func:`points_clearance`), in floats; racks farther than ``cap`` from the segment's bounding box are skipped, so
-    a value >= ``cap`` only means "at least ``cap``".
-
-    The walls are nearest at an end (the hall is convex); a rack is 0 away when the segment meets it, else nearest
-    at an end of the segment or at a corner of the rack (the nearest points of two disjoint convex sets).
-    """
-    (ax, ay), (bx, by), (w, h) = a, b, hall
-    best = min(cap, ax + w, w - ax, ay + h, h - ay, bx + w, w - bx, by + h, h - by)
-    dx, dy = bx - ax, by - ay
-    sx0, sx1, sy0, sy1 = min(ax, bx), max(ax, bx), min(ay, by), max(ay, by)
-    for box in boxes:
-        x0, y0, x1, y1 = box
-        if x0 - sx1 >= best or sx0 - x1 >= best or y0 - sy1 >= best or sy0 - y1 >= best:
-            continue
-        if segment_meets_box(ax, ay, dx, dy, box):
-            return 0.0
-        ends = [math.hypot(max(x0 - px, 0.0, px - x1), max(y0 - py, 0.0, py - y1)) for px, py in ((ax, ay), (bx, by))]
-        best = min(best, *ends, *(_point_segment(cx, cy, ax, ay, dx, dy) for cx in (x0, x1) for cy in (y0, y1)))
-    return max(best, 0.0)
-
-
-def _point_segment(px: float, py: float, ax: float, ay: float, dx: float, dy: float) -> float:
-    """Distance from ``(px, py)`` to the segment from ``(ax, ay)`` along ``(dx, dy)``."""
-    length2 = dx * dx + dy * dy
-    t = 0.0 if length2 <= 1e-18 else min(1.0, max(0.0, ((px - ax) * dx + (py - ay) * dy) / length2))
-    return math.hypot(px - ax - t * dx, py - ay - t * dy)
-
-
-def segment_meets_box(ax: float, ay: float, dx: float, dy: float, box: Sequence[float], interior: bool = False) -> bool:
-    """Whether the segment from ``(ax, ay)`` along ``(dx, dy)`` meets the closed ``box`` ``[xmin, ymin, xmax, ymax]``,
-    or its interior (``interior``; the test of :func:`segments_miss_boxes`, for one segment and one box, in floats:
-    the part of the segment in each slab, t in [enter, leave], the two axes written out)."""
-    x0, y0, x1, y1 = box
-    if dx == 0:
-        if not (x0 < ax < x1 if interior else x0 <= ax <= x1):
-            return False
-        enter, leave = 0.0, 1.0
-    else:
-        t0, t1 = (x0 - ax) / dx, (x1 - ax) / dx
-        if t1 < t0:
-            t0, t1 = t1, t0
-        enter, leave = (t0 if t0 > 0.0 else 0.0), (t1 if t1 < 1.0 else 1.0)
-    if dy == 0:
-        if not (y0 < ay < y1 if interior else y0 <= ay <= y1):
-            return False
-    else:
-        t0, t1 = (y0 - ay) / dy, (y1 - ay) / dy
-        if t1 < t0:
-            t0, t1 = t1, t0
-        enter, leave = (t0 if t0 > enter else enter), (t1 if t1 < leave else leave)
-    return enter < leave if interior else enter <= leave
-
-
-__all__ = ["BAND", "in_free_space", "point_clearance", "points_clearance", "rack_boxes", "segment_clearance",
-           "segment_meets_box", "segments_miss_boxes", "separated"]
+__all__ = ["BAND", "in_free_space", "rack_boxes"]

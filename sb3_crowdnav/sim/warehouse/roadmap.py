@@ -15,7 +15,6 @@ from shapely.geometry import Point
 
 from sb3_crowdnav.sim.config import check_number
 from sb3_crowdnav.sim.warehouse import kernels
-from sb3_crowdnav.sim.warehouse.boxes import segments_miss_boxes
 
 if TYPE_CHECKING:
     from sb3_crowdnav.sim.warehouse.layout import WarehouseLayout
@@ -173,15 +172,11 @@ class Roadmap:
         return free
 
     def _visible(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        """(n,) bool: the segments a[k]-b[k] lie in the free space."""
+        """(n,) bool: the segments a[k]-b[k] lie in the free space (shapely's ``covers``: racks that are not boxes;
+        with boxes the kernels decide, :meth:`_edges`, :meth:`_joins`, :meth:`_visible_one`)."""
         if not len(a):
             return np.zeros(0, dtype=bool)
-        if self.grown is None:
-            return shapely.covers(self._cover, shapely.linestrings(np.stack([a, b], axis=1)))
-        x0, y0, x1, y1 = self._hall
-        lo, hi = np.array([x0 - 1e-6, y0 - 1e-6]), np.array([x1 + 1e-6, y1 + 1e-6])
-        in_hall = ((a >= lo) & (a <= hi) & (b >= lo) & (b <= hi)).all(axis=1)  # the hall is convex
-        return in_hall & segments_miss_boxes(a, b, self._open)
+        return shapely.covers(self._cover, shapely.linestrings(np.stack([a, b], axis=1)))
 
     def free_points(self, points: np.ndarray) -> list[bool]:
         """:meth:`is_free` of each of ``points`` (n, 2) (with boxes for racks at once, :func:`kernels.free_points`)."""

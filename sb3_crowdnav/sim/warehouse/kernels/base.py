@@ -105,8 +105,9 @@ def _nan_max(a, b):  # pragma: no cover  (compiled)
 
 @njit(**_JIT)
 def _misses_all(ax, ay, bx, by, boxes):  # pragma: no cover  (compiled)
-    """:func:`~sb3_crowdnav.sim.warehouse.boxes.segments_miss_boxes` of one segment: Liang-Barsky clipping against
-    the open ``boxes`` (B, 4), divisions by zero and NaNs as NumPy's."""
+    """Whether the segment from (ax, ay) to (bx, by) enters the open interior of none of ``boxes`` (B, 4):
+    Liang-Barsky clipping, with NumPy's ``minimum``/``maximum`` on the inf and NaN that a segment along an axis gives
+    (running along a box's side or through its corner is allowed). The roadmap's edges are tested so."""
     dx, dy = bx - ax, by - ay
     for k in range(boxes.shape[0]):
         t_lo, t_hi = (boxes[k, 0] - ax) / dx, (boxes[k, 2] - ax) / dx
@@ -119,45 +120,24 @@ def _misses_all(ax, ay, bx, by, boxes):  # pragma: no cover  (compiled)
 
 
 @njit(**_JIT)
-def _meets_box_interior(ax, ay, dx, dy, x0, y0, x1, y1):  # pragma: no cover  (compiled)
-    """:func:`~sb3_crowdnav.sim.warehouse.boxes.segment_meets_box` with ``interior=True``."""
-    if dx == 0:
-        if not (x0 < ax < x1):
-            return False
-        enter, leave = 0.0, 1.0
-    else:
-        t0, t1 = (x0 - ax) / dx, (x1 - ax) / dx
-        if t1 < t0:
-            t0, t1 = t1, t0
-        enter, leave = (t0 if t0 > 0.0 else 0.0), (t1 if t1 < 1.0 else 1.0)
-    if dy == 0:
-        if not (y0 < ay < y1):
-            return False
-    else:
-        t0, t1 = (y0 - ay) / dy, (y1 - ay) / dy
-        if t1 < t0:
-            t0, t1 = t1, t0
-        enter, leave = (t0 if t0 > enter else enter), (t1 if t1 < leave else leave)
-    return enter < leave
-
-
-@njit(**_JIT)
 def misses_boxes(ax, ay, bx, by, boxes):  # pragma: no cover  (compiled)
     """``roadmap._misses``: whether the segment from (ax, ay) to (bx, by) enters none of the open ``boxes`` (B, 4)
-    (boxes beside its bounding box skipped, the others by :func:`segment_meets_box`'s test)."""
+    (boxes beside its bounding box skipped, the others by :func:`_meets_box`'s interior test); a route's ends and
+    lines of sight are tested so."""
     sx0, sx1 = (ax, bx) if ax < bx else (bx, ax)
     sy0, sy1 = (ay, by) if ay < by else (by, ay)
     for k in range(boxes.shape[0]):
         x0, y0, x1, y1 = boxes[k, 0], boxes[k, 1], boxes[k, 2], boxes[k, 3]
         if x0 < sx1 and sx0 < x1 and y0 < sy1 and sy0 < y1 and \
-                _meets_box_interior(ax, ay, bx - ax, by - ay, x0, y0, x1, y1):
+                _meets_box(ax, ay, bx - ax, by - ay, x0, y0, x1, y1, True):
             return False
     return True
 
 
 @njit(**_JIT)
 def point_clearance(x, y, boxes, w, h):  # pragma: no cover  (compiled)
-    """:func:`~sb3_crowdnav.sim.warehouse.boxes.point_clearance` (its value)."""
+    """The distance from (x, y) to the nearest rack (a box of ``boxes`` (B, 4), solid) or wall (the hall
+    [-w, w] x [-h, h]); 0 inside a rack, negative outside the hall (boxes not nearer than the best so far skipped)."""
     best = min(x + w, w - x, y + h, h - y)
     for k in range(boxes.shape[0]):
         dx, dy = max(boxes[k, 0] - x, 0.0, x - boxes[k, 2]), max(boxes[k, 1] - y, 0.0, y - boxes[k, 3])
@@ -168,17 +148,18 @@ def point_clearance(x, y, boxes, w, h):  # pragma: no cover  (compiled)
 
 @njit(**_JIT)
 def _point_segment_hypot(px, py, ax, ay, dx, dy):  # pragma: no cover  (compiled)
-    """``boxes._point_segment``: distance from (px, py) to the segment from (ax, ay) along (dx, dy)."""
+    """Distance from (px, py) to the segment from (ax, ay) along (dx, dy) (``math.hypot``: the C library's)."""
     length2 = dx * dx + dy * dy
     t = 0.0 if length2 <= 1e-18 else min(1.0, max(0.0, ((px - ax) * dx + (py - ay) * dy) / length2))
     return math.hypot(px - ax - t * dx, py - ay - t * dy)
 
 
 @njit(**_JIT)
-def _meets_box(ax, ay, dx, dy, x0, y0, x1, y1):  # pragma: no cover  (compiled)
-    """:func:`~sb3_crowdnav.sim.warehouse.boxes.segment_meets_box` (the closed box)."""
+def _meets_box(ax, ay, dx, dy, x0, y0, x1, y1, interior):  # pragma: no cover  (compiled)
+    """Whether the segment from (ax, ay) along (dx, dy) meets the closed box, or its open interior (``interior``):
+    the part of the segment in each slab, t in [enter, leave], the two axes written out (Liang-Barsky)."""
     if dx == 0:
-        if not (x0 <= ax <= x1):
+        if not ((x0 < ax < x1) if interior else (x0 <= ax <= x1)):
             return False
         enter, leave = 0.0, 1.0
     else:
@@ -187,20 +168,24 @@ def _meets_box(ax, ay, dx, dy, x0, y0, x1, y1):  # pragma: no cover  (compiled)
             t0, t1 = t1, t0
         enter, leave = (t0 if t0 > 0.0 else 0.0), (t1 if t1 < 1.0 else 1.0)
     if dy == 0:
-        if not (y0 <= ay <= y1):
+        if not ((y0 < ay < y1) if interior else (y0 <= ay <= y1)):
             return False
     else:
         t0, t1 = (y0 - ay) / dy, (y1 - ay) / dy
         if t1 < t0:
             t0, t1 = t1, t0
         enter, leave = (t0 if t0 > enter else enter), (t1 if t1 < leave else leave)
-    return enter <= leave
+    return enter < leave if interior else enter <= leave
 
 
 @njit(**_JIT)
 def segment_clearance(ax, ay, bx, by, boxes, w, h, cap):  # pragma: no cover  (compiled)
-    """:func:`~sb3_crowdnav.sim.warehouse.boxes.segment_clearance` (its operations; ``math.hypot`` is the C library's
-    here and CPython's own there, which differ in the last bit of about one distance in a hundred)."""
+    """Distance from the segment (ax, ay)-(bx, by) to the nearest rack (a box of ``boxes``) or wall of the hall
+    [-w, w] x [-h, h]; racks farther than ``cap`` from the segment's bounding box are skipped, so a value >= ``cap``
+    only means "at least ``cap``". The walls are nearest at an end (the hall is convex); a rack is 0 away when the
+    segment meets it, else nearest at an end of the segment or at a corner of the rack (the nearest points of two
+    disjoint convex sets). (``math.hypot`` is the C library's here; the float form it replaced used CPython's, which
+    differs in the last bit of about one distance in a hundred: only a comparison with the radius leaves the kernel.)"""
     best = min(cap, ax + w, w - ax, ay + h, h - ay, bx + w, w - bx, by + h, h - by)
     dx, dy = bx - ax, by - ay
     sx0, sx1, sy0, sy1 = min(ax, bx), max(ax, bx), min(ay, by), max(ay, by)
@@ -208,7 +193,7 @@ def segment_clearance(ax, ay, bx, by, boxes, w, h, cap):  # pragma: no cover  (c
         x0, y0, x1, y1 = boxes[k, 0], boxes[k, 1], boxes[k, 2], boxes[k, 3]
         if x0 - sx1 >= best or sx0 - x1 >= best or y0 - sy1 >= best or sy0 - y1 >= best:
             continue
-        if _meets_box(ax, ay, dx, dy, x0, y0, x1, y1):
+        if _meets_box(ax, ay, dx, dy, x0, y0, x1, y1, False):
             return 0.0
         best = min(best, math.hypot(max(x0 - ax, 0.0, ax - x1), max(y0 - ay, 0.0, ay - y1)),
                    math.hypot(max(x0 - bx, 0.0, bx - x1), max(y0 - by, 0.0, by - y1)),

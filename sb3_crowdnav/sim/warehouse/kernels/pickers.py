@@ -37,8 +37,8 @@ def slot_points(segments, spacing, offset):  # pragma: no cover  (compiled)
 
 @njit(**_JIT)
 def points_clearance(points, boxes, w, h):  # pragma: no cover  (compiled)
-    """:func:`~sb3_crowdnav.sim.warehouse.boxes.points_clearance` (its values) of ``points`` (n, 2) in the hall
-    ``[-w, w] x [-h, h]``."""
+    """The distance from each of ``points`` (n, 2) to the nearest rack (a box of ``boxes`` (B, 4), solid) or wall (the
+    hall [-w, w] x [-h, h]), (n,); 0 inside a rack, negative outside the hall."""
     n = points.shape[0]
     out = np.empty(n)
     for p in range(n):

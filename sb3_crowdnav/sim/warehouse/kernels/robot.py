@@ -143,8 +143,8 @@ def free_points(points, hall, grown):  # pragma: no cover  (compiled)
 
 @njit(**_JIT)
 def separated(boxes, x0, y0, x1, y1):  # pragma: no cover  (compiled)
-    """:func:`~sb3_crowdnav.sim.warehouse.boxes.separated`: ``boxes`` (B, 4) strictly inside the rectangle and
-    pairwise apart (a gap in x or y)."""
+    """Whether ``boxes`` (B, 4) lie strictly inside the rectangle (x0, y0, x1, y1) and pairwise apart (a gap in x or
+    y): the roadmap's fast geometry applies to grown racks that are."""
     n = boxes.shape[0]
     for k in range(n):
         if not (x0 < boxes[k, 0] and y0 < boxes[k, 1] and boxes[k, 2] < x1 and boxes[k, 3] < y1):
