@@ -12,7 +12,8 @@ C library's ``hypot``), the kernel calls :func:`py_hypot`, CPython 3.11's algori
 gives the same values on the Python the package is tested with.
 
 Kernels compile on their first call and are cached on disk in this package's ``__pycache__`` (``cache=True``): a new
-process loads them in milliseconds (where that folder cannot be written, numba falls back to ``NUMBA_CACHE_DIR``).
+process loads them in well under a second (where that folder is read-only, numba caches in a directory of the
+user's, or in ``NUMBA_CACHE_DIR``). The first compilation takes about 8 s.
 """
 
 from sb3_crowdnav.sim.warehouse.kernels.base import (
