@@ -348,3 +348,30 @@ def test_spread_is_the_greedy_float_loop():
                 if len(chosen) == n:
                     break
         assert kernels.spread(points, permutation, n, 0.8).tolist() == chosen
+
+
+def test_route_query_is_the_sight_test_the_joins_and_the_heuristic():
+    rng = np.random.default_rng(16)
+    direct = indirect = 0
+    for layout in layouts(60, seed=17):
+        roadmap = Roadmap(layout, 0.4)
+        if roadmap.grown is None:
+            continue
+        w, h = layout.width / 2, layout.height / 2
+        for start, goal in rng.uniform((-w - 0.3, -h - 0.3), (w + 0.3, h + 0.3), (10, 2, 2)).tolist():
+            query = kernels.route_query(*start, *goal, roadmap.corners, roadmap._sides, 4, roadmap._open,
+                                        roadmap._hall).tolist()
+            assert bool(query[0]) == roadmap._visible_one(start, goal)
+            if query[0]:
+                direct += 1
+                assert len(query) == 1
+                continue
+            indirect += 1
+            a, b = int(query[1]), int(query[2])
+            joins_s, joins_g = roadmap._joins(start), roadmap._joins(goal)
+            assert ([int(k) for k in query[3 : 3 + a]], query[3 + a + b : 3 + 2 * a + b]) == joins_s
+            assert ([int(k) for k in query[3 + a : 3 + a + b]], query[3 + 2 * a + b : 3 + 2 * (a + b)]) == joins_g
+            dx, dy = start[0] - goal[0], start[1] - goal[1]
+            heuristic = [*np.linalg.norm(roadmap.corners - goal, axis=1).tolist(), math.sqrt(dx * dx + dy * dy), 0.0]
+            assert query[3 + 2 * (a + b) :] == heuristic
+    assert direct > 0 and indirect > 0

@@ -227,9 +227,20 @@ class Roadmap:
     def waypoints(self, start: Sequence[float], goal: Sequence[float]) -> list[list[float]]:
         """:meth:`route` as a list of ``[x, y]`` floats (the same values)."""
         start, goal = [float(start[0]), float(start[1])], [float(goal[0]), float(goal[1])]
-        if self._visible_one(start, goal):
+        remaining = None
+        if self.grown is not None:  # the sight test, both ends' joins and the heuristic in one kernel call
+            (sx, sy), (gx, gy) = start, goal
+            query = kernels.route_query(sx, sy, gx, gy, self.corners, self._sides, 4, self._open, self._hall).tolist()
+            if query[0]:
+                return [start, goal]
+            a, b = int(query[1]), int(query[2])
+            from_start, to_goal = [int(k) for k in query[3 : 3 + a]], [int(k) for k in query[3 + a : 3 + a + b]]
+            start_lengths, goal_lengths = query[3 + a + b : 3 + 2 * a + b], query[3 + 2 * a + b : 3 + 2 * (a + b)]
+            remaining = query[3 + 2 * (a + b) :]
+        elif self._visible_one(start, goal):
             return [start, goal]
-        (from_start, start_lengths), (to_goal, goal_lengths) = self._joins(start), self._joins(goal)
+        else:
+            (from_start, start_lengths), (to_goal, goal_lengths) = self._joins(start), self._joins(goal)
         if len(self.corners) and not (from_start and to_goal):  # an end outside the free space: via its nearest corner
             if not from_start:
                 nearest = self.corners[np.argmin(np.linalg.norm(self.corners - start, axis=1))].tolist()
@@ -238,10 +249,10 @@ class Roadmap:
             return [start, goal] if nearest == start else [*self.waypoints(start, nearest), goal]
         graph, n = self.graph, len(self.corners)
         points = [*self._corner_list, start, goal]
-        gx, gy = goal
-        # the A* heuristic of every node (np.linalg.norm's operations)
-        (sx, sy), remaining = start, kernels.distances_to(self.corners, gx, gy).tolist()
-        remaining += (math.sqrt((sx - gx) * (sx - gx) + (sy - gy) * (sy - gy)), 0.0)
+        if remaining is None:  # the A* heuristic of every node (np.linalg.norm's operations)
+            (sx, sy), (gx, gy) = start, goal
+            remaining = kernels.distances_to(self.corners, gx, gy).tolist()
+            remaining += (math.sqrt((sx - gx) * (sx - gx) + (sy - gy) * (sy - gy)), 0.0)
         try:  # (the graph with the ends added: what add_weighted_edges_from would make of it, the graph kept)
             path = nx.astar_path(graph.with_ends(n, from_start, start_lengths, to_goal, goal_lengths), n, n + 1,
                                  heuristic=lambda u, _: remaining[u])

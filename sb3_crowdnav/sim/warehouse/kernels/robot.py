@@ -125,6 +125,40 @@ def joins(px, py, corners, sides, first, boxes):  # pragma: no cover  (compiled)
 
 
 @njit(**_JIT)
+def _ends_joins(px, py, corners, sides, first, boxes, hall):  # pragma: no cover  (compiled)
+    """:func:`joins` of a route's end inside the hall (to within 1 µm), none outside it."""
+    if hall[0] - 1e-6 <= px <= hall[2] + 1e-6 and hall[1] - 1e-6 <= py <= hall[3] + 1e-6:
+        return joins(px, py, corners, sides, first, boxes)
+    return np.empty(0, np.int64), np.empty(0)
+
+
+@njit(**_JIT)
+def route_query(sx, sy, gx, gy, corners, sides, first, boxes, hall):  # pragma: no cover  (compiled)
+    """What ``Roadmap.waypoints`` asks before its A* on a box roadmap, in one call and one array: whether the start
+    sees the goal (both within the hall ``(x0, y0, x1, y1)`` to within 1 µm and the segment entering no open box:
+    then the rest is empty), the corners each end sees (:func:`joins`) and their lengths, and the A* heuristic of
+    every node (the corners, the start, the goal: sqrt((x - gx)^2 + (y - gy)^2)).
+
+    :return: ``[direct, a, b, the start's a corners, the goal's b corners, their a + b lengths, n + 2 heuristics]``
+        (floats: the corners' numbers are exact)
+    """
+    inside = hall[0] - 1e-6 <= min(sx, gx) and max(sx, gx) <= hall[2] + 1e-6 and \
+        hall[1] - 1e-6 <= min(sy, gy) and max(sy, gy) <= hall[3] + 1e-6
+    if inside and misses_boxes(sx, sy, gx, gy, boxes):
+        return np.ones(1)
+    s_nodes, s_lengths = _ends_joins(sx, sy, corners, sides, first, boxes, hall)
+    g_nodes, g_lengths = _ends_joins(gx, gy, corners, sides, first, boxes, hall)
+    a, b, n = s_nodes.shape[0], g_nodes.shape[0], corners.shape[0]
+    out = np.empty(3 + 2 * (a + b) + n + 2)
+    out[0], out[1], out[2] = 0.0, a, b
+    out[3 : 3 + a], out[3 + a : 3 + a + b] = s_nodes, g_nodes
+    out[3 + a + b : 3 + 2 * a + b], out[3 + 2 * a + b : 3 + 2 * (a + b)] = s_lengths, g_lengths
+    out[3 + 2 * (a + b) : 3 + 2 * (a + b) + n] = distances_to(corners, gx, gy)
+    out[-2], out[-1] = math.sqrt((sx - gx) * (sx - gx) + (sy - gy) * (sy - gy)), 0.0
+    return out
+
+
+@njit(**_JIT)
 def free_points(points, hall, grown):  # pragma: no cover  (compiled)
     """``Roadmap.is_free`` of each of ``points`` (n, 2): strictly inside ``hall`` (x0, y0, x1, y1) and in none of the
     closed ``grown`` boxes (B, 4)."""
@@ -167,4 +201,5 @@ def distances_to(points, gx, gy):  # pragma: no cover  (compiled)
     return out
 
 
-__all__ = ["bitangent_edges", "distances_to", "free_points", "joins", "sense", "sense_and_follow", "separated"]
+__all__ = ["bitangent_edges", "distances_to", "free_points", "joins", "route_query", "sense", "sense_and_follow",
+           "separated"]
