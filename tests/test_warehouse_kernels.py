@@ -153,7 +153,7 @@ def test_the_built_graph_is_the_graph_networkx_methods_build():
     """Same nodes, neighbours in the same order, shared edge dicts; A* finds the same paths; it copies and pickles
     (as a plain graph) and is refused nothing networkx's algorithms ask of a graph. With a route's ends: the graph
     add_weighted_edges_from of the ends' edges makes, the built graph unchanged."""
-    rng = np.random.default_rng(8)
+    rng, searched = np.random.default_rng(8), 0
     for layout in layouts(30, seed=7):
         roadmap = Roadmap(layout, 0.4)
         nodes, (i, j, w) = roadmap._nodes.tolist(), roadmap._edges()
@@ -176,11 +176,21 @@ def test_the_built_graph_is_the_graph_networkx_methods_build():
             ended = built.with_ends(n, a, la, b, lb)
             plain.add_weighted_edges_from([*((n, k, x) for k, x in zip(a, la, strict=True)),
                                            *((n + 1, k, x) for k, x in zip(b, lb, strict=True))])
-            assert adjacency(ended) == adjacency(plain) and list(ended.nodes) == list(plain.nodes)
-            if a and b and nx.has_path(plain, n, n + 1):
-                assert nx.astar_path(ended, n, n + 1) == nx.astar_path(plain, n, n + 1)
+            assert list(ended.nodes) == list(plain.nodes)
+            assert all(ended._adj[u] == {v: d for v, d in plain._adj[u].items() if v != n} for u in nodes)
+            if a and b:  # the same path as on the whole graph, with the roadmap's heuristic and without one
+                assert ended._adj[n] == plain._adj[n]
+                remaining = [*np.linalg.norm(roadmap.corners - goal, axis=1).tolist(), math.dist(start, goal), 0.0]
+                for heuristic in (None, lambda u, _, remaining=remaining: remaining[u]):
+                    try:
+                        expected = nx.astar_path(plain, n, n + 1, heuristic=heuristic)
+                    except nx.NetworkXNoPath:
+                        continue
+                    assert nx.astar_path(ended, n, n + 1, heuristic=heuristic) == expected
+                    searched += 1
             plain.remove_nodes_from((n, n + 1))
             assert adjacency(built) == before
+    assert searched > 20
 
 
 def float_pressed(state: np.ndarray, room, grown, boxes, hall, radius) -> list[int]:

@@ -33,7 +33,7 @@ class _BuiltGraph(nx.Graph):
 
     :meth:`from_edges` gives the dicts ``add_nodes_from(nodes)`` then ``add_weighted_edges_from(zip(i, j, weights))``
     give (each node's neighbours in the order of the edges, the two directions of an edge sharing one attribute
-    dict), and :meth:`with_ends` those of a route's graph, this one unchanged.
+    dict), and :meth:`with_ends` the graph a route's A* searches, this one unchanged.
     """
 
     def __init__(self, node_dict: dict | None = None, adjacency: dict | None = None) -> None:
@@ -53,10 +53,13 @@ class _BuiltGraph(nx.Graph):
 
     def with_ends(self, start: int, start_joins: list, start_lengths: list, goal_joins: list,
                   goal_lengths: list) -> _BuiltGraph:
-        """The route's graph: this one with node ``start`` joined to ``start_joins`` and node ``start + 1`` (the goal)
-        to ``goal_joins``, as ``add_weighted_edges_from`` of the start's edges, then the goal's, would make it (an end
-        without joins is not added); this graph unchanged, its dicts shared where unchanged, copied where an end is
-        added. One graph object serves every route of this graph (its dicts refilled: the previous route's is gone)."""
+        """The graph A* searches for a route from node ``start`` to node ``start + 1`` (the goal): this one with the
+        start's row (its edges to ``start_joins``) and the goal in the rows of ``goal_joins``. A search from the start
+        reads only the start's row and the rows of the corners it expands, so the edges back to the start and the
+        goal's own row, which ``add_weighted_edges_from`` of the ends' edges would add too, are left out: an edge back
+        to the start only queues the start again, to be skipped, so the search finds the same path (tested). This
+        graph is unchanged (its rows shared, copied where the goal is added); one graph object serves every route of
+        this graph (its dicts refilled: the previous route's is gone). An end without joins is not added."""
         route = self.__dict__.get("_route")
         if route is None:
             route = self.__dict__["_route"] = _BuiltGraph()
@@ -66,15 +69,14 @@ class _BuiltGraph(nx.Graph):
         adjacency.clear()
         adjacency.update(base)
         route.__networkx_cache__.clear()
-        for end, joins, lengths in ((start, start_joins, start_lengths), (start + 1, goal_joins, goal_lengths)):
-            if not joins:
-                continue
-            node_dict[end], mine = {}, {}
-            adjacency[end] = mine
-            for k, w in zip(joins, lengths, strict=True):
-                if adjacency[k] is base[k]:
-                    adjacency[k] = dict(base[k])
-                mine[k] = adjacency[k][end] = {"weight": w}
+        if start_joins:
+            node_dict[start] = {}
+            adjacency[start] = {k: {"weight": w} for k, w in zip(start_joins, start_lengths, strict=True)}
+        if goal_joins:
+            node_dict[start + 1], goal = {}, start + 1
+            for k, w in zip(goal_joins, goal_lengths, strict=True):
+                row = adjacency[k] = dict(base[k])
+                row[goal] = {"weight": w}
         return route
 
     def __reduce__(self):  # copies and pickles as a plain graph (the factories above are per instance)
