@@ -86,6 +86,7 @@ def test_sense_is_the_numpy_distances_their_stable_order_and_the_swept_disc_test
         ab = segments[:, 2:] - segments[:, :2]
         geometry = np.concatenate([segments[:, :2], ab, np.maximum(np.sum(ab**2, axis=1), 1e-18)[:, None], segments],
                                   axis=1)
+        np.testing.assert_array_equal(kernels.segment_geometry(segments), geometry)
         w, h = layout.width / 2, layout.height / 2
         for _ in range(40):
             p0 = rng.uniform((-w, -h), (w, h))

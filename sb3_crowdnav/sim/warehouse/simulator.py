@@ -93,11 +93,7 @@ class WarehouseSimulator(CrowdSimulator):
             self._segments_of, self.segments = self.layout, self.layout.segments
             self._sight = None  # where the robot's centre may go (shapely), built when _in_sight needs it
             self._boxes = self.layout.boxes
-            seg_ab = self.segments[:, 2:] - self.segments[:, :2]
-            # what kernels.sense reads of every segment: start, direction, squared length, the segment
-            self._seg_geometry = np.concatenate([self.segments[:, :2], seg_ab,
-                                                 np.maximum(np.sum(seg_ab**2, axis=1), 1e-18)[:, None], self.segments],
-                                                axis=1)
+            self._seg_geometry = kernels.segment_geometry(self.segments)  # what kernels.sense reads of every segment
             # filled by every sensing: the distance from the robot's centre to every segment, their stable order
             self._seg_dist, self._seg_order = np.zeros(len(self.segments)), np.zeros(len(self.segments), dtype=np.int64)
         start, goal = self._stations(rng)

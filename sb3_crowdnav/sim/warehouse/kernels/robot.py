@@ -19,6 +19,19 @@ from sb3_crowdnav.sim.warehouse.kernels.base import (
 
 
 @njit(**_JIT)
+def segment_geometry(segments):  # pragma: no cover  (compiled)
+    """What :func:`sense` reads of every segment (S, 4): (S, 9) its start (x, y), direction (dx, dy), squared length
+    (dx * dx + dy * dy, at least 1e-18), and the segment."""
+    out = np.empty((segments.shape[0], 9))
+    for k in range(segments.shape[0]):
+        dx, dy = segments[k, 2] - segments[k, 0], segments[k, 3] - segments[k, 1]
+        out[k, 0], out[k, 1], out[k, 2], out[k, 3] = segments[k, 0], segments[k, 1], dx, dy
+        out[k, 4] = max(dx * dx + dy * dy, 1e-18)
+        out[k, 5:] = segments[k]
+    return out
+
+
+@njit(**_JIT)
 def sense(geometry, p0x, p0y, p1x, p1y, reach, radius, sensor_range, max_count, dist,
           order):  # pragma: no cover  (compiled)
     """The robot's sensing after it moved from p0 to p1, against the segments of a layout.
@@ -201,5 +214,5 @@ def distances_to(points, gx, gy):  # pragma: no cover  (compiled)
     return out
 
 
-__all__ = ["bitangent_edges", "distances_to", "free_points", "joins", "route_query", "sense", "sense_and_follow",
-           "separated"]
+__all__ = ["bitangent_edges", "distances_to", "free_points", "joins", "route_query", "segment_geometry", "sense",
+           "sense_and_follow", "separated"]
