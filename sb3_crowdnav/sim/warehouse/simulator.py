@@ -10,9 +10,7 @@ import shapely
 from shapely.geometry import LineString
 
 from sb3_crowdnav.sim.config import RewardConfig, SceneConfig
-from sb3_crowdnav.sim.geometry import (
-    SEGMENT_DIM,
-)
+from sb3_crowdnav.sim.geometry import SEGMENT_DIM
 from sb3_crowdnav.sim.observation import HUMAN_DIM, ROBOT_DIM, Human, Robot
 from sb3_crowdnav.sim.rewards import RewardTerms, with_obstacle_collision, with_route_progress
 from sb3_crowdnav.sim.simulator import CrowdSimulator
@@ -162,22 +160,13 @@ class WarehouseSimulator(CrowdSimulator):
         return chosen
 
     # ------------------------------------------------------------------ observation
-    def _distances(self, x: float, y: float) -> np.ndarray:
-        """Distance from the point (x, y) to every segment (S,) (:func:`point_segment_distance` on cached arrays)."""
-        dist, order = np.zeros(len(self.segments)), np.zeros(len(self.segments), dtype=np.int64)
-        kernels.sense(self._seg_geometry, x, y, x, y, self.scene.robot_radius, self.scene.robot_radius,
-                      self.config.sensor_range, self.config.max_obstacles, dist, order)
-        return dist
-
-    def _sense(self, x: float, y: float, p0: list[float] | None = None) -> bool:
-        """Sense from the robot's centre at (x, y), having come from ``p0`` (None: it did not move): the distances
-        to every segment, their stable order and how many of it are observed; whether the robot's disc swept from
-        ``p0`` touched a segment (the candidates: the segments closer than the radius + the step)."""
-        (x0, y0), radius = (x, y) if p0 is None else p0, self.scene.robot_radius
-        reach = radius + (0.0 if p0 is None else math.dist(p0, (x, y)))
-        hit, *self._observed = kernels.sense(self._seg_geometry, x0, y0, x, y, reach, radius, self.config.sensor_range,
-                                             self.config.max_obstacles, self._seg_dist, self._seg_order)
-        return bool(hit) and p0 is not None
+    def _sense(self, x: float, y: float) -> None:
+        """Sense from the robot's centre at (x, y) at the start of an episode (:func:`kernels.sense` of no move): the
+        distances to every segment, their stable order, the observed segments; a step senses in
+        :func:`kernels.sense_and_follow`."""
+        radius = self.scene.robot_radius
+        _, *self._observed = kernels.sense(self._seg_geometry, x, y, x, y, radius, radius, self.config.sensor_range,
+                                           self.config.max_obstacles, self._seg_dist, self._seg_order)
 
     def observed_obstacles(self) -> tuple[np.ndarray, np.ndarray]:
         """The ``max_obstacles`` segments nearest the robot within ``sensor_range``: (M, 4), mask (M,)
