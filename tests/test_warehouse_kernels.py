@@ -261,6 +261,16 @@ def test_the_small_kernels_are_their_numpy_forms():
         for clearance in (0.0, 0.4, 1.5, 3.0):  # grown until they touch and leave the hall
             grown, inner = layout.boxes + np.array([-clearance, -clearance, clearance, clearance]), (-w, -h, w, h)
             assert kernels.separated(grown, *inner) == separated(grown, inner)
+            hall = (-w + clearance, -h + clearance, w - clearance, h - clearance)
+            apart, ours, corners, sides, opened = kernels.box_roadmap(layout.boxes, clearance, *hall)
+            assert apart == separated(grown, hall)
+            np.testing.assert_array_equal(ours, grown)
+            np.testing.assert_array_equal(opened, grown + np.array([1e-6, 1e-6, -1e-6, -1e-6]))
+            x0, y0, x1, y1 = hall
+            expected = np.concatenate([[(x0, y0), (x0, y1), (x1, y1), (x1, y0)],
+                                       grown[:, [0, 1, 2, 1, 2, 3, 0, 3]].reshape(-1, 2)])
+            np.testing.assert_array_equal(corners, expected)
+            np.testing.assert_array_equal(sides, [0.0] * 4 + [1.0, -1.0, 1.0, -1.0] * len(grown))
         roadmap = Roadmap(layout, 0.4)
         points = rng.uniform((-w, -h), (w, h), (64, 2))
         if roadmap.grown is not None:

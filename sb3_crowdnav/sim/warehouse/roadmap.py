@@ -108,22 +108,17 @@ class Roadmap:
         self.layout, self.clearance = layout, float(clearance)
         w, h, c = layout.width / 2, layout.height / 2, self.clearance
         self._hall = (-w + c, -h + c, w - c, h - c)  # the free space's outline (shapely's mitred buffer gives these)
-        self.grown = self._grown_racks()  # (B, 4) bounds of the racks grown by the clearance, or None (see above)
         self._joins_of: dict[tuple[float, float], tuple[list[int], list[float]]] = {}
+        boxes, self.grown = layout.boxes, None  # grown: (B, 4) the racks grown by the clearance, or None (see above)
+        if boxes is not None and len(boxes):
+            # a mitred buffer of a box is the box grown by c (shapely's corners within an ulp); the corners are the
+            # hall's, then each grown rack's counter-clockwise from (xmin, ymin); a segment leaving a rack's corner
+            # along (dx, dy) passes it on the outside when side * dx * dy <= 0; touching a grown rack is allowed (open)
+            apart, grown, self.corners, self._sides, self._open = kernels.box_roadmap(boxes, c, *self._hall)
+            self.grown = grown if apart else None
         if self.grown is not None:
-            x0, y0, x1, y1 = self._hall
-            self._grown_list = self.grown.tolist()
-            # the hall's corners, then each rack's counter-clockwise from (xmin, ymin)
-            self._corner_list = [[x0, y0], [x0, y1], [x1, y1], [x1, y0]]
-            for gx0, gy0, gx1, gy1 in self._grown_list:
-                self._corner_list += ([gx0, gy0], [gx1, gy0], [gx1, gy1], [gx0, gy1])
-            self.corners = np.array(self._corner_list, dtype=np.float64)
+            self._grown_list, self._corner_list = self.grown.tolist(), self.corners.tolist()
             self._nodes = np.arange(4, len(self.corners))
-            # the side of every corner around its rack (0: the hall's): a segment leaving a rack's corner along
-            # (dx, dy) passes it on the outside when side * dx * dy <= 0
-            self._sides = np.array([0.0] * 4 + [1.0, -1.0, 1.0, -1.0] * len(self._grown_list))
-            # touching a grown rack is allowed
-            self._open = self.grown + np.array([1e-6, 1e-6, -1e-6, -1e-6])
         else:
             self._cover = self.free.buffer(1e-6)  # segments along the boundary count as inside
             shapely.prepare(self._cover)
@@ -156,15 +151,6 @@ class Roadmap:
         visible = self._visible(a, b)
         lengths = np.linalg.norm((b - a)[visible], axis=1)
         return i[visible].tolist(), j[visible].tolist(), lengths.tolist()
-
-    def _grown_racks(self) -> np.ndarray | None:
-        """(B, 4) bounds of the racks grown by the clearance (mitred), when they are boxes, apart and off the walls."""
-        boxes = self.layout.boxes
-        if boxes is None or not len(boxes):
-            return None
-        c = self.clearance  # a mitred buffer of a box is the box grown by c (shapely's corners within an ulp)
-        grown = boxes + np.array([-c, -c, c, c])
-        return grown if kernels.separated(grown, *self._hall) else None
 
     @functools.cached_property
     def free(self) -> Any:

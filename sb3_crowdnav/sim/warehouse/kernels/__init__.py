@@ -35,6 +35,7 @@ from sb3_crowdnav.sim.warehouse.kernels.pickers import (
 )
 from sb3_crowdnav.sim.warehouse.kernels.robot import (
     bitangent_edges,
+    box_roadmap,
     distances_to,
     free_points,
     joins,
@@ -47,6 +48,7 @@ from sb3_crowdnav.sim.warehouse.kernels.robot import (
 
 __all__ = [
     "bitangent_edges",
+    "box_roadmap",
     "distances_to",
     "far_from_both",
     "free_points",

@@ -19,6 +19,31 @@ from sb3_crowdnav.sim.warehouse.kernels.base import (
 
 
 @njit(**_JIT)
+def box_roadmap(boxes, c, x0, y0, x1, y1):  # pragma: no cover  (compiled)
+    """A box roadmap's geometry: the racks ``boxes`` (B, 4) grown by the clearance ``c`` (each box + (-c, -c, c, c)),
+    whether they lie strictly inside the shrunk hall (x0, y0, x1, y1) and pairwise apart (:func:`separated`), the
+    corners (4 + 4B, 2) (the hall's, then each grown rack's counter-clockwise from (xmin, ymin)), their sides around
+    their racks (0 for the hall's, then 1, -1, 1, -1 per rack) and the grown racks shrunk by 1e-6 (open: touching them
+    is allowed)."""
+    b = boxes.shape[0]
+    grown, opened = np.empty((b, 4)), np.empty((b, 4))
+    for k in range(b):
+        grown[k, 0], grown[k, 1] = boxes[k, 0] + -c, boxes[k, 1] + -c
+        grown[k, 2], grown[k, 3] = boxes[k, 2] + c, boxes[k, 3] + c
+        opened[k, 0], opened[k, 1] = grown[k, 0] + 1e-6, grown[k, 1] + 1e-6
+        opened[k, 2], opened[k, 3] = grown[k, 2] + -1e-6, grown[k, 3] + -1e-6
+    corners, sides = np.empty((4 + 4 * b, 2)), np.zeros(4 + 4 * b)
+    corners[0, 0], corners[0, 1], corners[1, 0], corners[1, 1] = x0, y0, x0, y1
+    corners[2, 0], corners[2, 1], corners[3, 0], corners[3, 1] = x1, y1, x1, y0
+    for k in range(b):
+        gx0, gy0, gx1, gy1, r = grown[k, 0], grown[k, 1], grown[k, 2], grown[k, 3], 4 + 4 * k
+        corners[r, 0], corners[r, 1], corners[r + 1, 0], corners[r + 1, 1] = gx0, gy0, gx1, gy0
+        corners[r + 2, 0], corners[r + 2, 1], corners[r + 3, 0], corners[r + 3, 1] = gx1, gy1, gx0, gy1
+        sides[r], sides[r + 1], sides[r + 2], sides[r + 3] = 1.0, -1.0, 1.0, -1.0
+    return separated(grown, x0, y0, x1, y1), grown, corners, sides, opened
+
+
+@njit(**_JIT)
 def segment_geometry(segments):  # pragma: no cover  (compiled)
     """What :func:`sense` reads of every segment (S, 4): (S, 9) its start (x, y), direction (dx, dy), squared length
     (dx * dx + dy * dy, at least 1e-18), and the segment."""
@@ -214,5 +239,15 @@ def distances_to(points, gx, gy):  # pragma: no cover  (compiled)
     return out
 
 
-__all__ = ["bitangent_edges", "distances_to", "free_points", "joins", "route_query", "segment_geometry", "sense",
-           "sense_and_follow", "separated"]
+__all__ = [
+    "bitangent_edges",
+    "box_roadmap",
+    "distances_to",
+    "free_points",
+    "joins",
+    "route_query",
+    "segment_geometry",
+    "sense",
+    "sense_and_follow",
+    "separated",
+]
