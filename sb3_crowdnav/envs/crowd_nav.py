@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Any
 
 from sb3_crowdnav.envs.base import (
+    ENV_KEYS,
     REWARD_KEYS,
     SCENE_KEYS,
     CrowdEnvBase,
@@ -116,7 +117,7 @@ class CrowdNavEnv(CrowdEnvBase):
     @classmethod
     def option_names(cls) -> set[str]:
         """Every keyword argument the constructor knows (each changes the episodes or is refused)."""
-        return SCENE_KEYS | REWARD_KEYS | {"reward", "gamma", "render_mode"}
+        return SCENE_KEYS | REWARD_KEYS | ENV_KEYS
 
 
 def unused_options(scene: SceneConfig) -> dict[str, str]:

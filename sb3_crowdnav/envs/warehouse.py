@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 
 from sb3_crowdnav.envs.base import (
+    ENV_KEYS,
     REWARD_KEYS,
     SCENE_KEYS,
     CrowdEnvBase,
@@ -152,7 +153,7 @@ class CrowdNavWarehouseEnv(CrowdEnvBase):
     @classmethod
     def option_names(cls) -> set[str]:
         """Every keyword argument the constructor knows (each changes the episodes or is refused)."""
-        return SCENE_KEYS | REWARD_KEYS | WAREHOUSE_KEYS | {"reward", "gamma", "render_mode"}
+        return SCENE_KEYS | REWARD_KEYS | WAREHOUSE_KEYS | ENV_KEYS
 
     def _largest_layouts(self) -> list[WarehouseLayout]:
         if self.warehouse.layout is not None:
