@@ -33,7 +33,7 @@ NON_DEFAULT = {
     "angular_penalty_threshold": 0.3,
     # WarehouseConfig
     "layout": str(LAYOUT_FILE), "layout_ranges": {"rows": (1, 2)}, "max_obstacles": 8, "sensor_range": 2.0,
-    "num_waypoints": 2, "waypoint_radius": 0.3, "replan_distance": 3.0, "dwell_time": (0.5, 1.0),
+    "num_waypoints": 2, "waypoint_radius": 0.3, "replan_distance": 0.2, "dwell_time": (0.5, 1.0),
     "min_route_distance": 4.0, "obstacle_collision_penalty": -1.0, "time_limit_factor": 1.0, "time_limit_slack": 5.0,
     "progress_reward": 0.1,
 }
