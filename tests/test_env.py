@@ -297,3 +297,35 @@ def test_sharp_turns_are_the_turns_eq13_penalises():
         assert info["episode_stats"]["sharp_turns"] == sharp > 5  # random directions turn sharply often
         counts[reward] = (sharp, info["episode_stats"]["heading_change"])
     assert counts["comfort_angular"] == counts["crowdnav"]
+
+
+def test_episode_statistics_accumulate_every_step_and_forget_at_reset():
+    from sb3_crowdnav.envs import EpisodeStatistics
+    from sb3_crowdnav.sim import RewardConfig
+    from sb3_crowdnav.sim.rewards import RewardTerms
+
+    def terms(min_distance, in_zone):
+        zero = np.float64(0.0)
+        return RewardTerms(zero, np.bool_(False), np.bool_(False), zero, zero, zero, zero, zero,
+                           np.float64(min_distance), np.bool_(in_zone))
+
+    def robot(x, y, heading):
+        state = [0.0] * 9
+        state[0], state[1], state[Robot.HEADING] = x, y, heading
+        return state
+
+    stats = EpisodeStatistics(RewardConfig(), gamma=0.5, time_step=0.25, v_pref=2.0)
+    stats.update(robot(0, 0, 0), robot(3, 4, math.pi / 2), terms(0.1, False), 1.0)  # within discomfort_dist (0.2)
+    stats.update(robot(3, 4, math.pi / 2), robot(3, 4, -math.pi / 2), terms(0.5, True), 2.0)  # in a comfort zone
+    summary = stats.summary("timeout", 3)
+    assert summary == pytest.approx({
+        "outcome": "timeout", "navigation_time": 0.5, "path_length": 5.0, "min_separation": 0.1,
+        "discomfort_frequency": 0.5, "comfort_zone_time": 0.25, "discomfort_separation": 0.1,
+        "comfort_zone_separation": 0.5, "heading_change": 1.5 * math.pi, "sharp_turns": 2,
+        "discounted_return": 1.0 + 2.0 * 0.5 ** (0.25 * 2.0), "num_humans": 3,
+    })
+    stats.reset()
+    stats.update(robot(0, 0, 0), robot(0, 1, 0), terms(1.0, False), 0.0)
+    summary = stats.summary("running", 3)
+    assert summary["path_length"] == 1.0 and summary["sharp_turns"] == 0
+    assert math.isnan(summary["discomfort_separation"]) and math.isnan(summary["comfort_zone_separation"])

@@ -1,38 +1,27 @@
-"""The ``CrowdNav-v0`` Gymnasium environment."""
+"""The ``CrowdNav-v0`` Gymnasium environment: a robot crossing an open floor among ORCA pedestrians."""
 
 from __future__ import annotations
 
-import dataclasses
-import math
 from typing import Any
 
-import gymnasium as gym
-import numpy as np
-from gymnasium import spaces
-
-from sb3_crowdnav.sim.actions import N_ACTIONS, _wrap_scalar
-from sb3_crowdnav.sim.config import REWARDS, RewardConfig, SceneConfig
-from sb3_crowdnav.sim.observation import HUMAN_DIM, Human, ObservationSchema, Robot
-from sb3_crowdnav.sim.rewards import is_sharp_turn
+from sb3_crowdnav.envs.base import (
+    ENV_KEYS,
+    REWARD_KEYS,
+    SCENE_KEYS,
+    CrowdEnvBase,
+    check_env_arguments,
+    refuse_unused,
+    split_env_kwargs,
+    unused_reward_weights,
+)
+from sb3_crowdnav.sim.config import RewardConfig, SceneConfig, check_choice
+from sb3_crowdnav.sim.observation import ObservationSchema
 from sb3_crowdnav.sim.simulator import CrowdSimulator
 
-SCENE_KEYS = {f.name for f in dataclasses.fields(SceneConfig)}
-REWARD_KEYS = {f.name for f in dataclasses.fields(RewardConfig)} - {"name"}
-_INT_TYPES = (int, np.int64, np.int32)  # checked without building a Discrete.contains() call on the hot path
+ORCA_KEYS = ("orca_neighbor_dist", "orca_max_neighbors", "orca_time_horizon")  # what ORCA pedestrians read
 
 
-def split_env_kwargs(kwargs: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
-    """Split keyword arguments into scene and reward fields; unknown keys raise ``TypeError``."""
-    unknown = sorted(set(kwargs) - SCENE_KEYS - REWARD_KEYS)
-    if unknown:
-        raise TypeError(
-            f"unknown keyword argument(s) {unknown} for CrowdNavEnv; allowed: "
-            f"{sorted(SCENE_KEYS | REWARD_KEYS | {'reward', 'gamma', 'render_mode'})}"
-        )
-    return ({k: v for k, v in kwargs.items() if k in SCENE_KEYS}, {k: v for k, v in kwargs.items() if k in REWARD_KEYS})
-
-
-class CrowdNavEnv(gym.Env):
+class CrowdNavEnv(CrowdEnvBase):
     """
     ## Description
 
@@ -94,194 +83,55 @@ class CrowdNavEnv(gym.Env):
     field of :class:`~sb3_crowdnav.sim.config.SceneConfig` and of
     :class:`~sb3_crowdnav.sim.config.RewardConfig` is a keyword argument. ``gamma`` (0.9) is the
     discount of the ``discounted_return`` episode statistic, Σ gamma^(t·Δt·v_pref) r_t.
-    ``render_mode`` is ``"rgb_array"`` or ``"human"``.
+    ``render_mode`` is ``"rgb_array"`` or ``"human"``. ``scenario`` is ``"circle_crossing"`` (default) or
+    ``"square_crossing"`` (``CrowdNavSquare-v0``).
+
+    Every argument changes the episodes or is refused at construction (``ValueError`` naming it) where the
+    setting never reads it: ``square_width`` on the circle, ``circle_radius`` and ``start_noise`` on the square,
+    ``orca_time_horizon_obst`` (no static obstacles here), the ORCA fields and ``robot_visible`` with
+    ``human_policy="linear"``, and a reward weight of another reward (``discomfort_factor`` is ``"crowdnav"``'s,
+    ``social_penalty`` the comfort rewards', ``angular_penalty`` ``"comfort_angular"``'s).
 
     ## Version History
 
     * v0: initial version.
     """
 
-    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 4}
+    SCENARIOS = ("circle_crossing", "square_crossing")  # the open floor's; the warehouse is another env
 
     def __init__(self, render_mode: str | None = None, reward: str = "crowdnav", gamma: float = 0.9,
                  **kwargs: Any) -> None:
-        scene_kwargs, reward_kwargs = split_env_kwargs(kwargs)
-        self._configure(render_mode, reward, gamma, scene_kwargs, reward_kwargs)
-        if self.scene.scenario == "warehouse":
-            raise ValueError("scenario 'warehouse' is CrowdNavWarehouse-v0's: gym.make('CrowdNavWarehouse-v0')")
-        self.sim = CrowdSimulator(self.scene, self.reward_config)
-        s = self.scene
-        half = max(s.circle_radius + s.start_noise, s.square_width / 2)
-        self._build_spaces(ObservationSchema(s.history_length, s.max_humans),
-                           half + max(s.robot_v_pref, s.human_v_pref) * s.time_limit + 1.0)
+        name = type(self).__name__
+        check_env_arguments(self.metadata["render_modes"], render_mode, gamma)
+        scene_kwargs, reward_kwargs = split_env_kwargs(kwargs, name)
+        check_choice("scenario", scene_kwargs.get("scenario", "circle_crossing"), self.SCENARIOS)
+        scene = SceneConfig(**scene_kwargs)
+        reward_config = RewardConfig(name=reward, **reward_kwargs)
+        refuse_unused(kwargs, {**unused_options(scene), **unused_reward_weights(reward_config)}, name)
+        half = max(scene.circle_radius + scene.start_noise, scene.square_width / 2)
+        # no agent gets farther than its start plus v_pref x time_limit: the clip in _get_obs is only a guard
+        pos_bound = half + max(scene.robot_v_pref, scene.human_v_pref) * scene.time_limit + 1.0
+        super().__init__(scene, reward_config, CrowdSimulator(scene, reward_config),
+                         ObservationSchema(scene.history_length, scene.max_humans), pos_bound, gamma, render_mode)
 
-    def _configure(self, render_mode: str | None, reward: str, gamma: float, scene_kwargs: dict[str, Any],
-                   reward_kwargs: dict[str, Any]) -> None:
-        """Check and store the settings every crowd env has (subclasses call it first)."""
-        if reward not in REWARDS:
-            raise ValueError(f"reward must be one of {REWARDS}, got {reward!r}")
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
-        if isinstance(gamma, bool) or not isinstance(gamma, (int, float)) or not 0 < gamma <= 1:
-            raise ValueError(f"gamma must be in (0, 1], got {gamma!r}")
-        self.scene = SceneConfig(**scene_kwargs)
-        self.reward_config = RewardConfig(name=reward, **reward_kwargs)
-        self.gamma = float(gamma)
-        self.render_mode = render_mode
+    @classmethod
+    def option_names(cls) -> set[str]:
+        """Every keyword argument the constructor knows (each changes the episodes or is refused)."""
+        return SCENE_KEYS | REWARD_KEYS | ENV_KEYS
 
-    def _build_spaces(self, schema: ObservationSchema, pos_bound: float) -> None:
-        """The Dict observation space of ``schema`` with positions within ±``pos_bound``, and the 80 actions."""
-        s = self.scene
-        vel_bound = max(s.robot_v_pref, s.human_v_pref) * 1.5 + 1.0
-        rad_bound = max(s.robot_radius, s.human_radius) + 1.0
-        self.schema = schema
-        bounds = schema.bounds(pos_bound, vel_bound, rad_bound, s.robot_v_pref + 1.0)
-        self.observation_space = spaces.Dict({key: spaces.Box(low, high, dtype=np.float32)
-                                              for key, (low, high) in bounds.items()})
-        self.action_space = spaces.Discrete(N_ACTIONS)
-        self._pos_bound = pos_bound
-        self._renderer = None
-        self._reset_stats()
 
-    # ------------------------------------------------------------------ helpers
-    def _reset_stats(self) -> None:
-        self._path_length = 0.0
-        self._min_sep = np.inf
-        self._discomfort_steps = 0
-        self._discomfort_dist_sum = 0.0
-        self._comfort_steps = 0
-        self._comfort_dist_sum = 0.0
-        self._heading_change = 0.0
-        self._sharp_turns = 0
-        self._discounted_return = 0.0
-        self.trajectory: list[tuple[np.ndarray, np.ndarray]] = []
+def unused_options(scene: SceneConfig) -> dict[str, str]:
+    """The scene fields the open floor never reads in ``scene``'s setting, each with the reason."""
+    unused = {"orca_time_horizon_obst": "is ORCA's horizon for static obstacles, and the open floor has none"}
+    if scene.scenario == "circle_crossing":
+        unused["square_width"] = "is the side of scenario 'square_crossing'; the circle never reads it"
+    else:
+        for key in ("circle_radius", "start_noise"):
+            unused[key] = "sets scenario 'circle_crossing'; the square never reads it"
+    if scene.human_policy == "linear":
+        for key in (*ORCA_KEYS, "robot_visible"):
+            unused[key] = "concerns ORCA pedestrians; human_policy='linear' walk straight to their goals"
+    return unused
 
-    def _static_obs(self) -> dict[str, np.ndarray]:
-        """Keyword arguments of :meth:`ObservationSchema.observation` beyond the crowd (the warehouse's world)."""
-        return {}
 
-    def _simulate(self, action: int):
-        """One step of the simulator: its reward terms and whether the robot hit a static obstacle."""
-        return self.sim.step(action), False
-
-    def _render_extras(self) -> dict[str, Any]:
-        """More to draw than the crowd (the warehouse's racks, route and standing pickers)."""
-        return {}
-
-    @property
-    def max_steps(self) -> int:
-        """Steps after which the episode is truncated."""
-        return self.scene.max_steps
-
-    def _get_obs(self) -> dict[str, np.ndarray]:
-        sim = self.sim
-        obs = self.schema.observation(sim.robot, sim.history, sim.mask, **self._static_obs())
-        robot, humans = obs["robot"], obs["humans"]
-        b = np.float32(self._pos_bound)
-        # Agents cannot leave the bounds within the time limit (|start| + v_pref * time_limit < bound), so
-        # the clips below are a guard that costs two reductions rather than two clips on every step.
-        if not (-b <= robot.min() and robot.max() <= b):
-            robot[Robot.POS] = np.clip(robot[Robot.POS], -b, b)
-        if not (-b <= humans.min() and humans.max() <= b):
-            flat = humans.reshape(-1, HUMAN_DIM)
-            flat[:, Human.POS] = np.clip(flat[:, Human.POS], -b, b)
-        return obs
-
-    def _record(self) -> None:
-        sim = self.sim
-        self.trajectory.append((sim.robot.copy(), sim.history[-1, : sim.num_humans].copy()))
-
-    # ------------------------------------------------------------------ API
-    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
-        if options:
-            raise ValueError(f"reset options {sorted(options)} are not supported (the scene is set at construction)")
-        super().reset(seed=seed)
-        self.sim.reset(self.np_random)
-        self._reset_stats()
-        self._record()
-        if self.render_mode == "human":
-            self.render()
-        return self._get_obs(), {"num_humans": self.sim.num_humans}
-
-    def step(self, action):
-        if not (type(action) in _INT_TYPES and 0 <= action < N_ACTIONS) and not self.action_space.contains(action):
-            raise ValueError(f"action must be an int in [0, {N_ACTIONS}), got {action!r}")
-        sim = self.sim
-        prev = sim.robot.tolist()
-        terms, hit_obstacle = self._simulate(int(action))
-        robot = sim.robot.tolist()
-        reward = float(terms.reward)
-        success, collision = bool(terms.success), bool(terms.collision)
-        terminated = success or collision
-        truncated = not terminated and sim.steps >= self.max_steps
-        outcome = "success" if success else "collision" if collision else "timeout" if truncated else "running"
-
-        min_dist = float(terms.min_distance)
-        (x0, y0), (x1, y1) = prev[Robot.POS], robot[Robot.POS]
-        self._path_length += math.hypot(x1 - x0, y1 - y0)
-        self._min_sep = min(self._min_sep, min_dist)
-        if min_dist < self.reward_config.discomfort_dist:
-            self._discomfort_steps += 1
-            self._discomfort_dist_sum += min_dist
-        if terms.in_comfort_zone:
-            self._comfort_steps += 1
-            self._comfort_dist_sum += min_dist
-        turn = _wrap_scalar(robot[Robot.HEADING] - prev[Robot.HEADING])
-        self._heading_change += abs(turn)
-        self._sharp_turns += is_sharp_turn(turn, self.reward_config)
-        self._discounted_return += self.gamma ** ((sim.steps - 1) * self.scene.time_step * self.scene.robot_v_pref) * reward
-        self._record()
-
-        info: dict[str, Any] = {
-            "is_success": success,
-            "outcome": outcome,
-            "reward_success": float(terms.success_term),
-            "reward_collision": float(terms.collision_term),
-            "reward_discomfort": float(terms.discomfort_term),
-            "reward_social": float(terms.social_term),
-            "reward_angular": float(terms.angular_term),
-            "min_distance": min_dist,
-            "in_comfort_zone": bool(terms.in_comfort_zone),
-            "time": sim.time,
-        }
-        if collision:
-            info["collision_with"] = "obstacle" if hit_obstacle else "human"
-        if terminated or truncated:
-            info["episode_stats"] = {
-                "outcome": outcome,
-                "navigation_time": sim.time,
-                "path_length": self._path_length,
-                "min_separation": self._min_sep,
-                "discomfort_frequency": self._discomfort_steps / sim.steps,
-                "comfort_zone_time": self._comfort_steps * self.scene.time_step,
-                "discomfort_separation": (self._discomfort_dist_sum / self._discomfort_steps
-                                          if self._discomfort_steps else math.nan),
-                "comfort_zone_separation": (self._comfort_dist_sum / self._comfort_steps
-                                            if self._comfort_steps else math.nan),
-                "heading_change": self._heading_change,
-                "sharp_turns": self._sharp_turns,
-                "discounted_return": self._discounted_return,
-                "num_humans": sim.num_humans,
-            }
-            if collision:
-                info["episode_stats"]["collision_with"] = info["collision_with"]
-        if self.render_mode == "human":
-            self.render()
-        return self._get_obs(), reward, terminated, truncated, info
-
-    def render(self):
-        if self.render_mode is None:
-            gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' or 'human' to gym.make")
-            return None
-        from sb3_crowdnav.envs.rendering import CrowdRenderer  # lazy: matplotlib only when rendering
-
-        if self._renderer is None:
-            self._renderer = CrowdRenderer(self.scene, human=self.render_mode == "human")
-        frame = self._renderer.draw(self.trajectory, self.sim.human_goals, self.sim.robot[Robot.GOAL], self.sim.time,
-                                    **self._render_extras())
-        return None if self.render_mode == "human" else frame  # Gymnasium: "human" draws on screen, returns None
-
-    def close(self) -> None:
-        if self._renderer is not None:
-            self._renderer.close()
-            self._renderer = None
+__all__ = ["CrowdNavEnv"]

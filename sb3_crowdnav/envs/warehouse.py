@@ -1,4 +1,4 @@
-"""The ``CrowdNavWarehouse-v0`` Gymnasium environment."""
+"""The ``CrowdNavWarehouse-v0`` Gymnasium environment: a robot following a route among pickers, racks and walls."""
 
 from __future__ import annotations
 
@@ -8,16 +8,33 @@ from typing import Any
 
 import numpy as np
 
-from sb3_crowdnav.envs.crowd_nav import CrowdNavEnv, split_env_kwargs
+from sb3_crowdnav.envs.base import (
+    ENV_KEYS,
+    REWARD_KEYS,
+    SCENE_KEYS,
+    CrowdEnvBase,
+    check_env_arguments,
+    refuse_unused,
+    split_env_kwargs,
+    unused_reward_weights,
+)
+from sb3_crowdnav.sim.config import RewardConfig, SceneConfig
 from sb3_crowdnav.sim.observation import ObservationSchema
 from sb3_crowdnav.sim.warehouse import LayoutRanges, WarehouseLayout
 from sb3_crowdnav.sim.warehouse.config import WarehouseConfig
 from sb3_crowdnav.sim.warehouse.simulator import WarehouseSimulator
 
 WAREHOUSE_KEYS = {f.name for f in dataclasses.fields(WarehouseConfig)}
+# the open floor's scene fields, which a warehouse never reads (its hall and stations come from the layout)
+UNUSED_SCENE = {
+    "circle_radius": "sets the open floor's circle; the warehouse's hall comes from its layout",
+    "square_width": "sets the open floor's square; the warehouse's hall comes from its layout",
+    "start_noise": "sets the open floor's starts; the warehouse draws its stations from its layout",
+}
+ROUTE_TIME_KEYS = ("time_limit_factor", "time_limit_slack")
 
 
-class CrowdNavWarehouseEnv(CrowdNavEnv):
+class CrowdNavWarehouseEnv(CrowdEnvBase):
     """
     ## Description
 
@@ -78,8 +95,9 @@ class CrowdNavWarehouseEnv(CrowdNavEnv):
     Terminated on success (the robot's centre within its radius of the goal) or collision:
     ``info["outcome"] == "collision"`` with ``info["collision_with"]`` ``"human"`` (a picker) or
     ``"obstacle"`` (a rack or a wall). Truncated ("timeout") after
-    ``time_limit_slack + time_limit_factor x`` (route length / v_pref) seconds (10 s + twice the route time).
-    ``info["episode_stats"]`` as ``CrowdNav-v0``'s, plus ``route_length`` [m] and ``replans``.
+    ``time_limit_slack + time_limit_factor x`` (route length / v_pref) seconds (10 s + twice the route time), or,
+    when ``time_limit`` is given, after ``time_limit`` seconds whatever the route; the reset's ``info["time_limit"]``
+    says which [s]. ``info["episode_stats"]`` as ``CrowdNav-v0``'s, plus ``route_length`` [m] and ``replans``.
 
     ## Arguments
 
@@ -91,6 +109,16 @@ class CrowdNavWarehouseEnv(CrowdNavEnv):
     ``dwell_time``, ``min_route_distance``, ``obstacle_collision_penalty``, ``time_limit_factor``,
     ``time_limit_slack``, ``progress_reward``).
 
+    Every argument changes the episodes or is refused at construction (``ValueError`` naming it):
+
+    * ``robot_visible=True`` puts the robot into the pickers' ORCA, moved each step to its actual position and
+      velocity, so the pickers avoid it (default False: they do not yield, as on the open floor);
+    * ``time_limit`` [s] replaces the route-based limit, so it excludes ``time_limit_factor`` and
+      ``time_limit_slack``;
+    * ``circle_radius``, ``square_width`` and ``start_noise`` (the open floor's) are refused, as are
+      ``human_policy`` other than ``"orca"``, ``scenario`` other than ``"warehouse"`` and a reward weight of
+      another reward (as in ``CrowdNav-v0``).
+
     ## Version History
 
     * v0: initial version.
@@ -98,24 +126,34 @@ class CrowdNavWarehouseEnv(CrowdNavEnv):
 
     def __init__(self, render_mode: str | None = None, reward: str = "crowdnav", gamma: float = 0.9,
                  **kwargs: Any) -> None:
-        warehouse = {k: kwargs.pop(k) for k in list(kwargs) if k in WAREHOUSE_KEYS}
-        scene_kwargs, reward_kwargs = split_env_kwargs(kwargs)
+        name = type(self).__name__
+        check_env_arguments(self.metadata["render_modes"], render_mode, gamma)
+        warehouse = {k: kwargs[k] for k in kwargs if k in WAREHOUSE_KEYS}
+        scene_kwargs, reward_kwargs = split_env_kwargs(kwargs, name, WAREHOUSE_KEYS)
         if scene_kwargs.setdefault("scenario", "warehouse") != "warehouse":
             raise ValueError(f"scenario must be 'warehouse' in CrowdNavWarehouse-v0, got {scene_kwargs['scenario']!r}")
-        self._configure(render_mode, reward, gamma, scene_kwargs, reward_kwargs)
-        layout = warehouse.get("layout")
-        if isinstance(layout, str) or hasattr(layout, "__fspath__"):
-            warehouse["layout"] = WarehouseLayout.from_file(layout)
-        elif isinstance(layout, dict):
-            warehouse["layout"] = WarehouseLayout.from_dict(layout)
-        if isinstance(warehouse.get("layout_ranges"), dict):
-            warehouse["layout_ranges"] = LayoutRanges(**warehouse["layout_ranges"])
-        self.warehouse = WarehouseConfig(**warehouse)
-        self.sim = WarehouseSimulator(self.scene, self.reward_config, self.warehouse)
-        s, w = self.scene, self.warehouse
+        if scene_kwargs.get("human_policy", "orca") != "orca":
+            raise ValueError(f"human_policy must be 'orca' in CrowdNavWarehouse-v0 (pickers are ORCA agents that see the "
+                             f"racks), got {scene_kwargs['human_policy']!r}")
+        fixed_time_limit = "time_limit" in kwargs
+        both = [key for key in ROUTE_TIME_KEYS if key in kwargs]
+        if fixed_time_limit and both:
+            raise ValueError(f"time_limit and {both[0]} exclude each other: time_limit truncates every episode at a "
+                             f"fixed time, {' and '.join(ROUTE_TIME_KEYS)} by its route's length; pass one or the other")
+        scene = SceneConfig(**scene_kwargs)
+        reward_config = RewardConfig(name=reward, **reward_kwargs)
+        refuse_unused(kwargs, {**UNUSED_SCENE, **unused_reward_weights(reward_config)}, name)
+        self.warehouse = WarehouseConfig(**_layout_objects(warehouse))
+        sim = WarehouseSimulator(scene, reward_config, self.warehouse, fixed_time_limit)
         largest = max(math.hypot(layout.width, layout.height) / 2 for layout in self._largest_layouts())
-        self._build_spaces(ObservationSchema(s.history_length, s.max_humans, w.max_obstacles, w.num_waypoints),
-                           largest + 1.0)
+        schema = ObservationSchema(scene.history_length, scene.max_humans, self.warehouse.max_obstacles,
+                                   self.warehouse.num_waypoints)
+        super().__init__(scene, reward_config, sim, schema, largest + 1.0, gamma, render_mode)
+
+    @classmethod
+    def option_names(cls) -> set[str]:
+        """Every keyword argument the constructor knows (each changes the episodes or is refused)."""
+        return SCENE_KEYS | REWARD_KEYS | WAREHOUSE_KEYS | ENV_KEYS
 
     def _largest_layouts(self) -> list[WarehouseLayout]:
         if self.warehouse.layout is not None:
@@ -131,32 +169,35 @@ class CrowdNavWarehouseEnv(CrowdNavEnv):
         """The current episode's layout (its obstacles: ``layout.polygons``)."""
         return self.sim.layout
 
-    @property
-    def max_steps(self) -> int:
-        return self.sim.max_steps
-
     def _static_obs(self) -> dict[str, np.ndarray]:
         segments, mask = self.sim.observed_obstacles()
         return {"obstacles": segments, "obstacles_mask": mask, "waypoints": self.sim.observed_waypoints()}
 
-    def _simulate(self, action: int):
-        terms = self.sim.step(action)
-        return terms, self.sim.hit_obstacle
+    def _reset_info(self) -> dict[str, Any]:
+        return {"route_length": self.sim.route_length, "time_limit": self.max_steps * self.scene.time_step}
 
-    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
-        obs, info = super().reset(seed=seed, options=options)
-        info.update(route_length=self.sim.route_length, time_limit=self.max_steps * self.scene.time_step)
-        return obs, info
+    def _extra_info(self) -> dict[str, Any]:
+        return {"reward_progress": self.sim.progress_term}
 
-    def step(self, action):
-        obs, reward, terminated, truncated, info = super().step(action)
-        info["reward_progress"] = self.sim.progress_term
-        if "episode_stats" in info:
-            info["episode_stats"].update(route_length=self.sim.route_length, replans=self.sim.replans)
-        return obs, reward, terminated, truncated, info
+    def _extra_stats(self) -> dict[str, Any]:
+        return {"route_length": self.sim.route_length, "replans": self.sim.replans}
 
     def _render_extras(self) -> dict[str, Any]:
         return {"obstacles": self.sim.layout.polygons, "route": self.sim.route, "standing": self.sim.standing}
+
+
+def _layout_objects(warehouse: dict[str, Any]) -> dict[str, Any]:
+    """``warehouse``'s settings with a layout given as a file path or a mapping, and layout ranges given as a
+    mapping, made into their objects (what :class:`WarehouseConfig` takes)."""
+    out = dict(warehouse)
+    layout = out.get("layout")
+    if isinstance(layout, str) or hasattr(layout, "__fspath__"):
+        out["layout"] = WarehouseLayout.from_file(layout)
+    elif isinstance(layout, dict):
+        out["layout"] = WarehouseLayout.from_dict(layout)
+    if isinstance(out.get("layout_ranges"), dict):
+        out["layout_ranges"] = LayoutRanges(**out["layout_ranges"])
+    return out
 
 
 __all__ = ["CrowdNavWarehouseEnv"]

@@ -78,7 +78,7 @@ HOW_TO_FIX = (
 
 class ObservationSpaceError(ValueError, TypeError):
     """An observation space that is not a crowd observation; a ``ValueError`` and, for the wrong kind of space,
-    a ``TypeError`` too (the extractors raised one, the lookahead policy the other, before they shared this check)."""
+    a ``TypeError`` too, so that a caller may catch either kind of mistake."""
 
 
 @dataclass(frozen=True)

@@ -29,6 +29,9 @@ class CrowdSimulator:
     these against the NumPy functions the lookahead uses.
     """
 
+    # the open floor has no static obstacles: every collision is with a pedestrian (the warehouse sets it per step)
+    hit_obstacle = False
+
     def __init__(self, scene: SceneConfig, reward: RewardConfig) -> None:
         self.scene = scene
         self.reward_cfg = reward
@@ -44,6 +47,7 @@ class CrowdSimulator:
         self._walk_age: list[int] = []
         self.num_humans = 0
         self.steps = 0
+        self.max_steps = scene.max_steps  # the episode is truncated after this many steps (the env reads it)
         self._crowd: OrcaCrowd | None = None
 
     # ------------------------------------------------------------------ reset

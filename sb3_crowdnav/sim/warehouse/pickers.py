@@ -86,10 +86,13 @@ class PickerCrowd:
     :param starts: start slot of each picker, an index into ``usable``
     :param rng: the episode's generator (dwell times, next slots)
     :param dwell_time: (min, max) [s]
+    :param robot: ``(position (2,), velocity (2,), radius)`` of the robot at the start when the pickers see it (it is
+        then one more ORCA agent, moved each step to the robot's actual state); None: the robot is invisible to them
     """
 
     def __init__(self, scene: SceneConfig, slots: PickSlots, usable: np.ndarray, starts: np.ndarray,
-                 rng: np.random.Generator, dwell_time: tuple[float, float]) -> None:
+                 rng: np.random.Generator, dwell_time: tuple[float, float],
+                 robot: tuple[np.ndarray, np.ndarray, float] | None = None) -> None:
         self.scene, self.rng, self.dwell_time = scene, rng, dwell_time
         self.slots = slots.points[usable]  # (u, 2): the usable slots
         self._map, self._ids = slots, np.asarray(usable).tolist()
@@ -103,7 +106,7 @@ class PickerCrowd:
         self._guard = None if self._grown is None else np.concatenate([self._room[None], self._grown, layout.boxes])
         self._preferences = np.zeros((n, 2))  # filled by kernels.picker_preferences
         self.orca = OrcaCrowd(scene, self.slots[starts], np.full(n, scene.human_radius), np.full(n, scene.human_v_pref),
-                              None, obstacles=rvo_obstacles(layout))
+                              robot, obstacles=rvo_obstacles(layout))
         self.slot = np.array(starts, dtype=np.int64)  # a copy: the caller keeps the start slots
         self.routes: list[list[list[float]]] = [[p] for p in self.slots[starts].tolist()]  # waypoints, in floats
         # the same waypoints for the kernels: row i holds the first _route_lengths[i] of (n, K, 2)
@@ -145,12 +148,20 @@ class PickerCrowd:
                                    self.scene.human_v_pref, ARRIVAL, self._preferences)
         return self._preferences.tolist()
 
-    def step(self, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """One ORCA step from ``positions`` (n, 2); new positions and velocities, each (n, 2)."""
+    def step(self, positions: np.ndarray, robot_state: tuple[list[float], list[float]] | None = None
+             ) -> tuple[np.ndarray, np.ndarray]:
+        """One ORCA step from ``positions`` (n, 2); new positions and velocities, each (n, 2).
+
+        :param robot_state: the robot's ``(position, velocity)`` at the start of the step; read only when the pickers
+            see the robot (its ORCA agent is put there, with that velocity as its preferred one, as on the open floor)
+        """
         dt = self.scene.time_step
-        self.orca.set_preferred_velocities(self.preferred_velocities(positions))
-        rows = self.orca.advance()  # [(x, y, vx, vy)] per picker
-        state = np.array(rows, dtype=np.float64).reshape(self.n, 4)
+        if self.orca.robot_id is None:
+            self.orca.set_preferred_velocities(self.preferred_velocities(positions))
+            rows = self.orca.advance()  # [(x, y, vx, vy)] per picker
+            state = np.array(rows, dtype=np.float64).reshape(self.n, 4)
+        else:
+            state = np.concatenate(self.orca.step(self.preferred_velocities(positions), robot_state), axis=1)
         # the overlap guard, then the dwells count down; a picker whose dwell is over gets its next job, one at the
         # last waypoint of its route stands for a dwell drawn now (in the pickers' order: the same draws)
         progress = (self.dwell, self.waypoint, self._route_array, self._route_lengths, dt, ARRIVAL)

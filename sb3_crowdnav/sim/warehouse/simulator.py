@@ -46,13 +46,19 @@ class WarehouseSimulator(CrowdSimulator):
     A :class:`~sb3_crowdnav.sim.simulator.CrowdSimulator` (the same robot kinematics, reward, history and walking
     directions) whose pedestrians are :class:`PickerCrowd` pickers, plus the layout, the robot's route, the
     obstacle segments and the swept-disc collision with them.
+
+    With ``scene.robot_visible`` the pickers' ORCA has the robot as one more agent (they avoid it). An episode is
+    truncated after ``time_limit_slack + time_limit_factor x`` its route's time at ``robot_v_pref``, or, with
+    ``fixed_time_limit``, after ``scene.time_limit`` whatever the route.
     """
 
-    def __init__(self, scene: SceneConfig, reward: RewardConfig, config: WarehouseConfig) -> None:
+    def __init__(self, scene: SceneConfig, reward: RewardConfig, config: WarehouseConfig,
+                 fixed_time_limit: bool = False) -> None:
         check_feasible(scene, config, pick_slots)
         super().__init__(scene, reward)
         self.config = config
-        self.max_steps = 1
+        self.fixed_time_limit = fixed_time_limit
+        self.max_steps = 1  # set per episode by reset (by route), unless fixed_time_limit
         self.pickers: PickerCrowd | None = None
         self.segments = np.zeros((0, 4))
         self._segments_of: WarehouseLayout | None = None  # the layout whose segments are cached (see reset)
@@ -98,8 +104,11 @@ class WarehouseSimulator(CrowdSimulator):
         self._set_route(self.robot_map.waypoints(start, goal))
         self.route_index, self.replans = 1, 0
         self.route_length = self.robot_map.route_length(self._route_points)
-        self.max_steps = math.ceil((cfg.time_limit_slack + cfg.time_limit_factor * self.route_length / s.robot_v_pref)
-                                   / s.time_step)
+        if self.fixed_time_limit:
+            self.max_steps = s.max_steps
+        else:
+            self.max_steps = math.ceil(
+                (cfg.time_limit_slack + cfg.time_limit_factor * self.route_length / s.robot_v_pref) / s.time_step)
         first = self.route[1]
         self.robot = np.zeros(ROBOT_DIM)
         self.robot[Robot.POS], self.robot[Robot.GOAL] = start, goal
@@ -112,7 +121,8 @@ class WarehouseSimulator(CrowdSimulator):
         usable = kernels.far_from_both(slots, start[0], start[1], goal[0], goal[1], gap)  # np.hypot of each to both
         starts = self._spread(rng, slots[usable], n, 2 * s.human_radius + 0.2)
         self.num_humans = len(starts)
-        self.pickers = PickerCrowd(s, picks, usable, starts, rng, cfg.dwell_time) if n else None
+        robot = (start, np.zeros(2), s.robot_radius) if s.robot_visible else None  # at rest, as on the open floor
+        self.pickers = PickerCrowd(s, picks, usable, starts, rng, cfg.dwell_time, robot) if n else None
         current = np.zeros((s.max_humans, HUMAN_DIM))
         current[: self.num_humans, Human.POS] = slots[usable[starts]] if n else np.zeros((0, 2))
         current[: self.num_humans, Human.RADIUS] = s.human_radius
@@ -215,7 +225,12 @@ class WarehouseSimulator(CrowdSimulator):
                 pass
 
     def _move_humans(self) -> tuple[np.ndarray, np.ndarray]:
-        return self.pickers.step(self.history[-1, : self.num_humans, Human.POS])
+        """The pickers' step; the robot's state at the start of the step is what a picker who sees it avoids."""
+        robot_state = None
+        if self.scene.robot_visible:
+            r = self.robot.tolist()
+            robot_state = (r[Robot.POS], r[Robot.VEL])
+        return self.pickers.step(self.history[-1, : self.num_humans, Human.POS], robot_state)
 
     def step(self, action: int) -> RewardTerms:  # type: ignore[override]
         """Apply ``action`` (0..79), move the pickers; the reward terms (a rack or wall hit is a collision).

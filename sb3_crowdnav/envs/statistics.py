@@ -1,0 +1,81 @@
+"""The episode statistics of the crowd envs: one accumulator fed every step (as Gymnasium's ``RecordEpisodeStatistics``).
+
+The env feeds :meth:`EpisodeStatistics.update` with each transition and asks :meth:`EpisodeStatistics.summary` for
+``info["episode_stats"]`` on the last step. Evaluation records are built from that dict, so its keys and the
+arithmetic of its values are a contract: the same floats in the same order of operations.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from sb3_crowdnav.sim.actions import _wrap_scalar
+from sb3_crowdnav.sim.config import RewardConfig
+from sb3_crowdnav.sim.observation import Robot
+from sb3_crowdnav.sim.rewards import RewardTerms, is_sharp_turn
+
+
+class EpisodeStatistics:
+    """The metrics of one episode, accumulated step by step.
+
+    :param reward: the reward setting (the discomfort distance, the sharp-turn threshold)
+    :param gamma: discount of ``discounted_return``, Σ gamma^(t·Δt·v_pref) r_t
+    :param time_step: Δt [s]
+    :param v_pref: the robot's preferred speed [m/s] (the discount is per metre at full speed, as the lookahead's)
+    """
+
+    def __init__(self, reward: RewardConfig, gamma: float, time_step: float, v_pref: float) -> None:
+        self.reward = reward
+        self.gamma = gamma
+        self.time_step = time_step
+        self.v_pref = v_pref
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the episode (called at every env reset)."""
+        self.steps = 0
+        self.path_length = 0.0
+        self.min_separation = math.inf
+        self.discomfort_steps = 0
+        self.discomfort_sum = 0.0  # of the minimum separations of the discomfort steps
+        self.comfort_steps = 0
+        self.comfort_sum = 0.0  # of the minimum separations of the comfort-zone steps
+        self.heading_change = 0.0
+        self.sharp_turns = 0
+        self.discounted_return = 0.0
+
+    def update(self, before: list[float], after: list[float], terms: RewardTerms, reward: float) -> None:
+        """Add one transition: the robot's state (9 floats) ``before`` and ``after`` it, its reward terms and reward."""
+        min_dist = float(terms.min_distance)
+        (x0, y0), (x1, y1) = before[Robot.POS], after[Robot.POS]
+        self.path_length += math.hypot(x1 - x0, y1 - y0)
+        self.min_separation = min(self.min_separation, min_dist)
+        if min_dist < self.reward.discomfort_dist:
+            self.discomfort_steps += 1
+            self.discomfort_sum += min_dist
+        if terms.in_comfort_zone:
+            self.comfort_steps += 1
+            self.comfort_sum += min_dist
+        turn = _wrap_scalar(after[Robot.HEADING] - before[Robot.HEADING])
+        self.heading_change += abs(turn)
+        self.sharp_turns += is_sharp_turn(turn, self.reward)  # Eq. 13's trigger, counted under every reward
+        self.discounted_return += self.gamma ** (self.steps * self.time_step * self.v_pref) * reward
+        self.steps += 1
+
+    def summary(self, outcome: str, num_humans: int) -> dict[str, Any]:
+        """``info["episode_stats"]`` of the episode so far (``nan`` for a mean over no steps)."""
+        return {
+            "outcome": outcome,
+            "navigation_time": self.steps * self.time_step,
+            "path_length": self.path_length,
+            "min_separation": self.min_separation,
+            "discomfort_frequency": self.discomfort_steps / self.steps,
+            "comfort_zone_time": self.comfort_steps * self.time_step,
+            "discomfort_separation": self.discomfort_sum / self.discomfort_steps if self.discomfort_steps else math.nan,
+            "comfort_zone_separation": self.comfort_sum / self.comfort_steps if self.comfort_steps else math.nan,
+            "heading_change": self.heading_change,
+            "sharp_turns": self.sharp_turns,
+            "discounted_return": self.discounted_return,
+            "num_humans": num_humans,
+        }
