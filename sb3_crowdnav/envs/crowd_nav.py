@@ -15,6 +15,7 @@ from sb3_crowdnav.sim.config import REWARDS, RewardConfig, SceneConfig
 from sb3_crowdnav.sim.observation import HUMAN_DIM, Human, ObservationSchema, Robot
 from sb3_crowdnav.sim.rewards import is_sharp_turn
 from sb3_crowdnav.sim.simulator import CrowdSimulator
+from sb3_crowdnav.sim.world import World
 
 SCENE_KEYS = {f.name for f in dataclasses.fields(SceneConfig)}
 REWARD_KEYS = {f.name for f in dataclasses.fields(RewardConfig)} - {"name"}
@@ -172,6 +173,13 @@ class CrowdNavEnv(gym.Env):
     def max_steps(self) -> int:
         """Steps after which the episode is truncated."""
         return self.scene.max_steps
+
+    @property
+    def world(self) -> World:
+        """What a model acting in this env must agree on with it (checked by every loader and the runner)."""
+        s = self.scene
+        return World(time_step=s.time_step, kinematics=s.kinematics, rotation_range=s.rotation_range,
+                     reward=self.reward_config)
 
     def _get_obs(self) -> dict[str, np.ndarray]:
         sim = self.sim
