@@ -54,20 +54,13 @@ PRETRAINED_SHA256 = {
 
 
 def algorithms() -> dict[str, type]:
-    """Algorithm name → class: ``apg_value`` (when available), ``dqn``, ``dqfd`` (DQN + demonstrations), ``ppo``, ``a2c``."""
+    """Algorithm name → class: ``apg_value``, ``dqn``, ``dqfd`` (DQN + demonstrations), ``ppo``, ``a2c``."""
     from stable_baselines3 import A2C, DQN, PPO
 
-    algos: dict[str, type] = {}
-    try:
-        from sb3_crowdnav.apg_value import APGValue
-
-        algos["apg_value"] = APGValue
-    except ImportError:  # APGValue not built (yet)
-        pass
+    from sb3_crowdnav.apg_value import APGValue
     from sb3_crowdnav.imitation.dqfd import DQfD
 
-    algos.update({"dqn": DQN, "dqfd": DQfD, "ppo": PPO, "a2c": A2C})
-    return algos
+    return {"apg_value": APGValue, "dqn": DQN, "dqfd": DQfD, "ppo": PPO, "a2c": A2C}
 
 
 def resolve_model_path(path: str | Path) -> Path:
@@ -144,9 +137,7 @@ def load_model(path: str | Path, env: Any = None, algo: str | None = None, devic
             raise ValueError(f"algo must be one of {sorted(algos)}, got {algo!r}")
         return _load(algos[algo], p, env, device, trusted, spaces_from, **kwargs)
     name = detect_algorithm(p)
-    if name == "apg_value" and name not in algos:
-        raise ImportError(f"{str(p)!r} was saved by APGValue, but sb3_crowdnav.apg_value cannot be imported")
-    if name is not None and name in algos:
+    if name is not None:
         return _load(algos[name], p, env, device, trusted, spaces_from, **kwargs)
     from sb3_crowdnav.serialization import UnsafeModelFileError
 

@@ -214,7 +214,7 @@ class ValueLookaheadPolicy(BasePolicy):
             features_extractor_kwargs=self.features_extractor_kwargs,
             lookahead_dtype=self.lookahead_dtype,
         )
-        if self.pedestrian_model != "constant_velocity":  # (files of the paper's model keep their entries)
+        if self.pedestrian_model != "constant_velocity":  # only when not the paper's, which needs no entry
             data["pedestrian_model"] = self.pedestrian_model
         if self.ensemble_size != 1:
             data["ensemble_size"] = self.ensemble_size
