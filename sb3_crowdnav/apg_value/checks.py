@@ -43,7 +43,7 @@ def with_env_world(policy_kwargs: dict[str, Any], env: VecEnv | None) -> dict[st
     world = world_of(env) if env is not None else None
     if world is not None and given is not None and (mismatch := compare_worlds(given, world)):
         raise ValueError(f"policy_kwargs['world'] does not match the env's world: {mismatch}")
-    world = world or given
+    world = world if world is not None else given
     if world is not None:
         kwargs["world"] = world.to_dict()
     return kwargs
