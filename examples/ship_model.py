@@ -24,8 +24,6 @@ import hashlib
 import json
 from pathlib import Path
 
-import gymnasium as gym
-
 from sb3_crowdnav.models import PRETRAINED, WEIGHTS_DIR, load_model
 from sb3_crowdnav.serialization import read_world, write_spaces
 from sb3_crowdnav.training import average_checkpoints, ensemble_models
@@ -65,10 +63,9 @@ def main() -> None:
         model.policy.set_pedestrian_model(args.pedestrian_model)
     out = WEIGHTS_DIR / f"{args.name}.zip"
     model.save(out)
-    world = read_world(first)
-    env_id = "CrowdNavWarehouse-v0" if "obstacles" in model.observation_space.spaces else "CrowdNav-v0"
-    env = gym.make(env_id, **(world or {}))  # the world it was trained in, recorded with its spaces
-    write_spaces(out, model.observation_space, model.action_space, env)
+    # the world it was trained in, recorded with its spaces (a value model keeps its own in its policy_kwargs)
+    world = None if PRETRAINED[args.name] == "apg_value" else read_world(first)
+    write_spaces(out, model.observation_space, model.action_space, world=world)
     print(f"wrote {out} ({out.stat().st_size / 1e6:.2f} MB); PRETRAINED_SHA256[{args.name!r}] = "
           f"{hashlib.sha256(out.read_bytes()).hexdigest()!r}")
 

@@ -54,20 +54,13 @@ PRETRAINED_SHA256 = {
 
 
 def algorithms() -> dict[str, type]:
-    """Algorithm name → class: ``apg_value`` (when available), ``dqn``, ``dqfd`` (DQN + demonstrations), ``ppo``, ``a2c``."""
+    """Algorithm name → class: ``apg_value``, ``dqn``, ``dqfd`` (DQN + demonstrations), ``ppo``, ``a2c``."""
     from stable_baselines3 import A2C, DQN, PPO
 
-    algos: dict[str, type] = {}
-    try:
-        from sb3_crowdnav.apg_value import APGValue
-
-        algos["apg_value"] = APGValue
-    except ImportError:  # APGValue not built (yet)
-        pass
+    from sb3_crowdnav.apg_value import APGValue
     from sb3_crowdnav.imitation.dqfd import DQfD
 
-    algos.update({"dqn": DQN, "dqfd": DQfD, "ppo": PPO, "a2c": A2C})
-    return algos
+    return {"apg_value": APGValue, "dqn": DQN, "dqfd": DQfD, "ppo": PPO, "a2c": A2C}
 
 
 def resolve_model_path(path: str | Path) -> Path:
@@ -129,21 +122,22 @@ def load_model(path: str | Path, env: Any = None, algo: str | None = None, devic
 
     :param path: the ``.zip`` (the suffix may be omitted)
     :param env: passed to ``Algorithm.load`` (``None`` is enough to ``predict`` a model this package saved; a
-        plain SB3 file needs the env, whose spaces replace the file's pickled ones after a shape check)
+        plain SB3 file needs the env, whose spaces replace the file's pickled ones after a shape check); a model of
+        another world than the env's is refused (:func:`world_mismatch`)
     :param algo: ``"apg_value"``, ``"dqn"``, ``"ppo"`` or ``"a2c"`` to skip detection
     :param trusted: use SB3's own load, which unpickles; only for files you made yourself
     :param spaces_from: an env (not attached to the model) whose spaces stand in for a plain SB3 file's pickled ones
     """
     p = resolve_model_path(path)
+    if env is not None and (mismatch := world_mismatch(p, env)):
+        raise ValueError(f"{p}: {mismatch}; load it with an env of the world it was trained in")
     algos = algorithms()
     if algo is not None:
         if algo not in algos:
             raise ValueError(f"algo must be one of {sorted(algos)}, got {algo!r}")
         return _load(algos[algo], p, env, device, trusted, spaces_from, **kwargs)
     name = detect_algorithm(p)
-    if name == "apg_value" and name not in algos:
-        raise ImportError(f"{str(p)!r} was saved by APGValue, but sb3_crowdnav.apg_value cannot be imported")
-    if name is not None and name in algos:
+    if name is not None:
         return _load(algos[name], p, env, device, trusted, spaces_from, **kwargs)
     from sb3_crowdnav.serialization import UnsafeModelFileError
 
@@ -159,27 +153,27 @@ def load_model(path: str | Path, env: Any = None, algo: str | None = None, devic
 
 
 def world_mismatch(model_or_path: Any, env: Any) -> str | None:
-    """How the world a model was trained in (time step, kinematics, rotation range) differs from ``env``'s; None
-    when it does not, or when either is unknown (a model saved elsewhere, an env that is not a crowd env)."""
-    from sb3_crowdnav.serialization import WORLD_KEYS, read_world, world_of
+    """How the world a model was trained in differs from ``env``'s where the model depends on it; None when it does
+    not, or when either world is unknown (a model object of SB3's algorithms, an env that is not a crowd env).
 
-    policy = getattr(model_or_path, "policy", None)
-    if policy is not None:
-        trained = {key: getattr(policy, key) for key in WORLD_KEYS} if hasattr(policy, "kinematics") else None
-    elif isinstance(model_or_path, (str, Path)):
-        trained = read_world(model_or_path)
+    The comparison is :func:`~sb3_crowdnav.sim.world.compare_worlds`: every policy must share the motion fields (time
+    step, kinematics, action table); a lookahead (APGValue) also the waypoint rule it predicts with. The rewards a
+    model was trained for only matter to further training, which :class:`~sb3_crowdnav.apg_value.APGValue` checks.
+    """
+    from sb3_crowdnav.serialization import read_world, world_of
+    from sb3_crowdnav.sim.world import MOTION_FIELDS, PREDICTION_FIELDS, World, compare_worlds
+
+    if isinstance(model_or_path, (str, Path)):
+        path = resolve_model_path(model_or_path)
+        lookahead = detect_algorithm(path) == "apg_value"  # first: it names a file that is no model archive
+        trained = read_world(path)
     else:
-        trained = None
-    world = world_of(env)
-    if trained is None or world is None:
+        trained = getattr(getattr(model_or_path, "policy", None), "world", None)
+        lookahead = True  # only lookahead policies hold a world
+    actual = world_of(env)
+    if not isinstance(trained, World) or actual is None:
         return None
-    diffs = [f"{key}={trained[key]!r} (the env has {world[key]!r})" for key in WORLD_KEYS
-             if not _same(trained[key], world[key])]
-    return f"the model was trained with {', '.join(diffs)}" if diffs else None
-
-
-def _same(a: Any, b: Any) -> bool:
-    return abs(a - b) <= 1e-9 * max(1.0, abs(b)) if isinstance(a, float) and isinstance(b, float) else a == b
+    return compare_worlds(trained, actual, PREDICTION_FIELDS if lookahead else MOTION_FIELDS)
 
 
 def available_pretrained() -> list[str]:

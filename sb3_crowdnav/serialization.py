@@ -14,6 +14,9 @@ values only:
 - the observation and action spaces come from a plain JSON member ``sb3_crowdnav.json`` that this
   package writes next to ``data`` when it saves a model (:func:`write_spaces`), or else from the env the
   model is loaded with (after checking the file's plain shape description against it);
+- the world the model was trained in (:class:`~sb3_crowdnav.sim.world.World`) is plain JSON: an APGValue
+  file's ``policy_kwargs["world"]``, or the ``world`` entry of ``sb3_crowdnav.json`` for SB3's algorithms
+  (:func:`read_world`);
 - schedules are rebuilt from their plain description (``ConstantSchedule(val=0.1)``) or left to the
   algorithm, which rebuilds ``lr_schedule`` and ``exploration_schedule`` from plain numbers on load;
 - episode buffers and the last observation are dropped (SB3 starts new ones).
@@ -35,6 +38,8 @@ from typing import Any
 
 import numpy as np
 from gymnasium import spaces
+
+from sb3_crowdnav.sim.world import LEGACY_KEYS, World, upgrade_policy_kwargs
 
 SPACES_MEMBER = "sb3_crowdnav.json"
 DROPPED = ("_last_obs", "_last_original_obs", "_last_episode_starts", "ep_info_buffer", "ep_success_buffer")
@@ -224,40 +229,47 @@ def space_from_dict(data: dict[str, Any]) -> spaces.Space:
     raise UnsafeModelFileError(f"unknown space type {kind!r}")
 
 
-WORLD_KEYS = ("time_step", "kinematics", "rotation_range")  # the physics a model must act in as it was trained
-
-
-def world_of(env: Any) -> dict[str, Any] | None:
-    """The :data:`WORLD_KEYS` of a crowd env (or VecEnv of them); None for another env."""
+def world_of(env: Any) -> World | None:
+    """The :class:`~sb3_crowdnav.sim.world.World` a crowd env (or VecEnv of them) publishes; None for another env."""
     try:
-        scene = env.get_attr("scene")[0] if hasattr(env, "get_attr") else env.unwrapped.scene
+        world = env.get_attr("world")[0] if hasattr(env, "get_attr") else env.unwrapped.world
     except AttributeError:
         return None
-    return {key: getattr(scene, key) for key in WORLD_KEYS}
+    return world if isinstance(world, World) else None
 
 
-def read_world(path: str | Path) -> dict[str, Any] | None:
-    """The world a saved model was trained in: the member's ``world``, or an APGValue file's plain policy_kwargs."""
+def read_world(path: str | Path) -> World | None:
+    """The world a saved model was trained in (None when the file does not say).
+
+    An APGValue file holds it in its plain ``policy_kwargs`` (entry ``world``), a file of SB3's algorithms in the
+    member ``sb3_crowdnav.json`` (entry ``world``); files saved before the world contract, in either place, are read
+    by the one converter (:func:`~sb3_crowdnav.sim.world.upgrade_policy_kwargs`, :meth:`World.from_legacy`).
+    """
     with zipfile.ZipFile(path) as archive:
-        if SPACES_MEMBER in archive.namelist():
-            world = json.loads(archive.read(SPACES_MEMBER)).get("world")
-            if world:
-                return world
+        plain = json.loads(archive.read(SPACES_MEMBER)) if SPACES_MEMBER in archive.namelist() else {}
         data = json.loads(archive.read("data").decode("utf-8"))
+    if plain.get("world"):
+        world = plain["world"]
+        return World.from_legacy(world) if set(world) <= set(LEGACY_KEYS) else World.from_dict(world)
     kwargs = data.get("policy_kwargs")
-    if isinstance(kwargs, dict) and all(key in kwargs for key in WORLD_KEYS):
-        return {key: kwargs[key] for key in WORLD_KEYS}
-    return None
+    if not isinstance(kwargs, dict):
+        return None
+    world = upgrade_policy_kwargs(kwargs).get("world")
+    return None if world is None else World.from_dict(world)
 
 
 def write_spaces(path: str | Path, observation_space: spaces.Space, action_space: spaces.Space,
-                 env: Any = None) -> None:
-    """Add the plain description of the model's spaces (and, given its crowd ``env``, of its world) to the saved
-    ``.zip`` (member ``sb3_crowdnav.json``)."""
+                 env: Any = None, world: World | None = None) -> None:
+    """Add the plain description of the model's spaces (and of its world: ``world``, or else its crowd ``env``'s) to
+    the saved ``.zip`` (member ``sb3_crowdnav.json``).
+
+    The world is for SB3's algorithms, whose policies do not hold one; an APGValue file keeps it in its policy_kwargs.
+    """
     content: dict[str, Any] = {"observation_space": space_to_dict(observation_space),
                                "action_space": space_to_dict(action_space)}
-    if env is not None and (world := world_of(env)) is not None:
-        content["world"] = world
+    world = world if world is not None else world_of(env) if env is not None else None
+    if world is not None:
+        content["world"] = world.to_dict()
     text = json.dumps(content)
     with zipfile.ZipFile(path, "a") as archive:
         if SPACES_MEMBER not in archive.namelist():
@@ -373,7 +385,6 @@ def safe_custom_objects(path: Any, env: Any = None, value_model: bool = False) -
 
 __all__ = [
     "SPACES_MEMBER",
-    "WORLD_KEYS",
     "UnsafeModelFileError",
     "decode",
     "read_world",

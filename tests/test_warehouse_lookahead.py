@@ -8,18 +8,12 @@ import pytest
 import torch as th
 
 import sb3_crowdnav  # noqa: F401
-from sb3_crowdnav.apg_value.checks import lookahead_settings
 from sb3_crowdnav.apg_value.propagation import PropagationModel
 from sb3_crowdnav.sim.observation import OBSTACLE_KEYS, WAYPOINT_KEY
 
 
 def _model(env) -> PropagationModel:
-    from stable_baselines3.common.vec_env import DummyVecEnv
-
-    settings = lookahead_settings(DummyVecEnv([lambda: env]))
-    scene, reward = env.unwrapped.scene, env.unwrapped.reward_config
-    return PropagationModel(scene.time_step, scene.kinematics, scene.rotation_range, reward, scene.history_length,
-                            0.9, settings["obstacles"])
+    return PropagationModel(env.unwrapped.world, env.unwrapped.scene.history_length, 0.9)
 
 
 @pytest.mark.parametrize("seed, progress_reward", [(s, 0.0) for s in range(4)] + [(s, 0.1) for s in range(4, 6)])
@@ -53,21 +47,21 @@ def test_env_and_propagation_agree_on_random_warehouse_transitions(seed, progres
     assert checked == 400 and hits > 0  # obstacle collisions happened and were foreseen
 
 
-def test_open_floor_models_are_unchanged():
-    """On CrowdNav-v0 the settings, and so the shipped models' policy kwargs, have no obstacle entry."""
-    from stable_baselines3.common.vec_env import DummyVecEnv
-
-    assert "obstacles" not in lookahead_settings(DummyVecEnv([lambda: gym.make("CrowdNav-v0")]))
+def test_open_floor_models_have_no_static_world():
+    """CrowdNav-v0's world, and so the shipped open-floor models', has no static-world rules."""
     from sb3_crowdnav import pretrained
 
-    assert pretrained("apg_rl").policy.obstacles is None
+    world = gym.make("CrowdNav-v0").unwrapped.world
+    assert not world.has_static_world and world.obstacle_collision_penalty is None and world.progress_reward == 0
+    assert pretrained("apg_rl").policy.world == world
 
 
 def test_apg_value_acts_in_the_warehouse_with_the_walls_in_its_lookahead():
     from sb3_crowdnav import APGValue
 
     model = APGValue("ApgPolicy", "CrowdNavWarehouse-v0", imitation_episodes=0, seed=0)
-    assert model.policy.obstacles == {"penalty": -0.25, "waypoint_radius": 0.6, "progress_reward": 0.0}
+    world = model.policy.world
+    assert (world.obstacle_collision_penalty, world.waypoint_radius, world.progress_reward) == (-0.25, 0.6, 0.0)
     env = gym.make("CrowdNavWarehouse-v0", num_humans=0)
     obs, _ = env.reset(seed=3)
     values = model.policy.action_values(obs)[0]

@@ -168,12 +168,7 @@ class APGValue(OffPolicyAlgorithm):
     # ------------------------------------------------------------------ set-up
     def _setup_model(self) -> None:
         ObservationSchema.from_space(self.observation_space)  # here, not in __init__: load() sets the spaces later
-        settings = checks.lookahead_settings(self.env)
-        for key, value in settings.items():
-            given = self.policy_kwargs.get(key, value)
-            if given != value:
-                raise ValueError(f"policy_kwargs[{key!r}] = {given!r} does not match the env's {key} = {value!r}")
-            self.policy_kwargs[key] = value
+        self.policy_kwargs = checks.with_env_world(self.policy_kwargs, self.env)  # upgrades older files' entries
         given_gamma = self.policy_kwargs.setdefault("gamma", self.gamma)
         if given_gamma != self.gamma:
             raise ValueError(f"policy_kwargs['gamma'] = {given_gamma!r} differs from the algorithm's gamma = {self.gamma!r}")

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Any
 
 import numpy as np
@@ -13,6 +12,8 @@ from stable_baselines3.her.her_replay_buffer import HerReplayBuffer
 
 from sb3_crowdnav.apg_value.buffers import ValueReplayBuffer
 from sb3_crowdnav.apg_value.overlap import OVERLAP_KINDS
+from sb3_crowdnav.serialization import world_of
+from sb3_crowdnav.sim.world import World, compare_worlds, upgrade_policy_kwargs
 
 VALUE_TARGETS = ("td", "greedy_td", "lookahead")
 
@@ -29,32 +30,23 @@ def check_env_compatible(env: VecEnv | None) -> None:
             )
 
 
-def lookahead_settings(env: VecEnv | None) -> dict[str, Any]:
-    """The env's scene and reward settings that a lookahead policy must share with it ({} when unknown).
+def with_env_world(policy_kwargs: dict[str, Any], env: VecEnv | None) -> dict[str, Any]:
+    """``policy_kwargs`` with ``"world"``: the plain form of the env's :class:`~sb3_crowdnav.sim.world.World`.
 
-    ``time_step``, ``kinematics``, ``rotation_range`` and ``reward`` (a dict of the reward's fields): a model
-    trained with other values would propagate a different world than the one it acts in.
+    A world already in ``policy_kwargs`` (a loaded model's; older files' separate entries are upgraded by
+    :func:`~sb3_crowdnav.sim.world.upgrade_policy_kwargs`) must be the env's in every field: the lookahead would
+    otherwise propagate, and learn the rewards of, another world than the one it acts in. Without an env the given
+    world is kept (checked, in its plain form).
     """
-    if env is None:
-        return {}
-    try:
-        scene = env.get_attr("scene")[0]
-        reward = env.get_attr("reward_config")[0]
-    except AttributeError:
-        return {}
-    settings = {
-        "time_step": scene.time_step,
-        "kinematics": scene.kinematics,
-        "rotation_range": scene.rotation_range,
-        "reward": dataclasses.asdict(reward),
-    }
-    try:  # the warehouse: what the lookahead needs to know of its static world
-        warehouse = env.get_attr("warehouse")[0]
-    except AttributeError:
-        return settings
-    settings["obstacles"] = {"penalty": warehouse.obstacle_collision_penalty, "waypoint_radius": warehouse.waypoint_radius,
-                             "progress_reward": warehouse.progress_reward}
-    return settings
+    kwargs = upgrade_policy_kwargs(policy_kwargs)
+    given = World.coerce(kwargs["world"]) if "world" in kwargs else None
+    world = world_of(env) if env is not None else None
+    if world is not None and given is not None and (mismatch := compare_worlds(given, world)):
+        raise ValueError(f"policy_kwargs['world'] does not match the env's world: {mismatch}")
+    world = world if world is not None else given
+    if world is not None:
+        kwargs["world"] = world.to_dict()
+    return kwargs
 
 
 def check_policy_name(policy: Any, aliases: dict[str, Any]) -> None:

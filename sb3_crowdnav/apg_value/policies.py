@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-import math
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -17,8 +17,9 @@ from sb3_crowdnav.apg_value.propagation import Propagated, PropagationModel
 from sb3_crowdnav.nn import ApgExtractor, CadrlExtractor, LmExtractor, LstmRlExtractor, SarlExtractor, SfExtractor
 from sb3_crowdnav.nn.layers import bfloat16_supported
 from sb3_crowdnav.sim.actions import N_ACTIONS
-from sb3_crowdnav.sim.config import KINEMATICS, RewardConfig
+from sb3_crowdnav.sim.config import RewardConfig
 from sb3_crowdnav.sim.observation import OBS_KEYS, OBSTACLE_KEYS, WAYPOINT_KEY, ObservationSchema, Robot
+from sb3_crowdnav.sim.world import World
 
 STATIC_KEYS = (*OBSTACLE_KEYS, WAYPOINT_KEY)  # the warehouse's, propagated when the observation has them
 
@@ -71,11 +72,11 @@ class ValueLookaheadPolicy(BasePolicy):
     :param observation_space: the env's Dict observation space
     :param action_space: ``Discrete(80)``
     :param lr_schedule: learning-rate schedule (RL phase)
-    :param time_step: Δt of the env [s]
+    :param world: the env's :class:`~sb3_crowdnav.sim.world.World`, or its plain form (:meth:`World.to_dict`, as
+        ``policy_kwargs`` and the model file carry it; ``APGValue`` sets it from the env): the time step, kinematics
+        and action table the lookahead moves the robot by, the reward R(s, a) it charges and, in a world of static
+        obstacles, their collision penalty, the waypoint rule and the route shaping. Default: ``CrowdNav-v0``'s
     :param gamma: discount per second at v_pref = 1
-    :param kinematics: ``"unicycle"`` or ``"holonomic"`` (must match the env)
-    :param rotation_range: direction fan of the action table [rad] (must match the env)
-    :param reward: the env's reward setting as a dict of :class:`RewardConfig` fields (``name`` = reward name)
     :param net_arch: hidden sizes of the value head ψ_M
     :param activation_fn: activation of the value head
     :param features_extractor_class: encoder of the joint state (default: the class's ``default_extractor_class``,
@@ -84,15 +85,11 @@ class ValueLookaheadPolicy(BasePolicy):
     :param optimizer_class: RL optimiser (here SGD with momentum 0.9, as the field's reference code; ``APGValue``
         passes Adam unless ``policy_kwargs`` name one)
     :param optimizer_kwargs: its keyword arguments
-    :param obstacles: in the warehouse, ``{"penalty": ..., "waypoint_radius": ...}`` of its env (set by APGValue):
-        the lookahead charges the obstacle collision of every action whose swept disc touches an observed segment
-        and moves the observed waypoints as the env does
     :param lookahead_dtype: precision of the acting lookahead. ``"float32"`` (default) everywhere;
         ``"bfloat16"`` runs the APG encoder's per-(step, pedestrian) layers in bfloat16 when acting
         (needs a CPU with native bfloat16 matrix kernels; the softmax, LSTM and value head stay in
-        float32; TD targets and gradient steps are always float32). Measured on the shipped APG_RL
-        model: the same action in 99.4 % of decisions, never more than 5e-5 of lookahead value lost,
-        0.3-0.9 ms less per decision (``benchmarks/lookahead_speed.py --dtype bfloat16``).
+        float32; TD targets and gradient steps are always float32). It trades a small share of identical
+        decisions for speed (``benchmarks/lookahead_speed.py --dtype bfloat16`` measures both).
     :param pedestrian_model: how the lookahead's reward predicts the pedestrians over the step (see
         :class:`PropagationModel`): ``"constant_velocity"`` (the paper, default) or ``"cautious"`` (also charges
         a collision with a pedestrian who stands still instead; :meth:`set_pedestrian_model` switches a loaded
@@ -110,11 +107,8 @@ class ValueLookaheadPolicy(BasePolicy):
         observation_space: spaces.Dict,
         action_space: spaces.Discrete,
         lr_schedule: Schedule,
-        time_step: float = 0.25,
+        world: World | Mapping[str, Any] | None = None,
         gamma: float = 0.9,
-        kinematics: str = "unicycle",
-        rotation_range: float = 2 * math.pi,
-        reward: dict[str, Any] | None = None,
         net_arch: list[int] | None = None,
         activation_fn: type[nn.Module] = nn.ReLU,
         features_extractor_class: type[BaseFeaturesExtractor] | None = None,
@@ -123,7 +117,6 @@ class ValueLookaheadPolicy(BasePolicy):
         optimizer_class: type[th.optim.Optimizer] = th.optim.SGD,
         optimizer_kwargs: dict[str, Any] | None = None,
         lookahead_dtype: str = "float32",
-        obstacles: dict[str, float] | None = None,
         pedestrian_model: str = "constant_velocity",
         ensemble_size: int = 1,
     ) -> None:
@@ -139,10 +132,7 @@ class ValueLookaheadPolicy(BasePolicy):
         self.ensemble_size = int(ensemble_size)
         if not isinstance(action_space, spaces.Discrete) or action_space.n != N_ACTIONS:
             raise ValueError(f"ValueLookaheadPolicy needs Discrete({N_ACTIONS}) actions, got {action_space}")
-        if kinematics not in KINEMATICS:
-            raise ValueError(f"kinematics must be one of {KINEMATICS}, got {kinematics!r}")
-        if not time_step > 0:
-            raise ValueError(f"time_step must be > 0, got {time_step!r}")
+        world = World() if world is None else World.coerce(world)
         if not 0 < gamma <= 1:
             raise ValueError(f"gamma must be in (0, 1], got {gamma!r}")
         if optimizer_kwargs is None:
@@ -156,18 +146,11 @@ class ValueLookaheadPolicy(BasePolicy):
             optimizer_kwargs=optimizer_kwargs,
             normalize_images=normalize_images,
         )
-        self.time_step = float(time_step)
+        self.world = world
         self.gamma = float(gamma)
-        self.kinematics = kinematics
-        self.rotation_range = float(rotation_range)
-        reward = dict(reward or {"name": "crowdnav"})
-        self.reward = reward
-        self.reward_config = RewardConfig(**reward)
         self.net_arch = list(net_arch) if net_arch is not None else [150, 100, 100]
         self.activation_fn = activation_fn
-        self.obstacles = dict(obstacles) if obstacles else None
-        self.propagation = PropagationModel(self.time_step, kinematics, self.rotation_range, self.reward_config,
-                                            self.history_length, self.gamma, self.obstacles, pedestrian_model)
+        self.propagation = PropagationModel(world, self.history_length, self.gamma, pedestrian_model)
         self._build(lr_schedule)
         self.lookahead_dtype = "float32"
         self.set_lookahead_dtype(lookahead_dtype)
@@ -189,14 +172,23 @@ class ValueLookaheadPolicy(BasePolicy):
         self.lookahead_dtype = dtype
 
     @property
+    def time_step(self) -> float:
+        """Δt of the world [s] (the lookahead discount is γ^(Δt·v_pref))."""
+        return self.world.time_step
+
+    @property
+    def reward_config(self) -> RewardConfig:
+        """The world's reward, the R(s, a) of the lookahead."""
+        return self.world.reward
+
+    @property
     def pedestrian_model(self) -> str:
         """``"constant_velocity"`` or ``"cautious"`` (see the class docstring)."""
         return self.propagation.pedestrian_model
 
     def set_pedestrian_model(self, pedestrian_model: str) -> None:
         """Switch the lookahead's pedestrian model (see the class docstring); V is unchanged."""
-        self.propagation = PropagationModel(self.time_step, self.kinematics, self.rotation_range, self.reward_config,
-                                            self.history_length, self.gamma, self.obstacles, pedestrian_model)
+        self.propagation = PropagationModel(self.world, self.history_length, self.gamma, pedestrian_model)
 
     def make_value_net(self) -> ValueNetwork | ValueEnsemble:
         """A new V: one :class:`ValueNetwork`, or a :class:`ValueEnsemble` of ``ensemble_size`` of them."""
@@ -214,20 +206,15 @@ class ValueLookaheadPolicy(BasePolicy):
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()
         data.update(
-            time_step=self.time_step,
+            world=self.world.to_dict(),
             gamma=self.gamma,
-            kinematics=self.kinematics,
-            rotation_range=self.rotation_range,
-            reward=self.reward,
             net_arch=self.net_arch,
             activation_fn=self.activation_fn,
             features_extractor_class=self.features_extractor_class,
             features_extractor_kwargs=self.features_extractor_kwargs,
             lookahead_dtype=self.lookahead_dtype,
         )
-        if self.obstacles is not None:
-            data["obstacles"] = self.obstacles
-        if self.pedestrian_model != "constant_velocity":  # (files of the paper's model keep their entries)
+        if self.pedestrian_model != "constant_velocity":  # only when not the paper's, which needs no entry
             data["pedestrian_model"] = self.pedestrian_model
         if self.ensemble_size != 1:
             data["ensemble_size"] = self.ensemble_size
@@ -253,10 +240,10 @@ class ValueLookaheadPolicy(BasePolicy):
         ``min(V(s'), ceiling)``: V's overestimates beyond it (which, next to the goal, outbid the success action
         and kept the robot circling there) are cut, and no true value is.
         """
-        if self.obstacles is None or self.gamma >= 1:
+        if not self.world.has_static_world or self.gamma >= 1:
             return None
         step = self.time_step * v_pref
-        shaping = self.obstacles.get("progress_reward", 0.0) * step / (1 - self.gamma**step)
+        shaping = self.world.progress_reward * step / (1 - self.gamma**step)
         success = self.reward_config.success_reward
         return shaping.clamp(min=success) if isinstance(shaping, th.Tensor) else np.maximum(shaping, success)
 
@@ -312,7 +299,7 @@ class ValueLookaheadPolicy(BasePolicy):
         return (actions if vectorized else actions[0]), state
 
     def set_training_mode(self, mode: bool) -> None:
-        if self.training != mode or self.value_net.training != mode:  # train() walks every submodule: ~0.15 ms
+        if self.training != mode or self.value_net.training != mode:  # train() walks every submodule: skip it when set
             self.value_net.train(mode)
         self.training = mode
 

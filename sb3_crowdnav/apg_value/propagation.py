@@ -2,7 +2,8 @@
 
 From a batch of observations and all 80 actions: the observations one Δt ahead (robot by
 the env's own kinematics and action table, pedestrians at constant velocity, history window
-shifted) and the reward R(s, a) with its terminal flags.
+shifted) and the reward R(s, a) with its terminal flags. Everything it shares with the env
+comes from one :class:`~sb3_crowdnav.sim.world.World`.
 
 Decision: the propagation runs in numpy and calls the *same* functions as the env
 (:func:`~sb3_crowdnav.sim.actions.apply_action`, :func:`~sb3_crowdnav.sim.rewards.compute_reward`,
@@ -17,8 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sb3_crowdnav.sim.actions import N_ACTIONS, action_table, apply_action
-from sb3_crowdnav.sim.config import RewardConfig
+from sb3_crowdnav.sim.actions import N_ACTIONS, apply_action
 from sb3_crowdnav.sim.geometry import SEGMENT_DIM, swept_clearance
 from sb3_crowdnav.sim.observation import HUMAN_DIM, Human, ObservationSchema, Robot
 from sb3_crowdnav.sim.rewards import (
@@ -29,6 +29,7 @@ from sb3_crowdnav.sim.rewards import (
     worse_of,
 )
 from sb3_crowdnav.sim.warehouse.simulator import next_waypoints
+from sb3_crowdnav.sim.world import World
 
 
 @dataclass(frozen=True)
@@ -45,12 +46,10 @@ class Propagated:
 
 
 class PropagationModel:
-    """Propagates observations of ``CrowdNav-v0`` under every action.
+    """Propagates observations of a crowd env under every action.
 
-    :param time_step: Δt [s]
-    :param kinematics: ``"unicycle"`` or ``"holonomic"``
-    :param rotation_range: width of the direction fan [rad]
-    :param reward: the env's :class:`RewardConfig`
+    :param world: the env's :class:`~sb3_crowdnav.sim.world.World` (time step, kinematics, action table, reward and,
+        in a world of static obstacles, their collision penalty, the waypoint rule and the route shaping)
     :param history_length: T
     :param gamma: discount per second at v_pref = 1 (the lookahead discount is γ^(Δt·v_pref))
     :param pedestrian_model: how R(s, a) predicts the pedestrians over the step: ``"constant_velocity"`` (the
@@ -60,21 +59,19 @@ class PropagationModel:
 
     PEDESTRIAN_MODELS = ("constant_velocity", "cautious")
 
-    def __init__(self, time_step: float, kinematics: str, rotation_range: float, reward: RewardConfig,
-                 history_length: int, gamma: float, obstacles: dict[str, float] | None = None,
+    def __init__(self, world: World, history_length: int, gamma: float,
                  pedestrian_model: str = "constant_velocity") -> None:
-        """:param obstacles: the warehouse's ``{"penalty": ..., "waypoint_radius": ..., "progress_reward": ...}``
-            (None: the open floor; a missing ``progress_reward`` is 0, models saved before it existed)"""
+        if not isinstance(world, World):
+            raise TypeError(f"world must be a World, got {type(world).__name__}")
         if pedestrian_model not in self.PEDESTRIAN_MODELS:
             raise ValueError(f"pedestrian_model must be one of {self.PEDESTRIAN_MODELS}, got {pedestrian_model!r}")
         self.pedestrian_model = pedestrian_model
-        self.obstacles = obstacles
-        self.time_step = time_step
-        self.kinematics = kinematics
-        self.reward = reward
+        self.world = world
+        self.time_step = world.time_step
+        self.reward = world.reward
         self.history_length = history_length
         self.gamma = gamma
-        speeds, self.directions = action_table(1.0, rotation_range)
+        speeds, self.directions = world.action_table(1.0)
         self.speed_fractions = speeds  # speeds at v_pref = 1, scaled per state
 
     def __call__(self, robot: np.ndarray, humans: np.ndarray, mask: np.ndarray,
@@ -98,7 +95,7 @@ class PropagationModel:
         speeds = v_pref[:, None] * self.speed_fractions[None, :]  # (B, 80)
         new_pos, new_heading, vel = apply_action(
             pos0[:, None, :], heading0[:, None], goal[:, None, :], speeds, self.directions[None, :],
-            self.kinematics, self.time_step,
+            self.world.kinematics, self.time_step,
         )  # (B, 80, 2), (B, 80), (B, 80, 2)
 
         latest = hist[:, -1].copy()  # (B, M, 5)
@@ -124,17 +121,17 @@ class PropagationModel:
             terms = worse_of(terms, compute_reward(self.reward, self.time_step, *robot_args, start, start, dirs,
                                                    *human_args))
         propagated_static: dict[str, np.ndarray] = {}
-        if static and self.obstacles is not None:  # the same segment geometry as the env, the same waypoint rule
+        if static and self.world.has_static_world:  # the same segment geometry as the env, the same waypoint rule
             segments = np.asarray(static["obstacles"], dtype=np.float64).reshape(b, 1, -1, SEGMENT_DIM)
             seg_mask = np.asarray(static["obstacles_mask"]).reshape(b, 1, -1)
             hit = swept_clearance(np.broadcast_to(pos0[:, None, :], (*full, 2)), new_pos, segments, seg_mask) \
                 < radius[:, None]
-            terms = with_obstacle_collision(terms, hit, self.obstacles["penalty"])
+            terms = with_obstacle_collision(terms, hit, self.world.obstacle_collision_penalty)
             waypoints = np.asarray(static["waypoints"], dtype=np.float64).reshape(b, 1, -1, 2)
             terms = with_route_progress(terms, np.broadcast_to(pos0[:, None, :], (*full, 2)), new_pos,
-                                        waypoints[:, :, 0], self.obstacles.get("progress_reward", 0.0))
+                                        waypoints[:, :, 0], self.world.progress_reward)
             moved = next_waypoints(np.broadcast_to(waypoints, (*full, waypoints.shape[2], 2)), new_pos,
-                                   self.obstacles["waypoint_radius"])
+                                   self.world.waypoint_radius)
             propagated_static = {"obstacles": np.asarray(static["obstacles"]), "obstacles_mask": seg_mask[:, 0],
                                  "waypoints": moved.reshape(b, N_ACTIONS, -1)}
         new_robot = np.repeat(robot[:, None, :], N_ACTIONS, axis=1)

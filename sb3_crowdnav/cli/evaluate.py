@@ -142,6 +142,8 @@ def _check_shapes(path: Path, model_space: Any, env_space: Any) -> None:
 
 
 def _check_world(path: Path, env_id: str, env_kwargs: dict[str, Any] | None, allow: bool) -> None:
+    """A usage error, before any episode, when the model at ``path`` was trained in another world than the env's
+    (:func:`~sb3_crowdnav.models.world_mismatch`), unless ``allow`` (``--allow-env-mismatch``)."""
     import gymnasium as gym
 
     from sb3_crowdnav.models import world_mismatch

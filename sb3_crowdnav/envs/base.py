@@ -26,6 +26,7 @@ from sb3_crowdnav.sim.actions import N_ACTIONS
 from sb3_crowdnav.sim.config import RewardConfig, SceneConfig
 from sb3_crowdnav.sim.observation import HUMAN_DIM, Human, ObservationSchema, Robot
 from sb3_crowdnav.sim.rewards import RewardTerms
+from sb3_crowdnav.sim.world import World
 
 SCENE_KEYS = {f.name for f in dataclasses.fields(SceneConfig)}
 REWARD_KEYS = {f.name for f in dataclasses.fields(RewardConfig)} - {"name"}  # the env spells ``name`` ``reward=``
@@ -106,6 +107,13 @@ class CrowdEnvBase(gym.Env):
         self._renderer = None
 
     # ------------------------------------------------------------------ what a world adds
+    @property
+    def world(self) -> World:
+        """What a model acting in this env must agree on with it (checked by every loader and the runner)."""
+        s = self.scene
+        return World(time_step=s.time_step, kinematics=s.kinematics, rotation_range=s.rotation_range,
+                     reward=self.reward_config)
+
     @property
     def max_steps(self) -> int:
         """Steps after which the episode is truncated (the simulator's: fixed, or set per episode)."""

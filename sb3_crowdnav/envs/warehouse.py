@@ -23,6 +23,7 @@ from sb3_crowdnav.sim.observation import ObservationSchema
 from sb3_crowdnav.sim.warehouse import LayoutRanges, WarehouseLayout
 from sb3_crowdnav.sim.warehouse.config import WarehouseConfig
 from sb3_crowdnav.sim.warehouse.simulator import WarehouseSimulator
+from sb3_crowdnav.sim.world import World
 
 WAREHOUSE_KEYS = {f.name for f in dataclasses.fields(WarehouseConfig)}
 # the open floor's scene fields, which a warehouse never reads (its hall and stations come from the layout)
@@ -168,6 +169,13 @@ class CrowdNavWarehouseEnv(CrowdEnvBase):
     def layout(self) -> WarehouseLayout | None:
         """The current episode's layout (its obstacles: ``layout.polygons``)."""
         return self.sim.layout
+
+    @property
+    def world(self) -> World:
+        """The crowd's world with the warehouse's static-world rules and route shaping."""
+        w = self.warehouse
+        return dataclasses.replace(super().world, obstacle_collision_penalty=w.obstacle_collision_penalty,
+                                   waypoint_radius=w.waypoint_radius, progress_reward=w.progress_reward)
 
     def _static_obs(self) -> dict[str, np.ndarray]:
         segments, mask = self.sim.observed_obstacles()

@@ -127,7 +127,7 @@ def make_policy(spec: Any, env: gym.Env | None = None, allow_env_mismatch: bool 
 
 
 def check_world(model_or_path: Any, env: gym.Env) -> None:
-    """``ValueError`` when a model was trained in another world (time step, kinematics, rotation range) than ``env``."""
+    """``ValueError`` when a model was trained in another world than ``env`` (:func:`~sb3_crowdnav.models.world_mismatch`)."""
     from sb3_crowdnav.models import world_mismatch
 
     mismatch = world_mismatch(model_or_path, env)

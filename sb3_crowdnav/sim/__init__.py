@@ -5,6 +5,7 @@ from sb3_crowdnav.sim.config import RewardConfig, SceneConfig
 from sb3_crowdnav.sim.orca import OrcaPolicy
 from sb3_crowdnav.sim.rewards import RewardTerms, closest_approach, compute_reward, walking_direction
 from sb3_crowdnav.sim.simulator import CrowdSimulator
+from sb3_crowdnav.sim.world import World
 
 __all__ = [
     "N_ACTIONS",
@@ -13,6 +14,7 @@ __all__ = [
     "RewardConfig",
     "RewardTerms",
     "SceneConfig",
+    "World",
     "action_table",
     "apply_action",
     "closest_approach",

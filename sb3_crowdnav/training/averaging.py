@@ -35,6 +35,7 @@ from torch.optim.swa_utils import AveragedModel
 
 from sb3_crowdnav.apg_value import APGValue
 from sb3_crowdnav.apg_value.policies import ValueEnsemble
+from sb3_crowdnav.sim.world import compare_worlds
 
 
 def average_checkpoints(paths: Sequence[str | Path], **load_kwargs) -> APGValue:
@@ -44,7 +45,7 @@ def average_checkpoints(paths: Sequence[str | Path], **load_kwargs) -> APGValue:
         (typically checkpoints of one run)
     :param load_kwargs: passed to :meth:`APGValue.load` for every path (e.g. ``env``)
     :raises ValueError: fewer than two paths, or checkpoints whose V differs in parameter names or shapes, or whose
-        observation spaces differ
+        observation spaces or worlds differ
     """
     paths = [Path(p) for p in paths]
     if len(paths) < 2:
@@ -61,6 +62,7 @@ def average_checkpoints(paths: Sequence[str | Path], **load_kwargs) -> APGValue:
                              "differ)")
         if model.observation_space != base.observation_space:
             raise ValueError(f"paths: {path} observes another space than {paths[0]}")
+        _check_same_world(path, model, paths[0], base)
         average.update_parameters(model.policy.value_net)
     with th.no_grad():
         base.policy.value_net.load_state_dict(average.module.state_dict())
@@ -69,9 +71,17 @@ def average_checkpoints(paths: Sequence[str | Path], **load_kwargs) -> APGValue:
     return base
 
 
-# the settings every member of an ensemble must share: the lookahead's world and the network's architecture
-_SHARED_POLICY_SETTINGS = ("time_step", "gamma", "kinematics", "rotation_range", "reward", "obstacles", "net_arch",
-                           "activation_fn", "features_extractor_class", "features_extractor_kwargs")
+# the settings every member of an ensemble must share beside the world: the discount and the network's architecture
+_SHARED_POLICY_SETTINGS = ("gamma", "net_arch", "activation_fn", "features_extractor_class",
+                           "features_extractor_kwargs")
+
+
+def _check_same_world(path: Path, model: APGValue, first: Path, base: APGValue) -> None:
+    """``ValueError`` listing the fields in which ``model``'s world differs from ``base``'s (all of them matter: a
+    combined V is only a value of the world every member learned)."""
+    mismatch = compare_worlds(model.policy.world, base.policy.world, against=str(first))
+    if mismatch:
+        raise ValueError(f"paths: {path}: {mismatch}")
 
 
 def ensemble_models(paths: Sequence[str | Path], **load_kwargs) -> APGValue:
@@ -93,16 +103,15 @@ def ensemble_models(paths: Sequence[str | Path], **load_kwargs) -> APGValue:
         raise ValueError(f"paths: ensemble_models needs at least two models, got {len(paths)}")
     models = [APGValue.load(path, **load_kwargs) for path in paths]
     base = models[0]
-    settings = base.policy._get_constructor_parameters()
     members: list[th.nn.Module] = []
     for path, model in zip(paths, models, strict=True):
         if model.observation_space != base.observation_space:
             raise ValueError(f"paths: {path} observes another space than {paths[0]}")
-        other = model.policy._get_constructor_parameters()
+        _check_same_world(path, model, paths[0], base)
         for name in _SHARED_POLICY_SETTINGS:
-            if other.get(name) != settings.get(name):
-                raise ValueError(f"paths: {path} has {name} = {other.get(name)!r}, {paths[0]} has "
-                                 f"{settings.get(name)!r}; an ensemble's members must share it")
+            if getattr(model.policy, name) != getattr(base.policy, name):
+                raise ValueError(f"paths: {path} has {name} = {getattr(model.policy, name)!r}, {paths[0]} has "
+                                 f"{getattr(base.policy, name)!r}; an ensemble's members must share it")
         net = model.policy.value_net
         members.extend(net.members if isinstance(net, ValueEnsemble) else [net])
     base.policy_kwargs["ensemble_size"] = len(members)

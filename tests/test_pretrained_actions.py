@@ -1,0 +1,68 @@
+"""Every shipped model acts on a fixed set of observations exactly as recorded in ``tests/data/pretrained_actions.npz``.
+
+The record holds observations of both envs (random actions from fixed seeds) and each shipped model's deterministic
+action on each of them. A change to how model files are read (their stored settings upgraded at load) or to the
+lookahead must leave every action the same; ``python tests/test_pretrained_actions.py`` writes the record again, for
+a change that is meant to alter the shipped models' actions.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import sb3_crowdnav
+from sb3_crowdnav.models import PRETRAINED
+
+RECORD = Path(__file__).parent / "data" / "pretrained_actions.npz"
+ENVS = {"crowdnav": ("CrowdNav-v0", 300), "warehouse": ("CrowdNavWarehouse-v0", 200)}  # env id, observations
+
+
+def env_key(name: str) -> str:
+    return "warehouse" if name.endswith("_warehouse") else "crowdnav"
+
+
+def observations(env_id: str, n: int, seed: int = 29) -> dict[str, np.ndarray]:
+    """``n`` observations of ``env_id`` visited by uniformly random actions, batched per key."""
+    env = gym.make(env_id)
+    rng = np.random.default_rng(seed)
+    obs, _ = env.reset(seed=seed)
+    seen = []
+    for episode in range(n):
+        seen.append(obs)
+        obs, _, terminated, truncated, _ = env.step(int(rng.integers(80)))
+        if terminated or truncated:
+            obs, _ = env.reset(seed=seed + 1 + episode)
+    env.close()
+    return {key: np.stack([o[key] for o in seen]) for key in seen[0]}
+
+
+def record_actions() -> None:
+    """Write the record from the installed package (run only for a change meant to alter the shipped models)."""
+    arrays: dict[str, np.ndarray] = {}
+    batches = {key: observations(env_id, n) for key, (env_id, n) in ENVS.items()}
+    for key, batch in batches.items():
+        arrays.update({f"{key}/{k}": v for k, v in batch.items()})
+    for name in PRETRAINED:
+        arrays[f"actions/{name}"] = np.asarray(sb3_crowdnav.pretrained(name).predict(batches[env_key(name)],
+                                                                                      deterministic=True)[0])
+    RECORD.parent.mkdir(exist_ok=True)
+    np.savez_compressed(RECORD, **arrays)
+
+
+@pytest.mark.parametrize("name", sorted(PRETRAINED))
+def test_shipped_model_acts_as_recorded(name):
+    record = np.load(RECORD)
+    key = env_key(name)
+    batch = {k.split("/", 1)[1]: record[k] for k in record.files if k.startswith(f"{key}/")}
+    actions, _ = sb3_crowdnav.pretrained(name).predict(batch, deterministic=True)
+    expected = record[f"actions/{name}"]
+    assert len(expected) == ENVS[key][1]
+    np.testing.assert_array_equal(actions, expected)
+
+
+if __name__ == "__main__":
+    record_actions()
