@@ -55,7 +55,7 @@ from sb3_crowdnav.apg_value.checks import VALUE_TARGETS
 from sb3_crowdnav.apg_value.overlap import OVERLAP_KINDS
 from sb3_crowdnav.apg_value.policies import ValueLookaheadPolicy
 from sb3_crowdnav.apg_value.propagation import PropagationModel
-from sb3_crowdnav.sim.config import check_choice, check_int, check_number
+from sb3_crowdnav.sim.validation import check_choice, check_int, check_number
 from sb3_crowdnav.training.callbacks import SELECT_BY, EpisodeCheckpoint
 from sb3_crowdnav.training.run_folder import (
     RunLock,
