@@ -31,8 +31,8 @@ import numpy as np
 import shapely
 from shapely.geometry import LineString, Polygon, box
 
-from sb3_crowdnav.sim.validation import check_int, check_number
 from sb3_crowdnav.sim.geometry import polygon_segments
+from sb3_crowdnav.sim.validation import check_int, check_number
 from sb3_crowdnav.sim.warehouse.boxes import rack_boxes
 from sb3_crowdnav.sim.warehouse.roadmap import Roadmap  # re-exported: the roadmap of a layout
 
