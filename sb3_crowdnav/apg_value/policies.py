@@ -19,6 +19,7 @@ from sb3_crowdnav.nn.layers import bfloat16_supported
 from sb3_crowdnav.sim.actions import N_ACTIONS
 from sb3_crowdnav.sim.config import KINEMATICS, RewardConfig
 from sb3_crowdnav.sim.observation import OBS_KEYS, OBSTACLE_KEYS, WAYPOINT_KEY, ObservationSchema, Robot
+from sb3_crowdnav.sim.validation import check_int
 
 STATIC_KEYS = (*OBSTACLE_KEYS, WAYPOINT_KEY)  # the warehouse's, propagated when the observation has them
 
@@ -134,8 +135,7 @@ class ValueLookaheadPolicy(BasePolicy):
         if pedestrian_model not in PropagationModel.PEDESTRIAN_MODELS:
             raise ValueError(f"pedestrian_model must be one of {PropagationModel.PEDESTRIAN_MODELS}, got "
                              f"{pedestrian_model!r}")
-        if isinstance(ensemble_size, bool) or not isinstance(ensemble_size, (int, np.integer)) or ensemble_size < 1:
-            raise ValueError(f"ensemble_size must be an int >= 1, got {ensemble_size!r}")
+        check_int("ensemble_size", ensemble_size, 1)
         self.ensemble_size = int(ensemble_size)
         if not isinstance(action_space, spaces.Discrete) or action_space.n != N_ACTIONS:
             raise ValueError(f"ValueLookaheadPolicy needs Discrete({N_ACTIONS}) actions, got {action_space}")

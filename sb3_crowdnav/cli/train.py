@@ -206,7 +206,7 @@ def _train_hyperparams(args: argparse.Namespace) -> int:
     try:
         hp = load_hyperparams(args.hyperparams, args.env)
         cfg = prepare(args.algo, hp)
-    except (FileNotFoundError, ValueError) as exc:
+    except (FileNotFoundError, TypeError, ValueError) as exc:
         raise UsageError(f"--hyperparams: {exc}") from None
     env_kwargs = {**cfg["env_kwargs"], **common.env_kwargs_from_args(args)}
     common.check_env(args.env, env_kwargs)

@@ -15,6 +15,7 @@ from sb3_crowdnav.sim.config import REWARDS, RewardConfig, SceneConfig
 from sb3_crowdnav.sim.observation import HUMAN_DIM, Human, ObservationSchema, Robot
 from sb3_crowdnav.sim.rewards import is_sharp_turn
 from sb3_crowdnav.sim.simulator import CrowdSimulator
+from sb3_crowdnav.sim.validation import check_range
 
 SCENE_KEYS = {f.name for f in dataclasses.fields(SceneConfig)}
 REWARD_KEYS = {f.name for f in dataclasses.fields(RewardConfig)} - {"name"}
@@ -122,8 +123,7 @@ class CrowdNavEnv(gym.Env):
             raise ValueError(f"reward must be one of {REWARDS}, got {reward!r}")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
-        if isinstance(gamma, bool) or not isinstance(gamma, (int, float)) or not 0 < gamma <= 1:
-            raise ValueError(f"gamma must be in (0, 1], got {gamma!r}")
+        check_range("gamma", gamma, 0, 1, low_open=True)
         self.scene = SceneConfig(**scene_kwargs)
         self.reward_config = RewardConfig(name=reward, **reward_kwargs)
         self.gamma = float(gamma)
