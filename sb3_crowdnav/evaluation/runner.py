@@ -338,7 +338,6 @@ __all__ = [
     "RECORD_FIELDS",
     "TEST_SEED_OFFSET",
     "EpisodeRecord",
-    "PolicySpec",
     "RandomPolicy",
     "Trajectory",
     "eval_seeds",
