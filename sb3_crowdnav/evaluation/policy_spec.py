@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
-from sb3_crowdnav.sim.validation import check_choice
+from sb3_crowdnav.sim.validation import check_choice, check_instance
 
 PolicyKind = Literal["orca", "orca-constrained", "random", "pretrained", "file"]
 KINDS: tuple[str, ...] = ("orca", "orca-constrained", "random", "pretrained", "file")
@@ -35,6 +35,7 @@ class PolicySpec:
 
     def __post_init__(self) -> None:
         check_choice("kind", self.kind, KINDS)
+        check_instance("argument", self.argument, (str, type(None)), "a str or None")
         needs_argument = self.kind in ("pretrained", "file")
         if needs_argument and not self.argument:
             raise ValueError(f"a {self.kind} policy spec needs an argument (a name or a path), got {self.argument!r}")
@@ -94,7 +95,7 @@ class PolicySpec:
         return _LABELS[self.kind]
 
     def __str__(self) -> str:
-        """The spec as text again, e.g. for a results file; ``parse(str(spec)) == spec``."""
+        """The spec as text again, e.g. for a results file (``parse(str(spec)) == spec`` for what ``parse`` gives)."""
         if self.kind == "file":
             return str(self.argument)
         return self.kind if self.argument is None else f"{self.kind}:{self.argument}"
