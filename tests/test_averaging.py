@@ -109,9 +109,12 @@ def test_ensemble_models_refuses_one_path_other_worlds_and_other_networks(tmp_pa
         ensemble_models([apg, holonomic])
 
 
-@pytest.mark.parametrize("size", [0, -1, 1.5, True, "2"])
-def test_ensemble_size_must_be_a_positive_int(size):
-    with pytest.raises(ValueError, match=r"ensemble_size must be an int >= 1"):
+@pytest.mark.parametrize(("size", "error", "message"), [
+    (0, ValueError, "must be >= 1"), (-1, ValueError, "must be >= 1"),
+    (1.5, TypeError, "must be an int"), (True, TypeError, "must be an int"), ("2", TypeError, "must be an int"),
+])
+def test_ensemble_size_must_be_a_positive_int(size, error, message):
+    with pytest.raises(error, match=rf"ensemble_size {message}"):
         APGValue("ApgPolicy", "CrowdNav-v0", imitation_episodes=0, policy_kwargs={"ensemble_size": size})
 
 

@@ -58,6 +58,7 @@ BAD_ENV_KWARGS = [
     (dict(angular_penalty_threshold=0.0), ValueError, "angular_penalty_threshold"),
     (dict(gamma=0.0), ValueError, "gamma"),
     (dict(gamma=1.5), ValueError, "gamma"),
+    (dict(gamma="0.9"), TypeError, "gamma"),
     (dict(render_mode="ascii"), ValueError, "render_mode"),
     (dict(num_pedestrians=6), TypeError, "num_pedestrians"),  # unknown keyword
     (dict(name="comfort"), TypeError, "name"),  # RewardConfig's field is spelled reward= on the env

@@ -21,6 +21,8 @@ from sb3_crowdnav.evaluation import (
     save_animation,
 )
 from sb3_crowdnav.evaluation.plots import action_value_grid
+from sb3_crowdnav.evaluation.policy_spec import GRAMMAR, PolicySpec
+from sb3_crowdnav.evaluation.runner import make_policy, policy_label
 from sb3_crowdnav.serialization import UnsafeModelFileError
 
 torch.set_num_threads(1)
@@ -86,6 +88,43 @@ def test_workers_need_a_spec_and_bad_arguments():
         run_episodes(object(), 1, FAST)
     with pytest.raises(FileNotFoundError):
         run_episodes("missing_model.zip", 1, FAST)
+
+
+@pytest.mark.parametrize(("text", "kind", "argument", "label"), [
+    ("orca", "orca", None, "ORCA"),
+    (" ORCA-Constrained ", "orca-constrained", None, "ORCA-constrained"),
+    ("random", "random", None, "Random"),
+    ("Random:7", "random", "7", "Random"),
+    ("pretrained:apg_rl", "pretrained", "apg_rl", "APG_RL"),
+    ("runs/a/best_model.zip", "file", "runs/a/best_model.zip", "best_model"),
+    ("C:/models/m.zip", "file", "C:/models/m.zip", "m"),  # a colon in a path is not a keyword
+])
+def test_policy_spec_grammar(text, kind, argument, label):
+    spec = PolicySpec.parse(text)
+    assert (spec.kind, spec.argument, spec.label) == (kind, argument, label)
+    assert PolicySpec.parse(str(spec)) == spec
+    assert policy_label(text) == label
+
+
+@pytest.mark.parametrize("text", ["", "  ", "random:", "random:-1", "random:x", "random:1.5", "pretrained:"])
+def test_policy_spec_refuses_text_off_the_grammar(text):
+    with pytest.raises(ValueError, match="policy") as caught:
+        PolicySpec.parse(text)
+    assert "random:SEED" in str(caught.value) or GRAMMAR in str(caught.value)
+    with pytest.raises(ValueError, match="--policy"):  # the caller's name for the parameter
+        PolicySpec.parse(text, name="--policy")
+
+
+def test_the_runner_reads_specs_with_the_grammar():
+    env = gym.make("CrowdNav-v0", **FAST)
+    policy = make_policy("random:7", env)
+    assert isinstance(policy, RandomPolicy) and policy.seed == 7
+    assert make_policy(PolicySpec("orca-constrained"), env).mapping == "constrained"
+    with pytest.raises(ValueError, match="random:SEED"):
+        run_episodes("random:-1", 1, FAST)
+    with pytest.raises(TypeError, match="policy"):
+        PolicySpec.parse(3)
+    assert run_episodes(PolicySpec("random", "3"), 2, FAST) == run_episodes("random:3", 2, FAST, workers=2)
 
 
 def test_sweep_sets_the_number_of_pedestrians():

@@ -432,8 +432,10 @@ def test_sizes_are_keyword_arguments(space):
     assert model(random_obs(3, 4)).shape == (3, 17)
     with pytest.raises(ValueError, match="attention_arch must end with 1"):
         ApgExtractor(space, attention_arch=(100, 100))
-    with pytest.raises(ValueError, match="positive"):
+    with pytest.raises(ValueError, match=r"embedding_arch\[0\] must be >= 1"):
         ApgExtractor(space, embedding_arch=(0,))
+    with pytest.raises(TypeError, match=r"embedding_arch\[1\] must be an int"):
+        ApgExtractor(space, embedding_arch=(16, 8.0))
 
 
 def test_features_dims(space):

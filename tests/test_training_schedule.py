@@ -142,8 +142,9 @@ def test_fine_tuning_a_trained_model(tmp_path, monkeypatch):
             assert model._n_updates > trained._n_updates
     config = ScheduleConfig(exploration_initial_eps=0.2, pedestrian_model="cautious")
     assert (config.exploration_initial_eps, config.exploration_final_eps, config.pedestrian_model) == (0.2, 0.1, "cautious")
-    for bad in (dict(exploration_initial_eps=1.5), dict(exploration_final_eps=True), dict(pedestrian_model="psychic")):
-        with pytest.raises(ValueError, match=next(iter(bad))):
+    for bad, error in ((dict(exploration_initial_eps=1.5), ValueError), (dict(exploration_final_eps=True), TypeError),
+                       (dict(pedestrian_model="psychic"), ValueError)):
+        with pytest.raises(error, match=next(iter(bad))):
             ScheduleConfig(**bad)
 
 

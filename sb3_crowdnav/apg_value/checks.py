@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from typing import Any
 
-import numpy as np
 import torch as th
 from stable_baselines3.common.buffers import DictReplayBuffer
 from stable_baselines3.common.vec_env import VecEnv, VecFrameStack, VecNormalize, unwrap_vec_wrapper
@@ -13,6 +12,7 @@ from stable_baselines3.her.her_replay_buffer import HerReplayBuffer
 from sb3_crowdnav.apg_value.buffers import ValueReplayBuffer
 from sb3_crowdnav.apg_value.overlap import OVERLAP_KINDS
 from sb3_crowdnav.serialization import world_of
+from sb3_crowdnav.sim.validation import check_bool, check_choice, check_int, check_number, check_positive, check_range
 from sb3_crowdnav.sim.world import World, compare_worlds, upgrade_policy_kwargs
 
 VALUE_TARGETS = ("td", "greedy_td", "lookahead")
@@ -60,15 +60,11 @@ def check_policy_name(policy: Any, aliases: dict[str, Any]) -> None:
 def check_args(*, exploration_initial_eps: float, exploration_final_eps: float, gamma: float, tau: float,
                exploration_episodes: int, imitation_episodes: int, imitation_epochs: int, target_update_interval: int,
                batch_size: int, bootstrap_timeouts: bool, overlap_training: bool | str, value_target: str) -> None:
-    """``ValueError``/``TypeError`` naming the first of APGValue's scalar arguments out of its range."""
-    for name, value, lo, hi in (
-        ("exploration_initial_eps", exploration_initial_eps, 0.0, 1.0),
-        ("exploration_final_eps", exploration_final_eps, 0.0, 1.0),
-        ("gamma", gamma, 1e-9, 1.0),
-        ("tau", tau, 1e-9, 1.0),
-    ):
-        if not lo <= value <= hi:
-            raise ValueError(f"{name} must be in [{lo}, {hi}], got {value!r}")
+    """``TypeError`` naming the first of APGValue's scalar arguments of a wrong type, ``ValueError`` out of its range."""
+    check_range("exploration_initial_eps", exploration_initial_eps, 0, 1)
+    check_range("exploration_final_eps", exploration_final_eps, 0, 1)
+    check_range("gamma", gamma, 0, 1, low_open=True)
+    check_range("tau", tau, 0, 1, low_open=True)
     for name, value, minimum in (
         ("exploration_episodes", exploration_episodes, 1),
         ("imitation_episodes", imitation_episodes, 0),
@@ -76,14 +72,11 @@ def check_args(*, exploration_initial_eps: float, exploration_final_eps: float, 
         ("target_update_interval", target_update_interval, 1),
         ("batch_size", batch_size, 1),
     ):
-        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
-            raise ValueError(f"{name} must be an int >= {minimum}, got {value!r}")
-    if not isinstance(bootstrap_timeouts, bool):
-        raise TypeError(f"bootstrap_timeouts must be a bool, got {bootstrap_timeouts!r}")
+        check_int(name, value, minimum)
+    check_bool("bootstrap_timeouts", bootstrap_timeouts)
     if not (isinstance(overlap_training, bool) or overlap_training in OVERLAP_KINDS):
         raise ValueError(f"overlap_training must be a bool or one of {OVERLAP_KINDS}, got {overlap_training!r}")
-    if value_target not in VALUE_TARGETS:
-        raise ValueError(f"value_target must be one of {VALUE_TARGETS}, got {value_target!r}")
+    check_choice("value_target", value_target, VALUE_TARGETS)
 
 
 def check_replay_buffer_class(replay_buffer_class: type[DictReplayBuffer] | None,
@@ -107,12 +100,9 @@ def check_imitation_args(learning_rate: float, optimizer_class: Any, optimizer_k
     """Validate APGValue's imitation arguments; return the optimiser's keyword arguments (SGD: momentum 0.9)."""
     if not (isinstance(optimizer_class, type) and issubclass(optimizer_class, th.optim.Optimizer)):
         raise TypeError(f"imitation_optimizer_class must be a torch.optim.Optimizer subclass, got {optimizer_class!r}")
-    if not learning_rate > 0:
-        raise ValueError(f"imitation_learning_rate must be > 0, got {learning_rate!r}")
-    if not safety_space >= 0:
-        raise ValueError(f"imitation_safety_space must be >= 0, got {safety_space!r}")
-    if mapping not in mappings:
-        raise ValueError(f"imitation_mapping must be one of {mappings}, got {mapping!r}")
+    check_positive("imitation_learning_rate", learning_rate)
+    check_number("imitation_safety_space", safety_space, allow_zero=True)
+    check_choice("imitation_mapping", mapping, mappings)
     if optimizer_kwargs is None:
         return {"momentum": 0.9} if issubclass(optimizer_class, th.optim.SGD) else {}
     return dict(optimizer_kwargs)

@@ -19,6 +19,7 @@ from sb3_crowdnav.nn.layers import bfloat16_supported
 from sb3_crowdnav.sim.actions import N_ACTIONS
 from sb3_crowdnav.sim.config import RewardConfig
 from sb3_crowdnav.sim.observation import OBS_KEYS, OBSTACLE_KEYS, WAYPOINT_KEY, ObservationSchema, Robot
+from sb3_crowdnav.sim.validation import check_choice, check_int, check_range
 from sb3_crowdnav.sim.world import World
 
 STATIC_KEYS = (*OBSTACLE_KEYS, WAYPOINT_KEY)  # the warehouse's, propagated when the observation has them
@@ -122,19 +123,14 @@ class ValueLookaheadPolicy(BasePolicy):
     ) -> None:
         schema = ObservationSchema.from_space(observation_space)
         self.history_length, self.max_humans = schema.history_length, schema.max_humans
-        if lookahead_dtype not in self.LOOKAHEAD_DTYPES:
-            raise ValueError(f"lookahead_dtype must be one of {self.LOOKAHEAD_DTYPES}, got {lookahead_dtype!r}")
-        if pedestrian_model not in PropagationModel.PEDESTRIAN_MODELS:
-            raise ValueError(f"pedestrian_model must be one of {PropagationModel.PEDESTRIAN_MODELS}, got "
-                             f"{pedestrian_model!r}")
-        if isinstance(ensemble_size, bool) or not isinstance(ensemble_size, (int, np.integer)) or ensemble_size < 1:
-            raise ValueError(f"ensemble_size must be an int >= 1, got {ensemble_size!r}")
+        check_choice("lookahead_dtype", lookahead_dtype, self.LOOKAHEAD_DTYPES)
+        check_choice("pedestrian_model", pedestrian_model, PropagationModel.PEDESTRIAN_MODELS)
+        check_int("ensemble_size", ensemble_size, 1)
         self.ensemble_size = int(ensemble_size)
         if not isinstance(action_space, spaces.Discrete) or action_space.n != N_ACTIONS:
             raise ValueError(f"ValueLookaheadPolicy needs Discrete({N_ACTIONS}) actions, got {action_space}")
         world = World() if world is None else World.coerce(world)
-        if not 0 < gamma <= 1:
-            raise ValueError(f"gamma must be in (0, 1], got {gamma!r}")
+        check_range("gamma", gamma, 0, 1, low_open=True)
         if optimizer_kwargs is None:
             optimizer_kwargs = {"momentum": 0.9} if optimizer_class is th.optim.SGD else {}
         super().__init__(

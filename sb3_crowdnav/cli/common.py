@@ -5,10 +5,12 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any, NoReturn
 
 from sb3_crowdnav.evaluation.runner import DEFAULT_ENV_ID
+from sb3_crowdnav.sim.validation import check_int, check_positive, check_probability
 
 
 class Parser(argparse.ArgumentParser):
@@ -18,23 +20,27 @@ class Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
-def _int_at_least(minimum: int, allowed: str):
-    """An argparse type: an integer >= ``minimum``, with ``allowed`` in the error message."""
+def _argument_type(convert: Callable[[str], Any], check: Callable[[str, Any], None], allowed: str):
+    """An argparse type: ``convert`` the text, then ``check`` it with a validator of :mod:`sb3_crowdnav.sim.validation`.
 
-    def parse(text: str) -> int:
+    argparse names the option itself, so the error says only ``allowed`` and the text given.
+    """
+
+    def parse(text: str) -> Any:
         try:
-            value = int(text)
-        except ValueError:
-            value = None
-        if value is None or value < minimum:
-            raise argparse.ArgumentTypeError(f"expected {allowed}, got {text!r}")
+            value = convert(text)
+            check("value", value)
+        except (TypeError, ValueError):
+            raise argparse.ArgumentTypeError(f"expected {allowed}, got {text!r}") from None
         return value
 
     return parse
 
 
-positive_int = _int_at_least(1, "a positive integer")
-nonneg_int = _int_at_least(0, "an integer >= 0")
+positive_int = _argument_type(int, lambda name, value: check_int(name, value, 1), "a positive integer")
+nonneg_int = _argument_type(int, lambda name, value: check_int(name, value, 0), "an integer >= 0")
+positive_float = _argument_type(float, check_positive, "a finite number > 0")
+probability = _argument_type(float, check_probability, "a number in [0, 1]")
 
 
 def env_options() -> argparse.ArgumentParser:

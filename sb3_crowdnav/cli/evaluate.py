@@ -18,6 +18,7 @@ from sb3_crowdnav.cli.common import (
     positive_int,
     progress_enabled,
 )
+from sb3_crowdnav.evaluation.policy_spec import GRAMMAR, PolicySpec
 from sb3_crowdnav.evaluation.runner import TEST_SEED_OFFSET
 
 
@@ -39,7 +40,7 @@ def add_parsers(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("evaluate", parents=parents, help="evaluate one policy and print its results table",
                        description="Evaluate one policy on test episodes and print the Table-3 row "
                                    "(rates with Wilson 95 % intervals).")
-    p.add_argument("--policy", required=True, help="orca, orca-constrained, random[:SEED], pretrained:NAME or PATH.zip")
+    p.add_argument("--policy", required=True, help=GRAMMAR)
     _run_options(p)
     p.add_argument("--out", type=Path, metavar="DIR", help="also write results.md, results.csv and episodes.csv here")
     p.set_defaults(func=_cmd_evaluate)
@@ -50,7 +51,7 @@ def add_parsers(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
                                    "one GIF per policy, a value map for value-based models, and with --sweep "
                                    "the Table-4 sweep over the number of pedestrians.")
     p.add_argument("--policy", action="append", required=True,
-                   help="orca, orca-constrained, random[:SEED], pretrained:NAME or PATH.zip; repeat for several policies")
+                   help=f"{GRAMMAR}; repeat for several policies")
     _run_options(p)
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")
     p.add_argument("--sweep", type=nonneg_int, nargs="+", metavar="N",
@@ -62,7 +63,7 @@ def add_parsers(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("render", parents=parents, help="draw one episode as GIF, MP4 or PNG",
                        description="Play one episode and write it as an animation (.gif, or .mp4 with "
                                    "imageio-ffmpeg) or as a trajectory figure (.png).")
-    p.add_argument("--policy", required=True, help="orca, orca-constrained, random[:SEED], pretrained:NAME or PATH.zip")
+    p.add_argument("--policy", required=True, help=GRAMMAR)
     p.add_argument("--seed", type=nonneg_int, default=TEST_SEED_OFFSET, help="episode seed (default: %(default)s)")
     p.add_argument("--out", type=Path, required=True, metavar="FILE", help="episode.gif, episode.mp4 or episode.png")
     p.add_argument("--fps", type=float, help="frames per second of an animation (default: real time, 1/Δt)")
@@ -75,70 +76,63 @@ def add_parsers(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
 
 # ------------------------------------------------------------------ helpers
 def _check_policy(spec: str, env_id: str = "CrowdNav-v0", env_kwargs: dict[str, Any] | None = None,
-                  allow_env_mismatch: bool = False) -> str:
-    """The policy spec, checked before any episode runs: a shipped model's hash, a file's loadability without
-    unpickling (with the env's spaces for a plain SB3 file)."""
-    s = spec.strip()
-    if s.lower() in ("orca", "orca-constrained"):
-        return s.lower()
-    import gymnasium as gym
-
-    if s.lower().startswith("pretrained:"):
+                  allow_env_mismatch: bool = False) -> PolicySpec:
+    """The parsed policy spec, checked before any episode runs: a shipped model's hash, a file's loadability
+    without unpickling (with the env's spaces for a plain SB3 file), the model's observation shapes and world."""
+    try:
+        parsed = PolicySpec.parse(spec, name="--policy")
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    if not parsed.is_model:
+        return parsed
+    if parsed.kind == "pretrained":
         from sb3_crowdnav.models import check_pretrained
 
         try:
-            path = check_pretrained(s.partition(":")[2])
+            path = check_pretrained(str(parsed.argument))
         except ValueError as exc:
             raise UsageError(f"--policy: {exc}") from None
-        _check_world(path, env_id, env_kwargs, allow_env_mismatch)
-        from sb3_crowdnav.serialization import safe_custom_objects
+    else:
+        path = _resolve_file(spec, str(parsed.argument))
+        parsed = PolicySpec("file", str(path))
+    _check_shapes(path, env_id, env_kwargs)
+    _check_world(path, env_id, env_kwargs, allow_env_mismatch)
+    return parsed
 
-        env = gym.make(env_id, **(env_kwargs or {}))
-        try:
-            _check_shapes(path, safe_custom_objects(path).get("observation_space"), env.observation_space)
-        finally:
-            env.close()
-        return s
-    head, _, tail = s.partition(":")
-    if head.lower() == "random":
-        if tail and not tail.isdigit():
-            raise UsageError(f"--policy: a random policy is 'random' or 'random:SEED' with SEED >= 0, got {spec!r}")
-        return s.lower()
+
+def _resolve_file(spec: str, text: str) -> Path:
+    """The saved model a file spec names, its algorithm detected; a file named like a shipped model gets a note."""
     from sb3_crowdnav.models import PRETRAINED, detect_algorithm, resolve_model_path
-    from sb3_crowdnav.serialization import UnsafeModelFileError, safe_custom_objects
 
-    shipped = Path(s).name.removesuffix(".zip") if Path(s).name.removesuffix(".zip") in PRETRAINED else None
+    stem = Path(text).name.removesuffix(".zip")
+    shipped = stem if stem in PRETRAINED else None
     try:
-        path = resolve_model_path(s)
+        path = resolve_model_path(text)
         detect_algorithm(path)
     except (FileNotFoundError, ValueError) as exc:
         hint = f"; the shipped model is --policy pretrained:{shipped}" if shipped else ""
-        raise UsageError(
-            f"--policy {spec!r}: expected orca, orca-constrained, random[:SEED], pretrained:NAME or a saved model .zip "
-            f"({exc}{hint})"
-        ) from None
+        raise UsageError(f"--policy {spec!r}: expected {GRAMMAR} ({exc}{hint})") from None
     if shipped:  # a local file named like a shipped model: say which one is used
         print(f"note: --policy {spec} loads the local file {path}; the shipped model is --policy pretrained:{shipped}",
               file=sys.stderr)
+    return path
+
+
+def _check_shapes(path: Path, env_id: str, env_kwargs: dict[str, Any] | None) -> None:
+    """The model's observation shapes are the env's (another ``max_humans``, another env), read without unpickling."""
+    import gymnasium as gym
+
+    from sb3_crowdnav.evaluation.runner import check_spaces
+    from sb3_crowdnav.serialization import UnsafeModelFileError, safe_custom_objects
+
     env = gym.make(env_id, **(env_kwargs or {}))
     try:
-        objects = safe_custom_objects(path, env)
-        _check_shapes(path, objects.get("observation_space"), env.observation_space)
-    except UnsafeModelFileError as exc:
-        raise UsageError(f"--policy: {exc}") from None
+        model_space = safe_custom_objects(path, env).get("observation_space")
+        check_spaces(model_space, env.observation_space, f"--policy {path.name}")
+    except (UnsafeModelFileError, ValueError) as exc:
+        raise UsageError(f"--policy: {exc}" if isinstance(exc, UnsafeModelFileError) else str(exc)) from None
     finally:
         env.close()
-    _check_world(path, env_id, env_kwargs, allow_env_mismatch)
-    return str(path)
-
-
-def _check_shapes(path: Path, model_space: Any, env_space: Any) -> None:
-    """The model's observation shapes are the env's (another ``max_humans``, another env)."""
-    shapes = {k: v.shape for k, v in getattr(model_space, "spaces", {}).items()}
-    env_shapes = {k: v.shape for k, v in getattr(env_space, "spaces", {}).items()}
-    if shapes and shapes != env_shapes:
-        raise UsageError(f"--policy {path.name} was trained on observations {shapes}, the env gives {env_shapes}; "
-                         "use the env, --max-humans and history length it was trained with")
 
 
 def _check_world(path: Path, env_id: str, env_kwargs: dict[str, Any] | None, allow: bool) -> None:
@@ -157,27 +151,22 @@ def _check_world(path: Path, env_id: str, env_kwargs: dict[str, Any] | None, all
         raise UsageError(f"--policy {path.name}: {mismatch}; pass --allow-env-mismatch to evaluate it there anyway")
 
 
-def _labels(specs: list[str]) -> list[str]:
-    from sb3_crowdnav.evaluation.runner import policy_label
-
+def _labels(specs: list[PolicySpec]) -> list[str]:
+    """One distinct table label per policy: ``APG_RL``, ``APG_RL_2``, ..."""
     labels: list[str] = []
     for spec in specs:
-        label, k = policy_label(spec), 2
+        label, k = spec.label, 2
         while label in labels:
-            label, k = f"{policy_label(spec)}_{k}", k + 1
+            label, k = f"{spec.label}_{k}", k + 1
         labels.append(label)
     return labels
-
-
-def _is_model(spec: str) -> bool:
-    return spec not in ("orca", "orca-constrained") and not spec.startswith("random")
 
 
 def _slug(label: str) -> str:
     return "".join(c if c.isalnum() or c in "-_." else "_" for c in label)
 
 
-def _run(args: argparse.Namespace, spec: str, env_kwargs: dict[str, Any], **kwargs: Any):
+def _run(args: argparse.Namespace, spec: PolicySpec, env_kwargs: dict[str, Any], **kwargs: Any):
     from sb3_crowdnav.evaluation.runner import run_episodes
 
     return run_episodes(spec, args.episodes, env_kwargs, env_id=args.env, seed_offset=args.seed_offset,
@@ -215,7 +204,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     if args.out is not None:
         table.save(args.out / "results")
         write_records_csv(records, args.out / "episodes.csv")
-        _write_meta(args.out, args, env_kwargs, policies={label: spec})
+        _write_meta(args.out, args, env_kwargs, policies={label: str(spec)})
     return 0
 
 
@@ -229,7 +218,7 @@ def _figure_episodes(args, specs, labels, env_kwargs, seed):
             for spec, label in zip(specs, labels, strict=True)}
 
 
-def _value_map(args, spec: str, label: str, env_kwargs: dict[str, Any], seed: int, out: Path) -> Path | None:
+def _value_map(args, spec: PolicySpec, label: str, env_kwargs: dict[str, Any], seed: int, out: Path) -> Path | None:
     """Fig. 11 for a value-based model: the action values at the 8th step (2 s) of the figure episode."""
     import numpy as np
 
@@ -295,13 +284,13 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
         for label, record in episodes.items():
             written.append(save_animation(record, out / f"episode_{_slug(label)}.gif"))
     for spec, label in zip(specs, labels, strict=True):
-        if _is_model(spec):
+        if spec.is_model:
             path = _value_map(args, spec, label, env_kwargs, seed, out)
             if path is not None:
                 written.append(path)
 
     if args.sweep:
-        idx = next((i for i, s in enumerate(specs) if _is_model(s)), 0)
+        idx = next((i for i, s in enumerate(specs) if s.is_model), 0)
         sweep = run_sweep(specs[idx], args.sweep, args.episodes, env_kwargs, env_id=args.env,
                           allow_env_mismatch=args.allow_env_mismatch,
                           seed_offset=args.seed_offset, workers=args.workers, deterministic=not args.stochastic,
@@ -311,7 +300,8 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
         print(f"\nnumber of pedestrians, {labels[idx]} (Table 4):\n")
         print(stable.to_markdown(), end="")
         written += [out / "sweep.md", out / "sweep.csv"]
-    _write_meta(out, args, env_kwargs, policies=dict(zip(labels, specs, strict=True)), figure_seed=seed, sweep=args.sweep)
+    policies = {label: str(spec) for label, spec in zip(labels, specs, strict=True)}
+    _write_meta(out, args, env_kwargs, policies=policies, figure_seed=seed, sweep=args.sweep)
     print(f"\nwrote {', '.join(p.name for p in written)} and meta.json in {out}")
     return 0
 

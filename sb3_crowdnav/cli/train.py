@@ -32,26 +32,6 @@ SCHEDULE_FLAGS = {
 HYPERPARAMS_FLAGS = {"algo": "--algo", "timesteps": "--timesteps", "checkpoint_freq": "--checkpoint-freq"}
 
 
-def _positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        value = None
-    if value is None or not 0 < value < float("inf"):
-        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}")
-    return value
-
-
-def _probability(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        value = None
-    if value is None or not 0 <= value <= 1:
-        raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {text!r}")
-    return value
-
-
 def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
     """Add ``train`` to the subcommands ``sub``."""
     from sb3_crowdnav.apg_value.checks import VALUE_TARGETS
@@ -77,14 +57,15 @@ def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
                         "where it is for ppo, a2c, dqn and dqfd)")
     p.add_argument("--imitation-epochs", "--il-epochs", dest="imitation_epochs", type=common.nonneg_int,
                    help="passes over the demonstrations (default: 10)")
-    p.add_argument("--imitation-learning-rate", "--il-learning-rate", dest="imitation_learning_rate", type=_positive_float,
+    p.add_argument("--imitation-learning-rate", "--il-learning-rate", dest="imitation_learning_rate",
+                   type=common.positive_float,
                    help="learning rate of the imitation (default: 0.01 with --variant, Table 1; 0.001 with --hyperparams)")
 
     g = p.add_argument_group("the paper's schedule (--variant)")
     g.add_argument("--rl-episodes", type=common.positive_int,
                    help="RL episodes in total (default: the variant's: 10000, apg_warehouse 6000)")
     g.add_argument("--n-envs", type=common.positive_int, help="training envs, one batched lookahead (default: 1)")
-    g.add_argument("--learning-rate", type=_positive_float, help="RL learning rate (default: 0.001, Table 1)")
+    g.add_argument("--learning-rate", type=common.positive_float, help="RL learning rate (default: 0.001, Table 1)")
     g.add_argument("--train-freq", type=common.positive_int,
                    help="one gradient step every this many env steps (default: the variant's: apg_rl 8, the others 4)")
     g.add_argument("--buffer-size", type=common.positive_int, help="replay capacity [transitions] (default: 100000)")
@@ -96,10 +77,10 @@ def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
                    help="end timed-out episodes with zero future value (the field's reference code)")
     g.add_argument("--exploration-episodes", type=common.positive_int,
                    help="RL episodes of the ε decay (default: the variant's: 5000, apg_warehouse 3000)")
-    g.add_argument("--epsilon-start", dest="exploration_initial_eps", type=_probability, metavar="EPS",
+    g.add_argument("--epsilon-start", dest="exploration_initial_eps", type=common.probability, metavar="EPS",
                    help="ε at the first RL episode (default: 0.5, the paper; lower it to fine-tune a model given "
                         "with --from-imitation)")
-    g.add_argument("--epsilon-end", dest="exploration_final_eps", type=_probability, metavar="EPS",
+    g.add_argument("--epsilon-end", dest="exploration_final_eps", type=common.probability, metavar="EPS",
                    help="ε after the decay (default: 0.1, the paper)")
     g.add_argument("--select-by", choices=SELECT_BY,
                    help="best.zip: highest validation success then shortest time (default), or highest return under "
@@ -206,7 +187,7 @@ def _train_hyperparams(args: argparse.Namespace) -> int:
     try:
         hp = load_hyperparams(args.hyperparams, args.env)
         cfg = prepare(args.algo, hp)
-    except (FileNotFoundError, ValueError) as exc:
+    except (FileNotFoundError, TypeError, ValueError) as exc:
         raise UsageError(f"--hyperparams: {exc}") from None
     env_kwargs = {**cfg["env_kwargs"], **common.env_kwargs_from_args(args)}
     common.check_env(args.env, env_kwargs)

@@ -26,6 +26,7 @@ from sb3_crowdnav.sim.actions import N_ACTIONS
 from sb3_crowdnav.sim.config import RewardConfig, SceneConfig
 from sb3_crowdnav.sim.observation import HUMAN_DIM, Human, ObservationSchema, Robot
 from sb3_crowdnav.sim.rewards import RewardTerms
+from sb3_crowdnav.sim.validation import check_range
 from sb3_crowdnav.sim.world import World
 
 SCENE_KEYS = {f.name for f in dataclasses.fields(SceneConfig)}
@@ -52,11 +53,10 @@ def split_env_kwargs(kwargs: Mapping[str, Any], env_name: str,
 
 
 def check_env_arguments(render_modes: list[str], render_mode: str | None, gamma: float) -> None:
-    """``ValueError`` for a render mode the env does not have or a discount outside (0, 1]."""
+    """``ValueError`` for a render mode the env does not have or a discount outside (0, 1] (``TypeError``: not a number)."""
     if render_mode is not None and render_mode not in render_modes:
         raise ValueError(f"render_mode must be one of {render_modes} or None, got {render_mode!r}")
-    if isinstance(gamma, bool) or not isinstance(gamma, (int, float)) or not 0 < gamma <= 1:
-        raise ValueError(f"gamma must be in (0, 1], got {gamma!r}")
+    check_range("gamma", gamma, 0, 1, low_open=True)
 
 
 def unused_reward_weights(reward: RewardConfig) -> dict[str, str]:

@@ -14,9 +14,10 @@ from sb3_crowdnav.envs.base import (
     split_env_kwargs,
     unused_reward_weights,
 )
-from sb3_crowdnav.sim.config import RewardConfig, SceneConfig, check_choice
+from sb3_crowdnav.sim.config import RewardConfig, SceneConfig
 from sb3_crowdnav.sim.observation import ObservationSchema
 from sb3_crowdnav.sim.simulator import CrowdSimulator
+from sb3_crowdnav.sim.validation import check_choice
 
 ORCA_KEYS = ("orca_neighbor_dist", "orca_max_neighbors", "orca_time_horizon")  # what ORCA pedestrians read
 

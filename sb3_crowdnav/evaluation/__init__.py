@@ -17,6 +17,7 @@ from sb3_crowdnav.evaluation.plots import (
     plot_value_map,
     save_animation,
 )
+from sb3_crowdnav.evaluation.policy_spec import PolicySpec
 from sb3_crowdnav.evaluation.runner import (
     TEST_SEED_OFFSET,
     EpisodeRecord,
@@ -35,6 +36,7 @@ from sb3_crowdnav.models import algorithms, detect_algorithm, load_model
 __all__ = [
     "TEST_SEED_OFFSET",
     "EpisodeRecord",
+    "PolicySpec",
     "RandomPolicy",
     "ResultsTable",
     "Summary",

@@ -35,13 +35,14 @@ from typing import Any
 
 import numpy as np
 
+from sb3_crowdnav.sim.validation import check_range
+
 OUTCOMES = ("success", "collision", "timeout")
 
 
 def z_value(confidence: float = 0.95) -> float:
     """Two-sided standard-normal quantile: 1.959964 for 95 %."""
-    if not 0 < confidence < 1:
-        raise ValueError(f"confidence must be in (0, 1), got {confidence!r}")
+    check_range("confidence", confidence, 0, 1, low_open=True, high_open=True)
     return NormalDist().inv_cdf(0.5 + confidence / 2)
 
 

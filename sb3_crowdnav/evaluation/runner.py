@@ -11,8 +11,9 @@ through ``reset(seed=...)`` and a stochastic policy is re-seeded per episode thr
 not depend on the order of the episodes or on how they are split across worker processes.
 
 Policies are given either as an object with ``predict`` (one process) or as a picklable **spec**
-(any number of processes): ``"orca"``, ``"random"`` / ``"random:SEED"``, or the path of a saved
-model ``.zip`` (APGValue, DQN, PPO, ... detected by :func:`~sb3_crowdnav.models.load_model`).
+(any number of processes) in the grammar of :class:`~sb3_crowdnav.evaluation.policy_spec.PolicySpec`:
+``"orca"``, ``"orca-constrained"``, ``"random"`` / ``"random:SEED"``, ``"pretrained:NAME"`` or the
+path of a saved model ``.zip`` (APGValue, DQN, PPO, ... detected by :func:`~sb3_crowdnav.models.load_model`).
 """
 
 from __future__ import annotations
@@ -21,21 +22,21 @@ import math
 import multiprocessing as mp
 import sys
 from collections.abc import Iterable, Mapping, Sequence
-from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 
 import sb3_crowdnav  # noqa: F401  (registers the envs, also in spawned workers)
+from sb3_crowdnav.evaluation.policy_spec import PolicySpec, is_spec
 from sb3_crowdnav.evaluation.records import RECORD_FIELDS, EpisodeRecord, Trajectory
 from sb3_crowdnav.sim.config import SceneConfig
+from sb3_crowdnav.sim.validation import check_int
 
 TEST_SEED_OFFSET = 1_000_000
 """Seed of the first test episode; episode ``i`` uses ``TEST_SEED_OFFSET + i``."""
 
 DEFAULT_ENV_ID = "CrowdNav-v0"
-PolicySpec = str
 
 
 class RandomPolicy:
@@ -45,13 +46,13 @@ class RandomPolicy:
     of an episode depend only on ``(seed, episode seed)``, not on the order of the episodes.
 
     :param action_space: a ``gymnasium.spaces.Discrete`` space or its number of actions
-    :param seed: base seed
+    :param seed: base seed, an int >= 0 (NumPy's seed sequences refuse negative entries)
     """
 
     def __init__(self, action_space: gym.spaces.Discrete | int = 80, seed: int = 0) -> None:
-        n = action_space if isinstance(action_space, int) else getattr(action_space, "n", None)
-        if n is None or isinstance(n, bool) or int(n) < 1:
-            raise TypeError(f"RandomPolicy needs a Discrete action space or a positive int, got {action_space!r}")
+        n = action_space.n if isinstance(action_space, gym.spaces.Discrete) else action_space
+        check_int("action_space (a Discrete space or its number of actions)", n, 1)
+        check_int("seed", seed, 0)
         self.n = int(n)
         self.seed = int(seed)
         self.rng = np.random.default_rng(self.seed)
@@ -68,23 +69,12 @@ class RandomPolicy:
 
 
 def policy_label(spec: Any) -> str:
-    """A short table label for a policy spec: ``ORCA``, ``Random``, or the model file's stem."""
-    if not isinstance(spec, (str, Path)):
-        return type(spec).__name__
-    s = str(spec)
-    if s.lower() == "orca":
-        return "ORCA"
-    if s.lower() == "orca-constrained":
-        return "ORCA-constrained"
-    if s.lower().split(":")[0] == "random":
-        return "Random"
-    if s.lower().startswith("pretrained:"):
-        return s.partition(":")[2].upper()
-    return Path(s).stem
+    """A short table label: a spec's :attr:`PolicySpec.label` (``ORCA``, ``Random``, ...), an object's class name."""
+    return PolicySpec.parse(spec).label if is_spec(spec) else type(spec).__name__
 
 
 def make_policy(spec: Any, env: gym.Env | None = None, allow_env_mismatch: bool = False) -> Any:
-    """Turn a spec into an object with ``predict``; objects with ``predict`` pass through.
+    """Turn a spec (see :class:`PolicySpec`) into an object with ``predict``; objects with ``predict`` pass through.
 
     ``"orca"`` → :class:`~sb3_crowdnav.sim.orca.OrcaPolicy` built from ``env`` (nearest-action
     mapping, the paper's ORCA row); ``"orca-constrained"`` → the same with the constrained mapping;
@@ -93,36 +83,29 @@ def make_policy(spec: Any, env: gym.Env | None = None, allow_env_mismatch: bool 
     loaded with :func:`~sb3_crowdnav.models.load_model`. A model trained in another world than ``env`` (time step,
     kinematics, rotation range) is refused unless ``allow_env_mismatch``.
     """
-    if not isinstance(spec, (str, Path)):
+    if not is_spec(spec):
         if not hasattr(spec, "predict"):
-            raise TypeError(f"a policy must have predict(observation, deterministic=...), got {type(spec).__name__}")
+            raise TypeError(f"policy must be a spec string or have predict(observation, deterministic=...), "
+                            f"got {type(spec).__name__}")
         if env is not None and not allow_env_mismatch:
             check_world(spec, env)
         return spec
-    s = str(spec)
-    if s.lower() in ("orca", "orca-constrained"):
+    parsed = PolicySpec.parse(spec)
+    if parsed.kind in ("orca", "orca-constrained"):
         from sb3_crowdnav.sim.orca import OrcaPolicy
 
-        mapping = "constrained" if s.lower() == "orca-constrained" else "nearest"
+        mapping = "constrained" if parsed.kind == "orca-constrained" else "nearest"
         return OrcaPolicy.from_env(env, mapping=mapping) if env is not None else OrcaPolicy(mapping=mapping)
-    head, _, tail = s.partition(":")
-    if head.lower() == "random":
-        try:
-            seed = int(tail) if tail else 0
-        except ValueError:
-            raise ValueError(f"a random policy spec is 'random' or 'random:SEED', got {s!r}") from None
-        return RandomPolicy(env.action_space if env is not None else 80, seed=seed)
-    from sb3_crowdnav.models import load_model
+    if parsed.kind == "random":
+        return RandomPolicy(env.action_space if env is not None else 80, seed=parsed.seed)
+    from sb3_crowdnav.models import check_pretrained, load_model
 
-    if s.lower().startswith("pretrained:"):
-        from sb3_crowdnav.models import check_pretrained
-
-        s = str(check_pretrained(s.partition(":")[2]))
-    model = load_model(s, spaces_from=env)
+    path = str(check_pretrained(parsed.argument)) if parsed.kind == "pretrained" else str(parsed.argument)
+    model = load_model(path, spaces_from=env)
     if env is not None:
-        check_spaces(model, env, s)
+        check_spaces(model.observation_space, env.observation_space, path)
         if not allow_env_mismatch:
-            check_world(s, env)
+            check_world(path, env)
     return model
 
 
@@ -136,16 +119,18 @@ def check_world(model_or_path: Any, env: gym.Env) -> None:
                          "(--allow-env-mismatch) to do so on purpose")
 
 
-def check_spaces(model: Any, env: gym.Env, name: str = "the model") -> None:
-    """``ValueError`` when a model's observation shapes differ from the env's (e.g. another ``max_humans``)."""
-    model_space, env_space = getattr(model, "observation_space", None), env.observation_space
-    if not isinstance(model_space, gym.spaces.Dict) or not isinstance(env_space, gym.spaces.Dict):
-        return
-    got = {k: sp.shape for k, sp in env_space.spaces.items()}
-    want = {k: sp.shape for k, sp in model_space.spaces.items()}
-    if got != want:
+def check_spaces(model_space: Any, env_space: Any, name: str = "the model") -> None:
+    """``ValueError`` when a model's observation shapes differ from the env's (e.g. another ``max_humans``).
+
+    The one comparison of a saved model's observation space with an env's, used by the runner and the CLI
+    (which reads the model's space from the file without unpickling). A space that is not a ``Dict``
+    has no per-key shapes to compare and passes: the model's own loader refuses it.
+    """
+    want = {k: sp.shape for k, sp in getattr(model_space, "spaces", {}).items()}
+    got = {k: sp.shape for k, sp in getattr(env_space, "spaces", {}).items()}
+    if want and got and got != want:
         raise ValueError(f"{name} was trained on observations {want} but the env gives {got}; "
-                         "use the same max_humans and history_length as in training")
+                         "use the env, max_humans and history_length it was trained with")
 
 
 def make_env(env_id: str = DEFAULT_ENV_ID, env_kwargs: Mapping[str, Any] | None = None, **extra: Any) -> gym.Env:
@@ -248,8 +233,8 @@ def run_episodes(
 ) -> list[EpisodeRecord]:
     """Evaluate ``policy`` on test episodes and return one :class:`EpisodeRecord` per episode, in seed order.
 
-    :param policy: an object with ``predict`` (only with ``workers=1``) or a spec (``"orca"``,
-        ``"random"``, ``"random:SEED"``, a model ``.zip`` path)
+    :param policy: an object with ``predict`` (only with ``workers=1``) or a spec (:class:`PolicySpec`:
+        ``"orca"``, ``"random:SEED"``, ``"pretrained:NAME"``, a model ``.zip`` path, ...)
     :param n_episodes: number of episodes, seeds ``seed_offset + i`` (see :data:`TEST_SEED_OFFSET`)
     :param env_kwargs: keyword arguments of the env (``num_humans``, ``reward``, ``robot_visible``, ...)
     :param seeds: explicit seeds instead of ``n_episodes``/``seed_offset``
@@ -260,12 +245,14 @@ def run_episodes(
     :param allow_env_mismatch: evaluate a model in another world than it was trained for (see :func:`make_policy`)
     """
     if seeds is None:
-        if n_episodes is None or isinstance(n_episodes, bool) or int(n_episodes) < 1:
-            raise ValueError(f"n_episodes must be a positive int, got {n_episodes!r}")
+        if n_episodes is None:
+            raise TypeError("n_episodes must be an int >= 1 when no seeds are given, got None")
+        check_int("n_episodes", n_episodes, 1)
         seeds = eval_seeds(int(n_episodes), seed_offset)
     seeds = [int(s) for s in seeds]
-    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-        raise ValueError(f"workers must be a positive int, got {workers!r}")
+    check_int("workers", workers, 1)
+    if is_spec(policy):  # a bad spec fails here, before an env is made or a worker started
+        policy = PolicySpec.parse(policy)
     env_kwargs = dict(env_kwargs or {})
     workers = min(workers, len(seeds))
     bar = _progress(len(seeds), progress, desc or policy_label(policy))
@@ -281,19 +268,19 @@ def run_episodes(
                 return records
             finally:
                 env.close()
-        if not isinstance(policy, (str, Path)):
+        if not isinstance(policy, PolicySpec):
             raise ValueError("workers > 1 needs a picklable policy spec ('orca', 'random', or a model .zip path), "
                              f"not a {type(policy).__name__} object")
         # fail here, not in the workers: a Pool restarts workers whose initializer raises, forever
         env = make_env(env_id, env_kwargs)
         try:
-            make_policy(str(policy), env, allow_env_mismatch)
+            make_policy(policy, env, allow_env_mismatch)
         finally:
             env.close()
         ctx = mp.get_context("spawn")
         tasks = [(s, deterministic, keep_trajectories) for s in seeds]
         chunk = max(1, min(16, len(seeds) // (workers * 8)))
-        with ctx.Pool(workers, initializer=_init_worker, initargs=(str(policy), env_id, env_kwargs, torch_threads)) as pool:
+        with ctx.Pool(workers, initializer=_init_worker, initargs=(policy, env_id, env_kwargs, torch_threads)) as pool:
             records = []
             for rec in pool.imap(_worker_episode, tasks, chunksize=chunk):
                 records.append(rec)
@@ -310,9 +297,12 @@ def run_sweep(policy: Any, humans: Sequence[int], n_episodes: int, env_kwargs: M
     ``max_humans`` is raised to the largest N when needed (a trained model must have been built
     with at least that capacity: its observation space is fixed).
     """
-    humans = [int(n) for n in humans]
-    if not humans or min(humans) < 0:
+    humans = list(humans)
+    if not humans:
         raise ValueError(f"humans must be a non-empty list of ints >= 0, got {humans!r}")
+    for i, n in enumerate(humans):
+        check_int(f"humans[{i}]", n, 0)
+    humans = [int(n) for n in humans]
     base = dict(env_kwargs or {})
     base["max_humans"] = max(int(base.get("max_humans", SceneConfig.max_humans)), max(humans))
     out = {}

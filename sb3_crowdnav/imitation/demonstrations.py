@@ -10,6 +10,7 @@ import numpy as np
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv
 
 from sb3_crowdnav.sim.orca import OrcaPolicy
+from sb3_crowdnav.sim.validation import check_int
 
 StepCallback = Callable[[dict[str, np.ndarray], np.ndarray, dict[str, np.ndarray], np.ndarray, np.ndarray,
                          Sequence[dict[str, Any]]], None]
@@ -66,8 +67,7 @@ def collect_demonstrations(env: Any, episodes: int, mapping: str = "constrained"
         and they double the memory)
     :param on_episode: called with the number of complete episodes each time one more is kept (progress reports)
     """
-    if isinstance(episodes, bool) or not isinstance(episodes, (int, np.integer)) or episodes < 1:
-        raise ValueError(f"episodes must be an int >= 1, got {episodes!r}")
+    check_int("episodes", episodes, 1)
     if not isinstance(env, VecEnv):
         if not hasattr(getattr(env, "unwrapped", None), "scene"):
             raise TypeError(f"env must be a CrowdNav env or a VecEnv of them, got {type(env).__name__}")

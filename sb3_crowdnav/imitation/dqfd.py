@@ -8,6 +8,7 @@ from stable_baselines3 import DQN
 
 from sb3_crowdnav.imitation.demonstrations import Demonstrations
 from sb3_crowdnav.imitation.pretrain import _DemoTensors, _dqfd_loss
+from sb3_crowdnav.sim.validation import check_int, check_number
 
 
 class DQfD(DQN):
@@ -30,11 +31,9 @@ class DQfD(DQN):
     """
 
     def __init__(self, *args, demo_batch_size: int = 64, margin: float = 0.1, margin_coef: float = 1.0, **kwargs) -> None:
-        if isinstance(demo_batch_size, bool) or not isinstance(demo_batch_size, (int, np.integer)) or demo_batch_size < 1:
-            raise ValueError(f"demo_batch_size must be an int >= 1, got {demo_batch_size!r}")
-        for name, value in (("margin", margin), ("margin_coef", margin_coef)):
-            if not value >= 0:
-                raise ValueError(f"{name} must be >= 0, got {value!r}")
+        check_int("demo_batch_size", demo_batch_size, 1)
+        check_number("margin", margin, allow_zero=True)
+        check_number("margin_coef", margin_coef, allow_zero=True)
         self.demo_batch_size = int(demo_batch_size)
         self.margin = float(margin)
         self.margin_coef = float(margin_coef)

@@ -10,14 +10,13 @@ from stable_baselines3 import DQN
 from torch.nn import functional as F
 
 from sb3_crowdnav.imitation.demonstrations import Demonstrations
+from sb3_crowdnav.sim.validation import check_int, check_number, check_positive
 
 
 def _check_training_args(epochs: int, learning_rate: float, batch_size: int) -> None:
-    for name, value in (("epochs", epochs), ("batch_size", batch_size)):
-        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-            raise ValueError(f"{name} must be an int >= 1, got {value!r}")
-    if not learning_rate > 0:
-        raise ValueError(f"learning_rate must be > 0, got {learning_rate!r}")
+    check_int("epochs", epochs, 1)
+    check_int("batch_size", batch_size, 1)
+    check_positive("learning_rate", learning_rate)
 
 
 def _tensors(obs: dict[str, np.ndarray], idx: np.ndarray, device: th.device) -> dict[str, th.Tensor]:
@@ -70,8 +69,7 @@ def pretrain_dqn(model, demos: Demonstrations, epochs: int = 10, learning_rate: 
     if not isinstance(model, DQN):
         raise TypeError(f"pretrain_dqn needs a DQN model, got {type(model).__name__}")
     _check_training_args(epochs, learning_rate, batch_size)
-    if not margin >= 0:
-        raise ValueError(f"margin must be >= 0, got {margin!r}")
+    check_number("margin", margin, allow_zero=True)
     if demos.next_observations is None:
         raise ValueError("pretrain_dqn needs next observations: collect with keep_next_observations=True")
     if fill_buffer:

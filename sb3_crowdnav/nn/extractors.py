@@ -37,6 +37,7 @@ from sb3_crowdnav.nn.transforms import (
     split_observation,
 )
 from sb3_crowdnav.sim.observation import Human, ObservationSchema, Robot
+from sb3_crowdnav.sim.validation import check_int, check_positive
 
 
 def _append_static_world(module: CrowdFeaturesExtractor, args: tuple, output: th.Tensor) -> th.Tensor:
@@ -148,10 +149,9 @@ class ApgExtractor(CrowdFeaturesExtractor):
         attention = check_arch("attention_arch", attention_arch, last=1)
         if len(attention) < 2:
             raise ValueError(f"attention_arch needs at least one hidden layer before the score, got {attention_arch!r}")
-        _check_positive_int("lstm_hidden_size", lstm_hidden_size)
-        _check_positive_int("num_sectors", num_sectors)
-        if isinstance(r_max, bool) or not isinstance(r_max, (int, float)) or not r_max > 0:
-            raise ValueError(f"r_max must be a positive number [m], got {r_max!r}")
+        check_int("lstm_hidden_size", lstm_hidden_size, 1)
+        check_int("num_sectors", num_sectors, 1)
+        check_positive("r_max", r_max, " [m]")
         super().__init__(observation_space, ROBOT_FEATURE_DIM + lstm_hidden_size)
         self.num_sectors = num_sectors
         self.r_max = float(r_max)
@@ -239,7 +239,7 @@ class _SortedLstmExtractor(CrowdFeaturesExtractor):
         self, observation_space: spaces.Dict, input_dim: int, embedding_arch: Sequence[int], lstm_hidden_size: int
     ) -> None:
         embedding = check_arch("embedding_arch", embedding_arch, allow_empty=True)
-        _check_positive_int("lstm_hidden_size", lstm_hidden_size)
+        check_int("lstm_hidden_size", lstm_hidden_size, 1)
         super().__init__(observation_space, ROBOT_FEATURE_DIM + lstm_hidden_size)
         self.embedding = mlp(input_dim, embedding, last_activation=True)
         self.lstm = nn.LSTM(embedding[-1] if embedding else input_dim, lstm_hidden_size, batch_first=True)
@@ -302,9 +302,8 @@ class SfExtractor(_SortedLstmExtractor):
         force_strength: float = 2.1,
         force_range: float = 0.3,
     ) -> None:
-        for name, value in (("force_strength", force_strength), ("force_range", force_range)):
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
-                raise ValueError(f"{name} must be a positive number, got {value!r}")
+        check_positive("force_strength", force_strength)
+        check_positive("force_range", force_range, " [m]")
         super().__init__(observation_space, ROBOT_FEATURE_DIM + HUMAN_FEATURE_DIM + 4, embedding_arch, lstm_hidden_size)
         self.force_strength = float(force_strength)
         self.force_range = float(force_range)
@@ -403,9 +402,8 @@ class LmExtractor(SarlExtractor):
         interaction_arch: Sequence[int] = (100, 50),
         attention_arch: Sequence[int] = (100, 100, 1),
     ) -> None:
-        _check_positive_int("cell_num", cell_num)
-        if isinstance(cell_size, bool) or not isinstance(cell_size, (int, float)) or not cell_size > 0:
-            raise ValueError(f"cell_size must be a positive number [m], got {cell_size!r}")
+        check_int("cell_num", cell_num, 1)
+        check_positive("cell_size", cell_size, " [m]")
         self.extra_dim = 3 * cell_num * cell_num
         self.cell_num = cell_num
         self.cell_size = float(cell_size)
@@ -415,11 +413,6 @@ class LmExtractor(SarlExtractor):
         return local_occupancy_map(
             latest[..., HumanFeat.POS], latest[..., HumanFeat.VEL], present, self.cell_num, self.cell_size
         )
-
-
-def _check_positive_int(name: str, value: int) -> None:
-    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-        raise ValueError(f"{name} must be a positive int, got {value!r}")
 
 
 EXTRACTORS: dict[str, type[CrowdFeaturesExtractor]] = {

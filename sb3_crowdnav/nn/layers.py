@@ -8,14 +8,16 @@ from collections.abc import Sequence
 import torch as th
 from torch import nn
 
+from sb3_crowdnav.sim.validation import check_int
+
 
 def check_arch(name: str, arch: Sequence[int], *, allow_empty: bool = False, last: int | None = None) -> list[int]:
     """Validate a list of layer sizes and return it as a list of ints."""
     if isinstance(arch, (str, bytes)) or not isinstance(arch, Sequence):
         raise TypeError(f"{name} must be a sequence of layer sizes, got {arch!r}")
-    sizes = list(arch)
-    if not all(isinstance(s, int) and not isinstance(s, bool) and s > 0 for s in sizes):
-        raise ValueError(f"{name} must contain positive ints, got {arch!r}")
+    for i, size in enumerate(arch):
+        check_int(f"{name}[{i}]", size, 1)
+    sizes = [int(s) for s in arch]
     if not sizes and not allow_empty:
         raise ValueError(f"{name} must have at least one layer, got {arch!r}")
     if last is not None and (not sizes or sizes[-1] != last):

@@ -1,17 +1,18 @@
 """Frozen, validated configuration of a crowd scene and of the reward.
 
-Every field is checked in ``__post_init__``; bad values raise ``ValueError`` or
-``TypeError`` naming the field and what is allowed.
+Every field is checked in ``__post_init__`` with :mod:`sb3_crowdnav.sim.validation`: a wrong type
+raises ``TypeError``, a wrong value ``ValueError``, naming the field and what is allowed.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields
-from numbers import Integral, Real
 from typing import Any, Literal
 
 import numpy as np
+
+from sb3_crowdnav.sim.validation import check_at_most, check_bool, check_choice, check_int, check_number
 
 SCENARIOS = ("circle_crossing", "square_crossing", "warehouse")  # "warehouse": CrowdNavWarehouse-v0 only
 MAX_EPISODE_STEPS = 10_000
@@ -33,37 +34,6 @@ HUMAN_POLICIES = ("orca", "linear")
 REWARDS = ("crowdnav", "comfort", "comfort_angular")
 
 
-def check_number(name: str, value: Any, *, positive: bool = True, allow_zero: bool = False) -> None:
-    """``TypeError`` unless ``value`` is a real number (not a bool); ``ValueError`` unless finite (and > 0, or >= 0)."""
-    if type(value) is not float and (isinstance(value, bool) or not isinstance(value, Real)):
-        raise TypeError(f"{name} must be a real number, got {value!r} ({type(value).__name__})")
-    if not math.isfinite(value):
-        raise ValueError(f"{name} must be finite, got {value!r}")
-    if positive and (value < 0 or (value == 0 and not allow_zero)):
-        allowed = ">= 0" if allow_zero else "> 0"
-        raise ValueError(f"{name} must be {allowed}, got {value!r}")
-
-
-def check_int(name: str, value: Any, minimum: int) -> None:
-    """``TypeError`` unless ``value`` is an integer (not a bool); ``ValueError`` when it is below ``minimum``."""
-    if isinstance(value, bool) or not isinstance(value, Integral):
-        raise TypeError(f"{name} must be an int, got {value!r} ({type(value).__name__})")
-    if value < minimum:
-        raise ValueError(f"{name} must be >= {minimum}, got {value!r}")
-
-
-def check_at_most(name: str, value: Any, limit: float, unit: str = "") -> None:
-    """``ValueError`` when ``value`` exceeds its sensible upper ``limit`` (the bounds table of the docs)."""
-    if value > limit:
-        raise ValueError(f"{name} must be <= {limit}{unit}, got {value!r}")
-
-
-def check_choice(name: str, value: Any, choices: tuple[str, ...]) -> None:
-    """``ValueError`` naming the allowed ``choices`` when ``value`` is not one of them."""
-    if value not in choices:
-        raise ValueError(f"{name} must be one of {choices}, got {value!r}")
-
-
 def _to_python_scalars(config: Any) -> None:
     """Replace NumPy scalars (accepted like Python's) by Python ones in a frozen dataclass: plain reprs and JSON."""
     for f in fields(config):
@@ -72,14 +42,6 @@ def _to_python_scalars(config: Any) -> None:
             object.__setattr__(config, f.name, value.item())
         elif isinstance(value, (tuple, list)) and any(isinstance(v, np.generic) for v in value):
             object.__setattr__(config, f.name, type(value)(v.item() if isinstance(v, np.generic) else v for v in value))
-
-
-def check_unknown_keys(cls: type, kwargs: dict[str, Any]) -> None:
-    """Raise ``TypeError`` for keys that are not fields of dataclass ``cls``."""
-    known = {f.name for f in fields(cls)}
-    unknown = sorted(set(kwargs) - known)
-    if unknown:
-        raise TypeError(f"unknown keyword argument(s) {unknown} for {cls.__name__}; allowed: {sorted(known)}")
 
 
 @dataclass(frozen=True)
@@ -147,12 +109,11 @@ class SceneConfig:
             check_number(name, getattr(self, name))
         check_number("start_noise", self.start_noise, allow_zero=True)
         check_number("rotation_range", self.rotation_range)
-        if self.rotation_range > 2 * math.pi + 1e-9:
+        if self.rotation_range > 2 * math.pi + 1e-9:  # (the tolerance admits 2π computed in another order)
             raise ValueError(f"rotation_range must be in (0, 2π], got {self.rotation_range!r}")
         if self.time_step > self.time_limit:
             raise ValueError(f"time_step ({self.time_step}) must not exceed time_limit ({self.time_limit})")
-        if not isinstance(self.robot_visible, (bool, np.bool_)):
-            raise TypeError(f"robot_visible must be a bool, got {self.robot_visible!r}")
+        check_bool("robot_visible", self.robot_visible)
         _to_python_scalars(self)
         check_choice("scenario", self.scenario, SCENARIOS)
         check_choice("kinematics", self.kinematics, KINEMATICS)
@@ -237,8 +198,7 @@ class RewardConfig:
         check_choice("reward", self.name, REWARDS)
         check_number("success_reward", self.success_reward, positive=False)
         check_number("collision_penalty", self.collision_penalty, positive=False)
-        if self.collision_penalty > 0:
-            raise ValueError(f"collision_penalty must be <= 0, got {self.collision_penalty!r}")
+        check_at_most("collision_penalty", self.collision_penalty, 0)  # a penalty, never a reward
         for name in ("discomfort_dist", "discomfort_factor", "social_penalty", "angular_penalty"):
             check_number(name, getattr(self, name), allow_zero=True)
         for name in ("comfort_person", "comfort_side", "angular_penalty_threshold"):

@@ -10,6 +10,7 @@ import pyrvo
 from sb3_crowdnav.sim.actions import action_table, nearest_action
 from sb3_crowdnav.sim.config import SceneConfig
 from sb3_crowdnav.sim.observation import Human, ObservationSchema, Robot
+from sb3_crowdnav.sim.validation import check_choice, check_number
 
 BLIND_HORIZON = 1e-3  # [s] the obstacle horizon of the pedestrians in a decision's simulator (see OrcaPolicy._act)
 # RVO2 builds its agent tree of this many agents or fewer as one leaf, in the order they were added (pyrvo's
@@ -156,10 +157,8 @@ class OrcaPolicy:
 
     def __init__(self, scene: SceneConfig | None = None, safety_space: float = 0.0, mapping: str = "nearest") -> None:
         self.scene = scene if scene is not None else SceneConfig()
-        if not safety_space >= 0:
-            raise ValueError(f"safety_space must be >= 0, got {safety_space!r}")
-        if mapping not in self.MAPPINGS:
-            raise ValueError(f"mapping must be one of {self.MAPPINGS}, got {mapping!r}")
+        check_number("safety_space", safety_space, allow_zero=True)
+        check_choice("mapping", mapping, self.MAPPINGS)
         self.mapping = mapping
         self.safety_space = float(safety_space)
         self.speeds, self.directions = action_table(self.scene.robot_v_pref, self.scene.rotation_range)

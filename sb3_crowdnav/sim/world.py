@@ -23,7 +23,8 @@ from typing import Any
 import numpy as np
 
 from sb3_crowdnav.sim.actions import N_DIRECTIONS, N_SPEEDS, action_table
-from sb3_crowdnav.sim.config import KINEMATICS, RewardConfig, check_choice, check_int, check_number
+from sb3_crowdnav.sim.config import KINEMATICS, RewardConfig
+from sb3_crowdnav.sim.validation import check_choice, check_int, check_number
 
 # the meaning of an action and of one step: what every policy acting in the env must share
 MOTION_FIELDS = ("time_step", "kinematics", "rotation_range", "max_acceleration", "max_turn_rate", "n_speeds",

@@ -12,6 +12,7 @@ from typing import Any
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_crowdnav.evaluation import run_episodes, summarize
+from sb3_crowdnav.sim.validation import check_choice
 from sb3_crowdnav.training.run_folder import (
     atomic_write,
     buffer_path,
@@ -52,8 +53,7 @@ class EpisodeCheckpoint(BaseCallback):
                  select_by: str = "success", env_kwargs: dict[str, Any] | None = None,
                  env_id: str = "CrowdNav-v0") -> None:
         super().__init__()
-        if select_by not in SELECT_BY:
-            raise ValueError(f"select_by must be one of {SELECT_BY}, got {select_by!r}")
+        check_choice("select_by", select_by, SELECT_BY)
         self.out, self.max_episodes, self.every, self.eval_episodes = Path(out), max_episodes, every, eval_episodes
         self.select_by, self.env_kwargs, self.env_id = select_by, dict(env_kwargs or {}), env_id
         self._last = -1

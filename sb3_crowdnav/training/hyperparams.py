@@ -32,6 +32,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from sb3_crowdnav.sim.validation import check_int
+
 DEFAULT_POLICIES = {"apg_value": "ApgPolicy", "dqn": "MultiInputPolicy", "dqfd": "MultiInputPolicy", "ppo": "MultiInputPolicy",
                     "a2c": "MultiInputPolicy"}
 ZOO_ONLY_KEYS = ("env_wrapper", "callback", "vec_env_wrapper", "frame_stack")
@@ -206,8 +208,7 @@ def prepare(algo: str, hyperparams: Mapping[str, Any]) -> dict[str, Any]:
         policy_kwargs["features_extractor_class"] = names[fe]
     env_kwargs = _mapping("env_kwargs", hp.pop("env_kwargs", None), {"dict": dict})
     n_envs = hp.pop("n_envs", 1)
-    if isinstance(n_envs, bool) or not isinstance(n_envs, int) or n_envs < 1:
-        raise ValueError(f"n_envs must be a positive int, got {n_envs!r}")
+    check_int("n_envs", n_envs, 1)
     n_timesteps = hp.pop("n_timesteps", None)
     policy = hp.pop("policy", DEFAULT_POLICIES.get(algo, "MultiInputPolicy"))
     for key in SCHEDULE_KEYS:
@@ -271,8 +272,7 @@ def train_from_hyperparams(algo: str, hyperparams: Mapping[str, Any], out_dir: s
         kwargs["policy_kwargs"] = cfg["policy_kwargs"]
     for name, value, minimum in (("imitation_episodes", imitation_episodes, 0), ("imitation_epochs", imitation_epochs, 1),
                                  ("checkpoint_freq", checkpoint_freq, 0)):
-        if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-            raise ValueError(f"{name} must be an int >= {minimum}, got {value!r}")
+        check_int(name, value, minimum)
     if imitation_episodes and algo not in ("ppo", "a2c", "dqn", "dqfd"):
         raise ValueError(f"imitation_episodes is for ppo, a2c, dqn and dqfd; {algo} sets imitation in its hyperparameters")
     if algo == "dqfd" and not imitation_episodes:

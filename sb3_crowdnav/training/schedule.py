@@ -55,7 +55,14 @@ from sb3_crowdnav.apg_value.checks import VALUE_TARGETS
 from sb3_crowdnav.apg_value.overlap import OVERLAP_KINDS
 from sb3_crowdnav.apg_value.policies import ValueLookaheadPolicy
 from sb3_crowdnav.apg_value.propagation import PropagationModel
-from sb3_crowdnav.sim.config import check_choice, check_int, check_number
+from sb3_crowdnav.sim.validation import (
+    check_bool,
+    check_choice,
+    check_instance,
+    check_int,
+    check_number,
+    check_probability,
+)
 from sb3_crowdnav.training.callbacks import SELECT_BY, EpisodeCheckpoint
 from sb3_crowdnav.training.run_folder import (
     RunLock,
@@ -192,19 +199,15 @@ class ScheduleConfig:
         for count in self.num_humans if isinstance(self.num_humans, tuple) else (self.num_humans,):
             check_int("num_humans", count, 0)
         check_number("learning_rate", self.learning_rate)
-        for name in ("exploration_initial_eps", "exploration_final_eps"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value <= 1:
-                raise ValueError(f"{name} must be a number in [0, 1], got {value!r}")
+        check_probability("exploration_initial_eps", self.exploration_initial_eps)
+        check_probability("exploration_final_eps", self.exploration_final_eps)
         if self.pedestrian_model is not None:
             check_choice("pedestrian_model", self.pedestrian_model, PEDESTRIAN_MODELS)
         check_number("imitation_learning_rate", self.imitation_learning_rate)
-        if not isinstance(self.bootstrap_timeouts, bool):
-            raise TypeError(f"bootstrap_timeouts must be a bool, got {self.bootstrap_timeouts!r}")
+        check_bool("bootstrap_timeouts", self.bootstrap_timeouts)
         if not (isinstance(self.overlap, bool) or self.overlap in OVERLAP_KINDS):
             raise ValueError(f"overlap must be a bool or one of {OVERLAP_KINDS}, got {self.overlap!r}")
-        if not isinstance(self.env_kwargs, dict):
-            raise TypeError(f"env_kwargs must be a dict, got {type(self.env_kwargs).__name__}")
+        check_instance("env_kwargs", self.env_kwargs, dict, "a dict")
         reward = self.env_kwargs.get("reward", self.spec.reward)
         if reward != self.spec.reward:
             raise ValueError(f"env_kwargs['reward'] = {reward!r}: variant {self.variant!r} trains with "

@@ -6,7 +6,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sb3_crowdnav.sim.config import SceneConfig, check_int, check_number
+from sb3_crowdnav.sim.config import SceneConfig
+from sb3_crowdnav.sim.validation import check_at_most, check_instance, check_int, check_number, check_range
 from sb3_crowdnav.sim.warehouse.layout import LayoutRanges, WarehouseLayout, layout_from_sizes
 
 MAX_PROGRESS_REWARD = 10.0  # [1/m] beyond this the shaping swamps the success reward (1) within centimetres
@@ -51,22 +52,18 @@ class WarehouseConfig:
     progress_reward: float = 0.0
 
     def __post_init__(self) -> None:
-        if self.layout is not None and not isinstance(self.layout, WarehouseLayout):
-            raise TypeError(f"layout must be a WarehouseLayout or None, got {type(self.layout).__name__}")
-        if not isinstance(self.layout_ranges, LayoutRanges):
-            raise TypeError(f"layout_ranges must be a LayoutRanges, got {type(self.layout_ranges).__name__}")
+        check_instance("layout", self.layout, (WarehouseLayout, type(None)), "a WarehouseLayout or None")
+        check_instance("layout_ranges", self.layout_ranges, LayoutRanges, "a LayoutRanges")
         check_int("max_obstacles", self.max_obstacles, 1)
         check_int("num_waypoints", self.num_waypoints, 1)
         for name in ("sensor_range", "waypoint_radius", "replan_distance", "min_route_distance", "time_limit_factor"):
             check_number(name, getattr(self, name))
         check_number("time_limit_slack", self.time_limit_slack, allow_zero=True)
-        check_number("progress_reward", self.progress_reward, allow_zero=True)
-        if self.progress_reward > MAX_PROGRESS_REWARD:
-            raise ValueError(f"progress_reward must be in [0, {MAX_PROGRESS_REWARD}] per metre, got {self.progress_reward!r}")
+        check_range("progress_reward", self.progress_reward, 0, MAX_PROGRESS_REWARD)  # [1/m]
         check_number("obstacle_collision_penalty", self.obstacle_collision_penalty, positive=False)
-        if self.obstacle_collision_penalty > 0:
-            raise ValueError(f"obstacle_collision_penalty must be <= 0, got {self.obstacle_collision_penalty!r}")
-        if not isinstance(self.dwell_time, (tuple, list)) or len(self.dwell_time) != 2:
+        check_at_most("obstacle_collision_penalty", self.obstacle_collision_penalty, 0)  # a penalty, never a reward
+        check_instance("dwell_time", self.dwell_time, (tuple, list), "a (min, max) pair [s]")
+        if len(self.dwell_time) != 2:
             raise ValueError(f"dwell_time must be a (min, max) pair [s], got {self.dwell_time!r}")
         check_number("dwell_time[0]", self.dwell_time[0], allow_zero=True)
         check_number("dwell_time[1]", self.dwell_time[1], allow_zero=True)

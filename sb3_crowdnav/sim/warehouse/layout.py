@@ -31,8 +31,8 @@ import numpy as np
 import shapely
 from shapely.geometry import LineString, Polygon, box
 
-from sb3_crowdnav.sim.config import check_int, check_number
 from sb3_crowdnav.sim.geometry import polygon_segments
+from sb3_crowdnav.sim.validation import check_instance, check_int, check_number
 from sb3_crowdnav.sim.warehouse.boxes import rack_boxes
 from sb3_crowdnav.sim.warehouse.roadmap import Roadmap  # re-exported: the roadmap of a layout
 
@@ -70,7 +70,8 @@ class LayoutRanges:
 
 
 def _pair(name: str, value: Any) -> tuple[Any, Any]:
-    if not isinstance(value, (tuple, list)) or len(value) != 2:
+    check_instance(name, value, (tuple, list), "a (min, max) pair")
+    if len(value) != 2:
         raise ValueError(f"{name} must be a (min, max) pair, got {value!r}")
     return value[0], value[1]
 

@@ -13,7 +13,7 @@ import numpy as np
 import shapely
 from shapely.geometry import Point
 
-from sb3_crowdnav.sim.config import check_number
+from sb3_crowdnav.sim.validation import check_number
 from sb3_crowdnav.sim.warehouse import kernels
 
 if TYPE_CHECKING:
