@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import numpy as np
 import torch as th
 from stable_baselines3 import DQN
+from stable_baselines3.common.policies import BasePolicy
 
 from sb3_crowdnav.imitation.demonstrations import Demonstrations
-from sb3_crowdnav.imitation.pretrain import _DemoTensors, _dqfd_loss
+from sb3_crowdnav.imitation.pretrain import DemoTensors, dqfd_loss
+from sb3_crowdnav.nn.policies import ApgDQNPolicy
 
 
 class DQfD(DQN):
@@ -24,10 +28,15 @@ class DQfD(DQN):
     (hundreds of MB); the file loads with ``DQN.load`` (and ``DQfD.load``, which continues as plain
     DQN until demonstrations are set again).
 
+    Its ``policy`` may also be ``"ApgPolicy"`` (:class:`~sb3_crowdnav.nn.ApgDQNPolicy`), as in the package's
+    hyperparameter files; SB3's own ``DQN`` is left as it is.
+
     :param demo_batch_size: demonstration transitions per extra gradient step
     :param margin: the large margin m
     :param margin_coef: weight of the large-margin loss
     """
+
+    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {**DQN.policy_aliases, "ApgPolicy": ApgDQNPolicy}
 
     def __init__(self, *args, demo_batch_size: int = 64, margin: float = 0.1, margin_coef: float = 1.0, **kwargs) -> None:
         if isinstance(demo_batch_size, bool) or not isinstance(demo_batch_size, (int, np.integer)) or demo_batch_size < 1:
@@ -50,7 +59,7 @@ class DQfD(DQN):
         if demos is not None and demos.next_observations is None:
             raise ValueError("DQfD needs next observations: collect with keep_next_observations=True")
         self.demonstrations = demos
-        self._demo_tensors = None if demos is None else _DemoTensors(demos, self.device)
+        self._demo_tensors = None if demos is None else DemoTensors(demos, self.device)
         self._demo_rng = np.random.default_rng(self.seed)
 
     def train(self, gradient_steps: int, batch_size: int = 100) -> None:
@@ -61,7 +70,7 @@ class DQfD(DQN):
         losses = []
         for _ in range(gradient_steps):
             idx = self._demo_rng.integers(0, len(demos), self.demo_batch_size)
-            loss = _dqfd_loss(self, demos, self._demo_tensors, idx, self.margin, self.margin_coef)
+            loss = dqfd_loss(self, demos, self._demo_tensors, idx, self.margin, self.margin_coef)
             self.policy.optimizer.zero_grad()
             loss.backward()
             th.nn.utils.clip_grad_norm_(self.policy.parameters(), self.max_grad_norm)
