@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
-from typing import Any, Protocol
+from typing import Any, Protocol, runtime_checkable
 
 import torch as th
 from stable_baselines3.common.utils import polyak_update, update_learning_rate
@@ -92,6 +92,7 @@ class ValueLearner:
         return losses
 
 
+@runtime_checkable
 class Learner(Protocol):
     """What ``APGValue`` asks of the place its gradient steps run (serial, thread or process).
 

@@ -41,9 +41,9 @@ from sb3_crowdnav.apg_value.learner import Batch, Learner, SerialLearner, ValueL
 from sb3_crowdnav.apg_value.policies import bfloat16_extractors
 
 OVERLAP_KINDS = ("thread", "process")
-UNGUARDED_MAIN = ("overlap_training='process' could not start its learner process because the learner process "
-                  "imports the main script again and trains there too: put the script's training under "
-                  "if __name__ == \"__main__\": (or use overlap_training='thread')")
+GUARD_HINT = ("a script that trains with overlap_training='process' must put its training under "
+              "if __name__ == \"__main__\": (the learner process imports the main script again), or use "
+              "overlap_training='thread'")
 
 
 def _acting_copy(value_net: th.nn.Module, bfloat16_acting: bool) -> th.nn.Module:
@@ -231,14 +231,18 @@ class ProcessLearner(_OverlapLearner):
         learner_kwargs = dict(gamma=self.learner.gamma, value_target=self.learner.value_target,
                               max_grad_norm=self.learner.max_grad_norm)
         conn, child = context.Pipe()
+        # a copy goes: pickling for spawn moves a tensor's storage into shared memory, which would make this
+        # process's V_target the learner's own, and each target update would then move it twice
         process = context.Process(target=_serve, name="apg-learner", daemon=True,
-                                  args=(child, policy, learner_kwargs, self._shared, th.get_num_threads()))
+                                  args=(child, copy.deepcopy(policy), learner_kwargs, self._shared,
+                                        th.get_num_threads()))
         try:
             process.start()
-        except RuntimeError as exc:  # spawn refuses to start a process while this one imports the main module
+        except RuntimeError:  # spawn refuses to start a process while this one imports the main module
             child.close()
             conn.close()
-            raise RuntimeError(UNGUARDED_MAIN) from exc
+            raise RuntimeError(f"cannot start a learner process while this process imports the main script: "
+                               f"{GUARD_HINT}") from None
         child.close()
         self._process, self._conn, self._ready = process, conn, False
 
@@ -247,8 +251,8 @@ class ProcessLearner(_OverlapLearner):
         self._process.join(timeout=self.poll_seconds)
         code = self._process.exitcode
         if not self._ready:  # it failed while importing the main module: the script re-ran its training there
-            return RuntimeError(f"the learner process failed to start (exit code {code}; its error is printed above): "
-                                f"{UNGUARDED_MAIN}")
+            return RuntimeError(f"the learner process failed before it started (exit code {code}; its own error is "
+                                f"printed above): {GUARD_HINT}")
         return RuntimeError(f"the learner process (overlap_training='process') died (exit code {code})")
 
     def _send(self, command: str, argument: Any) -> None:
