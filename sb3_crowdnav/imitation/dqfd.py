@@ -20,8 +20,8 @@ class DQfD(DQN):
     After each of DQN's gradient steps on its replay buffer, one more step on ``demo_batch_size``
     demonstration transitions: their 1-step TD loss plus ``margin_coef`` x the large-margin loss
     ``max_a [Q(s, a) + margin·1(a ≠ a_E)] - Q(s, a_E)``. Plain DQN started from the same
-    pre-training drifted to wandering (98 % timeouts after 40 k steps, docs: results); the supervised term keeps
-    the greedy policy anchored to the demonstrator while Q-learning improves on it.
+    pre-training drifts into wandering until its episodes time out; the supervised term keeps the greedy policy
+    anchored to the demonstrator while Q-learning improves on it.
 
     Give the demonstrations with :meth:`set_demonstrations` (``sb3-crowdnav train --algo dqfd
     --imitation-episodes N`` does it after :func:`pretrain_dqn`). They are not saved with the model
