@@ -53,7 +53,7 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads (the package's default: 1)")
     args = parser.parse_args()
     configure_cpu(num_threads=args.threads)  # torch threads + keep freed tensor memory (sb3_crowdnav.nn.perf)
-    model = APGValue("ApgPolicy", "CrowdNav-v0", imitation_episodes=0, seed=0, torch_threads=args.threads,
+    model = APGValue("ApgPolicy", "CrowdNav-v0", imitation_episodes=0, seed=0,
                      policy_kwargs=dict(features_extractor_class=EXTRACTORS[args.extractor], lookahead_dtype=args.dtype))
     one = time_decisions(model, observations(1, args.decisions), single=True)
     sixteen = time_decisions(model, observations(16, max(args.decisions // 4, 20)), single=False)

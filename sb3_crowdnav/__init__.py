@@ -1,7 +1,9 @@
 """sb3_crowdnav: crowd navigation with deep RL as a Stable-Baselines3 plugin.
 
 ``import sb3_crowdnav`` registers the Gymnasium envs (``CrowdNav-v0``, ``CrowdNavSquare-v0``,
-``CrowdNavComfort-v0``, ``CrowdNavComfortAngular-v0``, ``CrowdNavWarehouse-v0``).
+``CrowdNavComfort-v0``, ``CrowdNavComfortAngular-v0``, ``CrowdNavWarehouse-v0``) and changes nothing
+else: SB3's algorithms take the APG encoder as a class (``PPO(ApgActorCriticPolicy, env)``,
+``DQN(ApgDQNPolicy, env)``), and torch's thread count is the caller's (``sb3_crowdnav.nn.configure_cpu``).
 """
 
 from __future__ import annotations
@@ -32,23 +34,7 @@ def _register() -> None:
                 gym.register(id=env_id, entry_point=entry_point, kwargs=kwargs)
 
 
-def _register_policy_aliases() -> None:
-    """Let SB3's PPO/A2C and DQN accept ``"ApgPolicy"`` (the APG extractor by default).
-
-    With the alias, an rl-zoo3 file can say ``policy: 'ApgPolicy'`` and tuning, which replaces
-    ``policy_kwargs`` wholesale, cannot silently drop the extractor.
-    """
-    from stable_baselines3 import A2C, DQN, PPO
-
-    from sb3_crowdnav.nn.policies import ApgActorCriticPolicy, ApgDQNPolicy
-
-    for algo, policy in ((PPO, ApgActorCriticPolicy), (A2C, ApgActorCriticPolicy), (DQN, ApgDQNPolicy)):
-        if "ApgPolicy" not in algo.policy_aliases:
-            algo.policy_aliases = {**algo.policy_aliases, "ApgPolicy": policy}
-
-
 _register()
-_register_policy_aliases()
 
 from sb3_crowdnav.apg_value import APGValue, ValueLookaheadPolicy  # noqa: E402
 from sb3_crowdnav.envs.crowd_nav import CrowdNavEnv  # noqa: E402

@@ -436,7 +436,7 @@ def test_overlap_training_in_a_process_is_the_thread_run(monkeypatch):
                          target_update_interval=50, **TINY)
         first = _state(model.learn(120))
         runs[kind] = first, _state(model.learn(40, reset_num_timesteps=False))
-        assert model._overlap is None and model._n_updates == 160 // 4
+        assert model.learner.acting_net() is model.policy.value_net and model._n_updates == 160 // 4
     for other in ("process", "process, targets in the acting process"):
         for a, b in zip(runs["thread"], runs[other], strict=True):
             for x, y in zip(a, b, strict=True):
@@ -450,20 +450,20 @@ def test_overlap_training_acts_with_the_previous_weights(monkeypatch):
     seen = []
     from sb3_crowdnav.apg_value.overlap import ThreadLearner
 
-    original = ThreadLearner.sync
+    original = ThreadLearner._begin
 
-    def sync(self, value_net):
-        original(self, value_net)
-        seen.append((_params(model).clone(), th.cat([p.detach().flatten() for p in self.acting_net.parameters()])))
+    def begin(self, batches, learning_rate):  # the previous call is joined, the next not started yet
+        seen.append((_params(model).clone(), th.cat([p.detach().flatten() for p in self.acting_net().parameters()])))
+        original(self, batches, learning_rate)
 
-    monkeypatch.setattr(ThreadLearner, "sync", sync)
+    monkeypatch.setattr(ThreadLearner, "_begin", begin)
     model.learn(40)
     assert len(seen) >= 5
     for v, acting in seen:
         assert th.equal(v, acting)
     assert not th.equal(seen[1][0], seen[-1][0])  # V did change between hand-overs
     # after learn(): no thread, no copy, predict reads V itself
-    assert model._overlap is None
+    assert model.learner.acting_net() is model.policy.value_net
 
 
 @pytest.mark.parametrize("kind", ["thread", "process"])
@@ -491,15 +491,17 @@ def test_overlap_training_two_envs_checkpoint_and_bfloat16(tmp_path, kind):
 
 
 def test_overlap_training_errors_reach_the_caller(monkeypatch):
+    from sb3_crowdnav.apg_value.learner import ValueLearner
+
     model = APGValue("ApgPolicy", "CrowdNav-v0", seed=0, overlap_training=True, **TINY)
 
     def boom(self, batches):
         raise FloatingPointError("nan loss")
 
-    monkeypatch.setattr(APGValue, "_gradient_steps", boom)
+    monkeypatch.setattr(ValueLearner, "gradient_steps", boom)
     with pytest.raises(FloatingPointError, match="nan loss"):
         model.learn(40)
-    assert model._overlap is None
+    assert model.learner.acting_net() is model.policy.value_net
     with pytest.raises(ValueError, match="overlap_training must be a bool or one of"):
         APGValue("ApgPolicy", "CrowdNav-v0", overlap_training="yes")
 
@@ -512,28 +514,31 @@ def test_overlap_training_process_errors_and_death_reach_the_caller(monkeypatch)
     original = ProcessLearner.submit
     calls = []
 
-    def bad_command(self, batches, learning_rates):
-        original(self, batches, learning_rates)
+    def bad_command(self, batches, learning_rate):
+        losses = original(self, batches, learning_rate)
         calls.append(1)
         if len(calls) == 3:
             self.join()
             self._request("bogus")
+        return losses
 
     monkeypatch.setattr(ProcessLearner, "submit", bad_command)
     model = APGValue("ApgPolicy", "CrowdNav-v0", seed=0, overlap_training="process", **TINY)
     with pytest.raises(ValueError, match="unknown learner command 'bogus'"):
         model.learn(40)
-    assert model._overlap is None
+    assert model.learner.acting_net() is model.policy.value_net
 
-    def killed(self, batches, learning_rates):
-        original(self, batches, learning_rates)
-        self._process.kill()
+    def killed(self, batches, learning_rate):
+        losses = original(self, batches, learning_rate)
+        if self._ready:  # killed once it serves (a learner that never started is told apart)
+            self._process.kill()
+        return losses
 
     monkeypatch.setattr(ProcessLearner, "submit", killed)
     model = APGValue("ApgPolicy", "CrowdNav-v0", seed=0, overlap_training="process", **TINY)
     with pytest.raises(RuntimeError, match=r"learner process .* died \(exit code -9\)"):
         model.learn(40)
-    assert model._overlap is None
+    assert model.learner.acting_net() is model.policy.value_net
 
 
 def test_imitation_reports_progress_and_fps_counts_rl_only(tmp_path, capsys):

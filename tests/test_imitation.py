@@ -10,6 +10,7 @@ from stable_baselines3.common.env_util import make_vec_env
 
 import sb3_crowdnav  # noqa: F401
 from sb3_crowdnav.imitation import Demonstrations, DQfD, collect_demonstrations, pretrain_actor_critic, pretrain_dqn
+from sb3_crowdnav.nn import ApgActorCriticPolicy, ApgDQNPolicy
 
 th.set_num_threads(1)
 ENV_KWARGS = dict(num_humans=3)
@@ -53,7 +54,7 @@ def _agreement(actions_fn, demos):
 
 
 def test_behaviour_cloning_makes_ppo_imitate(demos):
-    model = PPO("ApgPolicy", make_vec_env("CrowdNav-v0", env_kwargs=ENV_KWARGS), seed=0, policy_kwargs=SMALL)
+    model = PPO(ApgActorCriticPolicy, make_vec_env("CrowdNav-v0", env_kwargs=ENV_KWARGS), seed=0, policy_kwargs=SMALL)
 
     def greedy(obs):
         return model.policy.get_distribution(obs).distribution.probs.argmax(dim=1)
@@ -64,13 +65,13 @@ def test_behaviour_cloning_makes_ppo_imitate(demos):
     assert losses[-1] < losses[0]
     assert after > max(0.5, before + 0.3), (before, after)
     with pytest.raises(TypeError, match="actor-critic"):
-        pretrain_actor_critic(DQN("ApgPolicy", make_vec_env("CrowdNav-v0", env_kwargs=ENV_KWARGS)), demos)
+        pretrain_actor_critic(DQN(ApgDQNPolicy, make_vec_env("CrowdNav-v0", env_kwargs=ENV_KWARGS)), demos)
     with pytest.raises(ValueError, match="epochs"):
         pretrain_actor_critic(model, demos, epochs=0)
 
 
 def test_dqn_pretraining_fills_buffer_and_ranks_demonstrated_actions_first(demos):
-    model = DQN("ApgPolicy", make_vec_env("CrowdNav-v0", env_kwargs=ENV_KWARGS), seed=0, policy_kwargs=SMALL,
+    model = DQN(ApgDQNPolicy, make_vec_env("CrowdNav-v0", env_kwargs=ENV_KWARGS), seed=0, policy_kwargs=SMALL,
                 buffer_size=5_000)
 
     def greedy(obs):
@@ -84,18 +85,18 @@ def test_dqn_pretraining_fills_buffer_and_ranks_demonstrated_actions_first(demos
     assert model.replay_buffer.size() == len(demos)
     np.testing.assert_array_equal(model.replay_buffer.actions[: len(demos), 0, 0], demos.actions)
     assert th.equal(next(model.q_net.parameters()), next(model.q_net_target.parameters()))
-    two = DQN("ApgPolicy", make_vec_env("CrowdNav-v0", n_envs=2, env_kwargs=ENV_KWARGS), policy_kwargs=SMALL)
+    two = DQN(ApgDQNPolicy, make_vec_env("CrowdNav-v0", n_envs=2, env_kwargs=ENV_KWARGS), policy_kwargs=SMALL)
     with pytest.raises(ValueError, match="single-env"):
         pretrain_dqn(two, demos)
     with pytest.raises(TypeError, match="DQN"):
-        pretrain_dqn(PPO("ApgPolicy", make_vec_env("CrowdNav-v0", env_kwargs=ENV_KWARGS)), demos)
+        pretrain_dqn(PPO(ApgActorCriticPolicy, make_vec_env("CrowdNav-v0", env_kwargs=ENV_KWARGS)), demos)
 
 
 def test_dqfd_keeps_the_demonstrated_actions_on_top_while_learning(demos, tmp_path):
     """With a learning rate large enough to wreck the ranking, DQfD's demonstration steps keep it; plain DQN loses it."""
     def run(cls, keep):
         env = make_vec_env("CrowdNav-v0", env_kwargs=ENV_KWARGS, seed=1)
-        model = cls("ApgPolicy", env, seed=0, policy_kwargs=SMALL, buffer_size=5_000, learning_starts=0,
+        model = cls(ApgDQNPolicy, env, seed=0, policy_kwargs=SMALL, buffer_size=5_000, learning_starts=0,
                     learning_rate=3e-3, exploration_initial_eps=1.0, exploration_final_eps=1.0, target_update_interval=50)
         pretrain_dqn(model, demos, epochs=15, learning_rate=3e-3, batch_size=64, fill_buffer=False)
         if keep:

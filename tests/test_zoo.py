@@ -1,4 +1,4 @@
-"""rl-zoo3 integration: hyperparameter files, APGValue in rl-zoo3's tables, SB3 policy aliases."""
+"""rl-zoo3 integration: hyperparameter files, APGValue in rl-zoo3's tables, "ApgPolicy" for SB3's algorithms."""
 
 from __future__ import annotations
 
@@ -14,8 +14,8 @@ from stable_baselines3 import DQN, PPO
 import sb3_crowdnav  # noqa: F401
 from sb3_crowdnav.apg_value import APGValue
 from sb3_crowdnav.nn import ApgActorCriticPolicy, ApgDQNPolicy, ApgExtractor
+from sb3_crowdnav.training.zoo import ZOO_ALGOS, register, sample_apg_value_params
 from sb3_crowdnav.training.zoo import main as zoo_main
-from sb3_crowdnav.training.zoo import register, sample_apg_value_params
 
 ROOT = Path(__file__).resolve().parents[1]
 HYPER = ROOT / "zoo_hyperparams"
@@ -42,6 +42,7 @@ def test_register_adds_apg_value_to_rl_zoo3():
 
     register()
     assert utils.ALGOS["apg_value"] is APGValue
+    assert all(utils.ALGOS[name] is cls for name, cls in ZOO_ALGOS.items())
     params = sample_apg_value_params(optuna.trial.FixedTrial({
         "gamma": 0.9, "learning_rate": 1e-3, "batch_size": 100, "target_update_interval": 1000,
         "exploration_final_eps": 0.1, "exploration_episodes": 1000, "imitation_episodes": 0, "imitation_epochs": 5,
@@ -52,13 +53,18 @@ def test_register_adds_apg_value_to_rl_zoo3():
     assert model.gamma == 0.9 and model.imitation_episodes == 0
 
 
-def test_sb3_aliases_keep_the_apg_extractor_when_policy_kwargs_are_replaced():
-    ppo = PPO("ApgPolicy", "CrowdNav-v0", n_steps=16, batch_size=16, policy_kwargs=dict(net_arch=[32]))
+def test_zoo_algorithms_keep_the_apg_extractor_when_policy_kwargs_are_replaced():
+    """The zoo's ppo and dqn resolve "ApgPolicy"; SB3's own classes are not changed and refuse the name."""
+    ppo = ZOO_ALGOS["ppo"]("ApgPolicy", "CrowdNav-v0", n_steps=16, batch_size=16, policy_kwargs=dict(net_arch=[32]))
     assert isinstance(ppo.policy, ApgActorCriticPolicy)
     assert isinstance(ppo.policy.features_extractor, ApgExtractor)
-    dqn = DQN("ApgPolicy", "CrowdNav-v0", buffer_size=100, policy_kwargs=dict(net_arch=[32]))
+    dqn = ZOO_ALGOS["dqn"]("ApgPolicy", "CrowdNav-v0", buffer_size=100, policy_kwargs=dict(net_arch=[32]))
     assert isinstance(dqn.policy, ApgDQNPolicy)
     assert isinstance(dqn.policy.q_net.features_extractor, ApgExtractor)
+    assert isinstance(ZOO_ALGOS["a2c"]("ApgPolicy", "CrowdNav-v0", n_steps=8).policy, ApgActorCriticPolicy)
+    for algo in (PPO, DQN):
+        with pytest.raises(ValueError, match="ApgPolicy"):
+            algo("ApgPolicy", "CrowdNav-v0")
 
 
 def test_zoo_main_usage_error(capsys):
@@ -69,14 +75,15 @@ def test_zoo_main_usage_error(capsys):
 
 
 def test_rl_zoo3_trains_ppo_and_apg_value(tmp_path):
-    """The documented commands: stock rl-zoo3 for PPO, the thin wrapper for APGValue (then enjoy)."""
+    """The documented commands through the package's zoo entry point: PPO from its file ("ApgPolicy"), APGValue
+    (then enjoy); the PPO file loads with SB3's own class."""
     common = ["--env", "CrowdNav-v0", "-f", str(tmp_path), "--eval-freq", "-1", "--seed", "0"]
-    subprocess.run([sys.executable, "-m", "rl_zoo3.train", "--algo", "ppo", "--gym-packages", "sb3_crowdnav",
-                    "-conf", str(HYPER / "ppo.yml"), "-n", "128", *common,
+    zoo = [sys.executable, "-m", "sb3_crowdnav.training.zoo"]
+    subprocess.run([*zoo, "train", "--algo", "ppo", "-conf", str(HYPER / "ppo.yml"), "-n", "128", *common,
                     "-params", "n_envs:1", "n_steps:64", "batch_size:32", "n_epochs:1"],
                    check=True, capture_output=True, timeout=300)
-    assert (tmp_path / "ppo" / "CrowdNav-v0_1" / "CrowdNav-v0.zip").exists()
-    zoo = [sys.executable, "-m", "sb3_crowdnav.training.zoo"]
+    saved_ppo = tmp_path / "ppo" / "CrowdNav-v0_1" / "CrowdNav-v0.zip"
+    assert isinstance(PPO.load(saved_ppo).policy, ApgActorCriticPolicy)
     subprocess.run([*zoo, "train", "--algo", "apg_value", "-conf", str(HYPER / "apg_value.yml"), "-n", "40", *common,
                     "-params", "imitation_episodes:2", "imitation_epochs:1", "buffer_size:1000"],
                    check=True, capture_output=True, timeout=300)

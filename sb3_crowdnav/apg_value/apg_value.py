@@ -13,12 +13,11 @@ from stable_baselines3.common.buffers import DictReplayBuffer
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
-from stable_baselines3.common.utils import polyak_update
 
 from sb3_crowdnav.apg_value import checks
 from sb3_crowdnav.apg_value.buffers import ValueReplayBuffer, follow_timeout_handling, is_npz, load_buffer, save_buffer
-from sb3_crowdnav.apg_value.learner import Batch, ValueLearner
-from sb3_crowdnav.apg_value.overlap import ProcessLearner, ThreadLearner
+from sb3_crowdnav.apg_value.learner import Batch, Learner, ValueLearner
+from sb3_crowdnav.apg_value.overlap import make_learner
 from sb3_crowdnav.apg_value.policies import POLICY_ALIASES, ValueLookaheadPolicy
 from sb3_crowdnav.apg_value.pretraining import pretrain_from_orca
 from sb3_crowdnav.apg_value.rollout_stats import RolloutStats
@@ -46,8 +45,8 @@ class APGValue(OffPolicyAlgorithm):
     :param batch_size: Table 1: 100
     :param tau: target-network update coefficient (1 = hard copy)
     :param gamma: discount per second at v_pref = 1 (Table 1: 0.9); a step is discounted by γ^(Δt·v_pref)
-    :param train_freq: train every ``train_freq`` env steps (per env); 4 keeps the paper's schedule near an hour on
-        2 CPU cores (a batch-100 gradient step of the Table 2 network costs ~15 ms, a decision ~3.5 ms)
+    :param train_freq: train every ``train_freq`` env steps (per env); 4 (the paper's schedule) also keeps the
+        gradient steps' share of a 2-core training run small next to the lookahead decisions
     :param gradient_steps: gradient steps per training call
     :param target_update_interval: copy V into V_target every this many env transitions
     :param exploration_initial_eps: ε at the first RL episode (0.5)
@@ -56,13 +55,13 @@ class APGValue(OffPolicyAlgorithm):
     :param imitation_episodes: ORCA-robot episodes collected before RL (3,000; 0 disables imitation)
     :param imitation_learning_rate: learning rate of the imitation regression (0.01)
     :param imitation_optimizer_class: optimiser of the imitation regression (SGD, as the field's code). RL uses
-        ``policy_kwargs["optimizer_class"]``, Adam unless given: with SGD (momentum 0.9, lr 0.001) V never fitted
-        the TD targets where every action collides, and the greedy policy turned reckless after ~500 RL episodes
+        ``policy_kwargs["optimizer_class"]``, Adam unless given: with SGD, V does not fit the TD targets of the
+        states where every action collides, and the greedy policy turns reckless
     :param imitation_optimizer_kwargs: its keyword arguments (SGD: ``{"momentum": 0.9}``)
     :param imitation_epochs: passes over the imitation data (the loss plateaus after a few; the field's code uses 50)
     :param imitation_safety_space: extra radius the ORCA demonstrator keeps from pedestrians [m]
     :param imitation_mapping: how the demonstrator maps ORCA's velocity to an action (see :class:`OrcaPolicy`);
-        ``"constrained"`` succeeds in ~0.95 of the episodes with an invisible robot, ``"nearest"`` in ~0.3
+        ``"constrained"`` reaches the goal far more often than ``"nearest"`` when the pedestrians do not see the robot
     :param max_grad_norm: gradient clipping
     :param bootstrap_timeouts: bootstrap V_target(s') through time-limit truncations (SB3's
         ``handle_timeout_termination``, the default); False ends a timed-out episode with zero future
@@ -74,12 +73,15 @@ class APGValue(OffPolicyAlgorithm):
         ``"lookahead"``: max over the 80 actions of R(s, a) + γ^(Δt·v_pref)·V(s'_a), computed when the action was
         chosen (a value-iteration backup through the propagation model, frozen in the buffer as the field's
         reference code freezes its targets); transitions without one (the demonstrations) use the TD target.
-    :param torch_threads: ``torch.set_num_threads`` at construction (1 is fastest on small CPUs); None leaves it
     :param overlap_training: run each training call's gradient steps on the second core while the envs collect the
         next ``train_freq`` steps, acting with a copy of V one training call stale (:mod:`.overlap`): ``"thread"``
         (a learner thread), ``"process"`` (a learner process, weights handed over through shared memory), ``True``
-        (= ``"thread"``) or ``False``. Deterministic, the same run with either learner, but not the same run as
-        with ``False``. 1.2-1.6x faster training on 2 cores.
+        (= ``"thread"``) or ``False`` (the steps run in ``learn()`` itself). Deterministic, the same run with either
+        learner, but not the same run as with ``False``; faster on two or more cores.
+
+    The algorithm never changes process-wide settings: set torch's thread count where the process starts
+    (``sb3_crowdnav.nn.configure_cpu(1)``: one thread is fastest for these small networks on shared CPUs), as
+    the ``sb3-crowdnav`` command line and :func:`~sb3_crowdnav.training.train_schedule` do.
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = dict(POLICY_ALIASES)
@@ -119,12 +121,9 @@ class APGValue(OffPolicyAlgorithm):
         verbose: int = 0,
         seed: int | None = None,
         device: th.device | str = "auto",
-        torch_threads: int | None = 1,
         overlap_training: bool | str = False,
         _init_setup_model: bool = True,
     ) -> None:
-        if torch_threads is not None:
-            th.set_num_threads(int(torch_threads))
         checks.check_policy_name(policy, self.policy_aliases)
         checks.check_args(exploration_initial_eps=exploration_initial_eps, exploration_final_eps=exploration_final_eps,
                    gamma=gamma, tau=tau, exploration_episodes=exploration_episodes,
@@ -136,7 +135,7 @@ class APGValue(OffPolicyAlgorithm):
         replay_buffer_kwargs.setdefault("handle_timeout_termination", bootstrap_timeouts)
         policy_kwargs = dict(policy_kwargs or {})
         if "optimizer_class" not in policy_kwargs:  # RL with Adam (see imitation_optimizer_class); its multi-tensor
-            # step (foreach) gives the same numbers as the per-parameter loop, a quarter faster on CPU
+            # step (foreach) gives the same numbers as the per-parameter loop in fewer kernel calls
             policy_kwargs.update(optimizer_class=th.optim.Adam,
                                  optimizer_kwargs={"foreach": True, **policy_kwargs.get("optimizer_kwargs", {})})
         imitation_optimizer_kwargs = checks.check_imitation_args(
@@ -174,7 +173,8 @@ class APGValue(OffPolicyAlgorithm):
             raise ValueError(f"policy_kwargs['gamma'] = {given_gamma!r} differs from the algorithm's gamma = {self.gamma!r}")
         super()._setup_model()  # seeds the ε draws too (set_random_seed)
         self._rollout_stats = RolloutStats(self._stats_window_size)
-        self._overlap: ThreadLearner | ProcessLearner | None = None  # inside learn() with overlap_training; never saved
+        # where the gradient steps run (overlap_training); rebuilt by each learn(), never saved
+        self.learner: Learner = make_learner(self.overlap_kind, self._value_learner)
 
     def set_random_seed(self, seed: int | None = None) -> None:
         super().set_random_seed(seed)
@@ -192,22 +192,19 @@ class APGValue(OffPolicyAlgorithm):
 
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = False):
         """Greedy lookahead; with ``deterministic=False`` each env explores with probability ε (its own draw)."""
-        acting_net = None if self._overlap is None else self._overlap.acting_net
-        if acting_net is not None:  # overlap_training inside learn(): V itself may be mid-update
-            if deterministic:
-                actions = self.policy.action_values(observation, net=acting_net).argmax(axis=1)
-                return (actions if np.asarray(observation["robot"]).ndim == 2 else actions[0]), state
-        elif deterministic:
-            return self.policy.predict(observation, state, episode_start, deterministic=True)
-        self._update_exploration()  # ε of the episodes finished so far, whatever the env count
+        if not isinstance(observation, dict):  # the policy's refusal names the mistake (an (obs, info) tuple)
+            return self.policy.predict(observation, state, episode_start, deterministic)
+        net = self.learner.acting_net()  # inside learn() with overlap_training, V itself may be mid-update
         robot = np.asarray(observation["robot"])
+        if deterministic:
+            actions = self.policy.action_values(observation, net=net).argmax(axis=1)
+            return (actions if robot.ndim == 2 else actions[0]), state
+        self._update_exploration()  # ε of the episodes finished so far, whatever the env count
         n = robot.shape[0] if robot.ndim == 2 else 1
         explore = self._explore_rng.random(n) < self.exploration_rate
         random_actions = self._explore_rng.integers(0, self.action_space.n, n)
         if self.value_target == "lookahead" or not explore.all():
-            if acting_net is None:
-                self.policy.set_training_mode(False)
-            q = self.policy.action_values(observation, net=acting_net)  # (n, 80)
+            q = self.policy.action_values(observation, net=net)  # (n, 80)
             greedy_actions, best = q.argmax(axis=1), q.max(axis=1)
         else:  # every env explores: skip the lookahead
             greedy_actions, best = np.full(n, -1), np.full(n, np.nan)
@@ -228,6 +225,23 @@ class APGValue(OffPolicyAlgorithm):
             replay_buffer.stage(*self._staged)
         self._staged = None
         super()._store_transition(replay_buffer, buffer_action, new_obs, reward, dones, infos)
+
+    def store_demonstration(self, obs, actions, new_obs, rewards, dones, infos) -> None:
+        """Add one VecEnv step of a demonstrator to the replay buffer, as ``learn()`` adds its own steps (the
+        ``on_step`` of :func:`~sb3_crowdnav.imitation.collect_demonstrations`; VecEnv arrays of all envs)."""
+        self._last_obs = obs
+        self._store_transition(self.replay_buffer, np.asarray(actions).reshape(self.n_envs, -1), new_obs, rewards,
+                               dones, infos)
+
+    def imitation_generator(self) -> th.Generator:
+        """A torch generator for the imitation regression's minibatch order, seeded by a draw of the algorithm's
+        seeded random state (the same seed, the same order)."""
+        return th.Generator().manual_seed(int(self._explore_rng.integers(2**31)))
+
+    @property
+    def episodes_done(self) -> int:
+        """RL episodes finished so far (over all envs; a resumed model counts on from its file)."""
+        return self._episode_num
 
     def save_replay_buffer(self, path) -> None:
         """The replay buffer as an ``.npz`` of plain arrays (:func:`~.buffers.save_buffer`), not SB3's pickle."""
@@ -251,47 +265,33 @@ class APGValue(OffPolicyAlgorithm):
         self._n_calls += 1
         if self._n_calls % max(self.target_update_interval // self.n_envs, 1) == 0:
             self._join_learner()  # V must not be mid-update while it is copied
-            polyak_update(self.policy.value_net.parameters(), self.policy.value_net_target.parameters(), self.tau)
-            if self._overlap is not None:
-                self._overlap.update_target(self.tau)
+            self.learner.update_target(self.tau)
         self._update_exploration()
         self.logger.record("rollout/exploration_rate", self.exploration_rate)
 
     def train(self, gradient_steps: int, batch_size: int = 100) -> None:
-        if self._overlap is None:
-            self.policy.set_training_mode(True)
-            self._update_learning_rate(self.policy.optimizer)
-            self._record_losses(self._gradient_steps(self._sample_batches(gradient_steps, batch_size)))
-            return
-        # overlap_training: sample the next batches here (the replay buffer and its random state belong to the acting
-        # loop), act with the result of the previous steps, hand the batches to the learner (thread or process).
-        # Their targets (V_target only, fixed until the next join; the learner process keeps its V_target in step
-        # with this one) are computed by whichever side waited at the last hand-over: early in training most
-        # actions are ε-random and acting is cheap, late it runs a lookahead at nearly every step. The numbers are
-        # the same on either side, so this timing-based choice does not change the run.
+        # the replay buffer and its random state belong to the acting loop: the batches are sampled here, and the
+        # learner applies the learning rate once the optimiser is no longer stepping the previous call
         batches = self._sample_batches(gradient_steps, batch_size)
-        if self._overlap.busy:  # the learner was slower: this process computes the targets
-            batches = [Batch(b.data, *self._value_learner().batch_target(b.data)) for b in batches]
-        self._join_learner()
-        self._overlap.sync(self.policy.value_net)
-        self._update_learning_rate(self.policy.optimizer)
-        self._overlap.submit(batches, [group["lr"] for group in self.policy.optimizer.param_groups])
+        learning_rate = self.lr_schedule(self._current_progress_remaining)
+        self.logger.record("train/learning_rate", learning_rate)
+        self._record_losses(self.learner.submit(batches, learning_rate))
 
     def _sample_batches(self, gradient_steps: int, batch_size: int) -> list[Batch]:
         """Sample the replay batches of one training call (targets not computed yet)."""
         return [Batch(self.replay_buffer.sample(batch_size, env=self._vec_normalize_env))  # type: ignore[union-attr]
                 for _ in range(gradient_steps)]
 
-    def _record_losses(self, losses: list[float]) -> None:
+    def _record_losses(self, losses: list[float] | None) -> None:
+        if losses is None:  # no training call finished at this hand-over
+            return
         self._n_updates += len(losses)
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
         self.logger.record("train/loss", float(np.mean(losses)))
 
     def _join_learner(self) -> None:
-        """Wait for the gradient steps in flight (overlap_training) and log them; re-raises their exception."""
-        losses = None if self._overlap is None else self._overlap.join()
-        if losses is not None:
-            self._record_losses(losses)
+        """Wait for the training call in flight (overlap_training) and log it; re-raises its exception."""
+        self._record_losses(self.learner.join())
 
     @property
     def overlap_kind(self) -> str | None:
@@ -303,10 +303,6 @@ class APGValue(OffPolicyAlgorithm):
     def _value_learner(self) -> ValueLearner:
         return ValueLearner(self.policy, self.gamma, self.value_target, self.max_grad_norm)
 
-    def _gradient_steps(self, batches: list[Batch]) -> list[float]:
-        """One gradient step on V per sampled batch; returns the losses (the learner thread's work when overlapping)."""
-        return self._value_learner().gradient_steps(batches)
-
     def _setup_learn(self, total_timesteps: int, callback: MaybeCallback = None, reset_num_timesteps: bool = True,
                      tb_log_name: str = "run", progress_bar: bool = False):
         result = super()._setup_learn(total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar)
@@ -317,26 +313,14 @@ class APGValue(OffPolicyAlgorithm):
             self.start_time = time.time_ns()  # SB3's fps and time_elapsed count RL only
             self._last_obs = self.env.reset()  # type: ignore[union-attr]
             self._last_episode_starts = np.ones((self.env.num_envs,), dtype=bool)  # type: ignore[union-attr]
-        if self._overlap is not None:  # overlap_training: act with V as imitation left it
-            self._overlap.sync(self.policy.value_net)
+        self.learner = make_learner(self.overlap_kind, self._value_learner)  # overlap_training may have changed
+        self.learner.start()  # an overlapping learner acts with V as imitation left it
         self._update_exploration()
         return result
 
     def learn(self: SelfAPGValue, total_timesteps: int, callback: MaybeCallback = None, log_interval: int = 4,
               tb_log_name: str = "APGValue", reset_num_timesteps: bool = True, progress_bar: bool = False) -> SelfAPGValue:
         """Imitation pre-training (once, if not done yet), then ``total_timesteps`` RL env steps."""
-        if not self.overlap_training:
-            return super().learn(total_timesteps=total_timesteps, callback=callback, log_interval=log_interval,
-                                 tb_log_name=tb_log_name, reset_num_timesteps=reset_num_timesteps,
-                                 progress_bar=progress_bar)
-        self.policy.set_training_mode(True)  # V only trains from here on; the acting copy only acts
-        bfloat16_acting = self.policy.lookahead_dtype == "bfloat16"
-        if self.overlap_kind == "process":
-            self._overlap = ProcessLearner(self.policy, dict(gamma=self.gamma, value_target=self.value_target,
-                                                             max_grad_norm=self.max_grad_norm), bfloat16_acting,
-                                           num_threads=th.get_num_threads())
-        else:
-            self._overlap = ThreadLearner(self.policy.value_net, self._gradient_steps, bfloat16_acting)
         try:
             return super().learn(total_timesteps=total_timesteps, callback=callback, log_interval=log_interval,
                                  tb_log_name=tb_log_name, reset_num_timesteps=reset_num_timesteps,
@@ -344,11 +328,9 @@ class APGValue(OffPolicyAlgorithm):
         finally:
             try:
                 self._join_learner()
-                self._overlap.pull_optimizer(self.policy.optimizer)
+                self.learner.pull_optimizer()
             finally:
-                self._overlap.shutdown()
-                self._overlap = None
-                self.policy.set_lookahead_dtype(self.policy.lookahead_dtype)  # give V back its acting precision
+                self.learner.stop()
 
     # ------------------------------------------------------------------ logging
     def _update_info_buffer(self, infos: list[dict[str, Any]], dones: np.ndarray | None = None) -> None:
@@ -364,8 +346,7 @@ class APGValue(OffPolicyAlgorithm):
         inside ``learn()`` with ``overlap_training`` it first waits for the gradient steps in flight (the V of a
         completed step is saved)."""
         self._join_learner()
-        if self._overlap is not None:  # the learner process's optimiser state is saved with V
-            self._overlap.pull_optimizer(self.policy.optimizer)
+        self.learner.pull_optimizer()  # the learner process's optimiser state is saved with V
         if self.policy is not None and self.policy_kwargs.get("lookahead_dtype", "float32") != self.policy.lookahead_dtype:
             self.policy_kwargs["lookahead_dtype"] = self.policy.lookahead_dtype
         if self.policy is not None and \
@@ -386,7 +367,7 @@ class APGValue(OffPolicyAlgorithm):
         return super().load(path, env, device, custom_objects, print_system_info, force_reset, **kwargs)
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "_explore_rng", "_rollout_stats", "_staged", "_overlap"]
+        return [*super()._excluded_save_params(), "_explore_rng", "_rollout_stats", "_staged", "learner"]
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         return ["policy", "policy.optimizer"], []

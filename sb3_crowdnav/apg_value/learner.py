@@ -1,15 +1,20 @@
-"""The arithmetic of APGValue's gradient steps on V: regression targets and one step per replay batch.
+"""Where APGValue's gradient steps run: the :class:`Learner` protocol, its serial form, and their arithmetic.
 
-One object, :class:`ValueLearner`, holds it so that the same code runs wherever the steps run: in ``learn()``
-itself, in the learner thread, or in the learner process of ``overlap_training`` (:mod:`.overlap`).
+:class:`ValueLearner` holds the arithmetic (regression targets and one step per replay batch), so that the same
+code runs wherever the steps run. A :class:`Learner` decides where and when: :class:`SerialLearner` runs each
+training call at once in the calling thread; the learners of ``overlap_training`` (:mod:`.overlap`) run it
+beside the acting loop. ``APGValue`` holds one learner and calls it the same way whichever it is, as SB3's
+algorithms call any ``VecEnv``.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+from collections.abc import Callable
+from typing import Any, Protocol, runtime_checkable
 
 import torch as th
+from stable_baselines3.common.utils import polyak_update, update_learning_rate
 
 from sb3_crowdnav.apg_value.policies import ValueLookaheadPolicy
 from sb3_crowdnav.sim.observation import Robot
@@ -85,3 +90,74 @@ class ValueLearner:
             policy.optimizer.step()
             losses.append(loss.item())
         return losses
+
+
+@runtime_checkable
+class Learner(Protocol):
+    """What ``APGValue`` asks of the place its gradient steps run (serial, thread or process).
+
+    A ``learn()`` call brackets its use with :meth:`start` and :meth:`stop`; :meth:`submit` is one training
+    call. Every hand-over (:meth:`submit`, :meth:`join`) happens at a fixed point of the schedule, so a run
+    does not depend on how long the steps take.
+    """
+
+    def acting_net(self) -> th.nn.Module:
+        """The network to act with now: V itself, or a copy of V one training call stale while V trains."""
+
+    def start(self) -> None:
+        """``learn()`` begins acting and training (after the imitation pre-training)."""
+
+    def submit(self, batches: list[Batch], learning_rate: float) -> list[float] | None:
+        """Run a training call on ``batches`` at ``learning_rate``, once the call before it has finished; the
+        losses of the calls finished by now (this call's, or the previous one's; None when none had run)."""
+
+    def join(self) -> list[float] | None:
+        """Wait for the training call in flight; its losses (None when none was in flight); re-raises its
+        exception."""
+
+    def update_target(self, tau: float) -> None:
+        """Move V_target towards V (after :meth:`join`), wherever a copy of V_target is kept."""
+
+    def pull_optimizer(self) -> None:
+        """Bring the optimiser's state into the policy's ``optimizer`` (after :meth:`join`), for ``save``."""
+
+    def stop(self) -> None:
+        """``learn()`` ends (also on an exception): release threads and processes; V acts again."""
+
+
+class SerialLearner:
+    """The gradient steps of a training call run at once, in the calling thread; V itself acts.
+
+    :param arithmetic: builds the :class:`ValueLearner` of the algorithm's current policy and settings (called
+        at each use: a policy replaced after construction, as ensemble averaging does, is followed)
+    """
+
+    def __init__(self, arithmetic: Callable[[], ValueLearner]) -> None:
+        self.arithmetic = arithmetic
+
+    def acting_net(self) -> th.nn.Module:
+        policy = self.arithmetic().policy
+        policy.set_training_mode(False)
+        return policy.value_net
+
+    def start(self) -> None:
+        """Nothing to set up: the steps run in :meth:`submit`."""
+
+    def submit(self, batches: list[Batch], learning_rate: float) -> list[float] | None:
+        learner = self.arithmetic()
+        learner.policy.set_training_mode(True)
+        update_learning_rate(learner.policy.optimizer, learning_rate)
+        return learner.gradient_steps(batches)
+
+    def join(self) -> list[float] | None:
+        return None  # submit() finished its call
+
+    def update_target(self, tau: float) -> None:
+        policy = self.arithmetic().policy
+        polyak_update(policy.value_net.parameters(), policy.value_net_target.parameters(), tau)
+
+    def pull_optimizer(self) -> None:
+        """The steps ran on the policy's own optimiser: nothing to bring."""
+
+    def stop(self) -> None:
+        """Nothing to release."""

@@ -3,29 +3,26 @@
 The demonstrations come from the package's one collector,
 :func:`sb3_crowdnav.imitation.collect_demonstrations`; every transition also goes into APGValue's
 replay buffer as it is collected (so RL starts replaying them), and the regression itself is
-:func:`sb3_crowdnav.imitation.pretrain_value`.
+:func:`sb3_crowdnav.imitation.pretrain_value`. Only the algorithm's public attributes and methods are used
+(``store_demonstration``, ``imitation_generator``), so this module needs no import of ``APGValue``.
 """
 
 from __future__ import annotations
 
 import time
-from typing import TYPE_CHECKING
+from typing import Any
 
 import numpy as np
-import torch as th
 
 from sb3_crowdnav.imitation import collect_demonstrations, pretrain_value
 from sb3_crowdnav.sim.observation import Robot
-
-if TYPE_CHECKING:
-    from sb3_crowdnav.apg_value.apg_value import APGValue
 
 
 def last_step_first(episode_end: np.ndarray) -> np.ndarray:
     """Indices that put each episode's steps last-first, episodes in order.
 
-    The regression data keeps the order of the first collector, which walked each episode
-    backwards to sum its return: the minibatches, and so a seeded run, stay bit for bit the same.
+    The regression data is ordered so, and seeded runs depend on that order: their minibatches
+    are drawn from it.
     """
     ends = np.flatnonzero(episode_end)
     starts = np.concatenate(([0], ends[:-1] + 1))
@@ -64,8 +61,9 @@ class Progress:
             self.bar.close()
 
 
-def pretrain_from_orca(model: APGValue, progress_bar: bool = False) -> list[float]:
-    """Collect ``model.imitation_episodes`` ORCA episodes into the replay buffer and regress V on their returns.
+def pretrain_from_orca(model: Any, progress_bar: bool = False) -> list[float]:
+    """Collect ``model.imitation_episodes`` ORCA episodes into the replay buffer of ``model`` (an ``APGValue``)
+    and regress V on their returns.
 
     Logs ``imitation/*_rate`` and ``train/imitation_loss`` per epoch; returns the loss of each epoch. Reports its
     progress as it goes: a progress bar with ``progress_bar``, else log lines with ``verbose >= 1``.
@@ -75,12 +73,8 @@ def pretrain_from_orca(model: APGValue, progress_bar: bool = False) -> list[floa
     start = time.time()
     collecting = Progress(model.imitation_episodes, "ORCA-robot episodes", model.verbose, progress_bar)
 
-    def store(obs, actions, new_obs, rewards, dones, infos) -> None:
-        model._last_obs = obs
-        model._store_transition(model.replay_buffer, actions.reshape(env.num_envs, -1), new_obs, rewards, dones, infos)
-
     demos = collect_demonstrations(env, model.imitation_episodes, mapping=model.imitation_mapping,
-                                   safety_space=model.imitation_safety_space, on_step=store,
+                                   safety_space=model.imitation_safety_space, on_step=model.store_demonstration,
                                    keep_next_observations=False, on_episode=collecting.update)
     collecting.close()
     for key, count in demos.outcomes.items():
@@ -95,7 +89,7 @@ def pretrain_from_orca(model: APGValue, progress_bar: bool = False) -> list[floa
     net = model.policy.value_net
     optimizer = model.imitation_optimizer_class(net.parameters(), lr=model.imitation_learning_rate,
                                                 **model.imitation_optimizer_kwargs)
-    generator = th.Generator().manual_seed(int(model._explore_rng.integers(2**31)))
+    generator = model.imitation_generator()
     epochs = model.imitation_epochs
 
     fitting = Progress(epochs, f"fitting V on {len(returns)} states, epochs", model.verbose, progress_bar)

@@ -63,7 +63,9 @@ def env_options() -> argparse.ArgumentParser:
 
 def common_options() -> argparse.ArgumentParser:
     p = Parser(add_help=False)
-    p.add_argument("--threads", type=positive_int, default=1, help="torch threads per process (default: 1)")
+    # the command line owns the process: it sets torch's threads once, at start (the algorithms never do)
+    p.add_argument("--threads", type=positive_int, default=1,
+                   help="torch threads of this process and of each worker or learner process (default: 1)")
     p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                    help="show a progress bar (default: when stderr is a terminal)")
     return p

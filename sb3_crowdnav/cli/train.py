@@ -154,7 +154,7 @@ def _train_variant(args: argparse.Namespace) -> int:
     from sb3_crowdnav.training.run_folder import RunLockedError
 
     try:
-        result = train_schedule(args.out, config, from_imitation=args.from_imitation)
+        result = train_schedule(args.out, config, from_imitation=args.from_imitation, threads=args.threads)
     except RunLockedError as exc:
         raise UsageError(str(exc)) from None
     return 0 if result.stopped_by is None else 128 + result.stopped_by

@@ -84,7 +84,7 @@ def pretrain_dqn(model, demos: Demonstrations, epochs: int = 10, learning_rate: 
     q_net, q_target = model.q_net, model.q_net_target
     q_target.load_state_dict(q_net.state_dict())
     optimizer = th.optim.Adam(q_net.parameters(), lr=learning_rate)
-    tensors = _DemoTensors(demos, model.device)
+    tensors = DemoTensors(demos, model.device)
     rng = np.random.default_rng(model.seed)
     q_net.train(True)
     losses, step = [], 0
@@ -92,7 +92,7 @@ def pretrain_dqn(model, demos: Demonstrations, epochs: int = 10, learning_rate: 
         perm = rng.permutation(len(demos))
         epoch = []
         for begin in range(0, len(demos), batch_size):
-            loss = _dqfd_loss(model, demos, tensors, perm[begin : begin + batch_size], margin, margin_coef)
+            loss = dqfd_loss(model, demos, tensors, perm[begin : begin + batch_size], margin, margin_coef)
             optimizer.zero_grad()
             loss.backward()
             th.nn.utils.clip_grad_norm_(q_net.parameters(), 10.0)
@@ -107,7 +107,7 @@ def pretrain_dqn(model, demos: Demonstrations, epochs: int = 10, learning_rate: 
     return losses
 
 
-class _DemoTensors:
+class DemoTensors:
     """Actions, rewards and continuation flags of the demonstrations as tensors (observations stay numpy)."""
 
     def __init__(self, demos: Demonstrations, device: th.device) -> None:
@@ -116,7 +116,7 @@ class _DemoTensors:
         self.not_done = th.as_tensor(~demos.terminated, dtype=th.float32, device=device)
 
 
-def _dqfd_loss(model, demos: Demonstrations, tensors: _DemoTensors, idx: np.ndarray, margin: float,
+def dqfd_loss(model, demos: Demonstrations, tensors: DemoTensors, idx: np.ndarray, margin: float,
                margin_coef: float) -> th.Tensor:
     """Huber 1-step TD loss (target network) + ``margin_coef`` x large-margin loss on the demonstrations ``idx``."""
     q = model.q_net(_tensors(demos.observations, idx, model.device))  # (b, 80)
@@ -128,8 +128,6 @@ def _dqfd_loss(model, demos: Demonstrations, tensors: _DemoTensors, idx: np.ndar
     margins = th.full_like(q, margin).scatter_(1, actions, 0.0)
     large_margin = ((q + margins).max(dim=1).values - q_demo).mean()
     return F.smooth_l1_loss(q_demo, target) + margin_coef * large_margin
-
-
 
 
 def pretrain_value(net: th.nn.Module, observations: dict[str, np.ndarray], targets: np.ndarray,

@@ -3,6 +3,11 @@
 rl-zoo3 (and any caller) may replace ``policy_kwargs`` wholesale; with these classes the APG
 encoder stays the default even then. The default head mirrors ψ_M's hidden layers (Table 2:
 [150, 100, 100]) instead of SB3's [64, 64]; ``net_arch`` still overrides it.
+
+SB3's own classes are left as they are: pass the class (``PPO(ApgActorCriticPolicy, env)``,
+``DQN(ApgDQNPolicy, env)``). The name ``"ApgPolicy"`` in a hyperparameter file is resolved by the
+package's own readers of those files through :data:`APG_POLICIES` (``sb3-crowdnav train --hyperparams``
+and ``sb3-crowdnav-zoo``).
 """
 
 from __future__ import annotations
@@ -81,3 +86,8 @@ class ApgActorCriticPolicy(MultiInputActorCriticPolicy):
             features_extractor_class=features_extractor_class,
             **kwargs,
         )
+
+
+# what "ApgPolicy" names under each SB3 algorithm (rl-zoo3's algorithm names)
+APG_POLICIES: dict[str, type] = {"ppo": ApgActorCriticPolicy, "a2c": ApgActorCriticPolicy, "dqn": ApgDQNPolicy,
+                                 "dqfd": ApgDQNPolicy}

@@ -64,7 +64,7 @@ class EpisodeCheckpoint(BaseCallback):
     def validate(self) -> None:
         """Validate the checkpoint of the current episode count (once: a row an interrupted attempt left is reused),
         update the best model, and mark the checkpoint validated in ``progress.json``."""
-        model, n = self.model, self.model._episode_num
+        model, n = self.model, self.model.episodes_done
         curve = self.out / "eval_curve.jsonl"
         rows = [json.loads(line) for line in curve.read_text().splitlines()] if curve.exists() else []
         row = next((r for r in rows if r["episodes"] == n), None)
@@ -106,7 +106,7 @@ class EpisodeCheckpoint(BaseCallback):
     def save(self) -> None:
         """Write ``replay_buffer_<N>.npz`` then ``checkpoint_<N>.zip`` (each atomically), then ``progress.json``;
         remove older buffers (see :mod:`sb3_crowdnav.training.run_folder`)."""
-        model, n = self.model, self.model._episode_num
+        model, n = self.model, self.model.episodes_done
         atomic_write(buffer_path(self.out, n), model.save_replay_buffer)
         kill_point("buffer")
         atomic_write(checkpoint_path(self.out, n), model.save)
@@ -128,7 +128,7 @@ class EpisodeCheckpoint(BaseCallback):
         self._previous_handlers = {}
 
     def _on_training_start(self) -> None:
-        self._last = self.model._episode_num  # a resumed run does not checkpoint and validate its first episode count again
+        self._last = self.model.episodes_done  # a resumed run does not checkpoint and validate its first episode count again
         self._previous_handlers = {s: signal.signal(s, self._stop) for s in (signal.SIGTERM, signal.SIGINT)}
         if self.validate_first and self.eval_episodes:
             self.validate_first = False
@@ -140,7 +140,7 @@ class EpisodeCheckpoint(BaseCallback):
     def _on_step(self) -> bool:
         if self.stopped_by is not None:
             return False
-        episodes = self.model._episode_num
+        episodes = self.model.episodes_done
         if episodes != self._last and episodes > 0 and episodes % self.every == 0:
             self._last = episodes
             self.save()

@@ -12,7 +12,8 @@ The YAML has one top-level key per env id, as rl-zoo3 writes it::
       batch_size: 100
 
 ``n_timesteps``, ``policy``, ``policy_kwargs``, ``env_kwargs`` and ``n_envs`` are read here; every
-other key goes to the algorithm's constructor. ``policy_kwargs`` may be a dict or a Python-literal
+other key goes to the algorithm's constructor. ``policy: ApgPolicy`` names the APG encoder's policy under
+every algorithm (:data:`sb3_crowdnav.nn.APG_POLICIES` for SB3's). ``policy_kwargs`` may be a dict or a Python-literal
 string; strings are evaluated by :func:`safe_eval`, which knows only ``dict``, literals, ``nn.<Module>``
 and the feature-extractor names of :data:`sb3_crowdnav.nn.EXTRACTORS` (``apg``, ``cadrl``, ... and
 their class names). ``lin_<x>`` for ``learning_rate``/``clip_range`` is rl-zoo3's linear schedule,
@@ -211,6 +212,10 @@ def prepare(algo: str, hyperparams: Mapping[str, Any]) -> dict[str, Any]:
     check_int("n_envs", n_envs, 1)
     n_timesteps = hp.pop("n_timesteps", None)
     policy = hp.pop("policy", DEFAULT_POLICIES.get(algo, "MultiInputPolicy"))
+    if policy == "ApgPolicy":  # SB3's algorithms do not know the name (APGValue does): give them the class
+        from sb3_crowdnav.nn.policies import APG_POLICIES
+
+        policy = APG_POLICIES.get(algo, policy)
     for key in SCHEDULE_KEYS:
         if key in hp:
             hp[key] = _schedule(hp[key])

@@ -239,7 +239,7 @@ def _resume(out: Path, episodes: int, has_buffer: bool, config: ScheduleConfig, 
         model = APGValue.load(path, env=env, tensorboard_log=str(out / "tb"), overlap_training=config.overlap)
     except (ValueError, OSError, zipfile.BadZipFile) as exc:
         raise RuntimeError(f"cannot resume from {path}: {exc}; remove it to resume from the checkpoint before") from exc
-    log(f"resuming from {path} at episode {model._episode_num}, {model.num_timesteps} steps")
+    log(f"resuming from {path} at episode {model.episodes_done}, {model.num_timesteps} steps")
     own = {"train_freq": model.train_freq.frequency, "learning_rate": model.learning_rate,
            "exploration_episodes": model.exploration_episodes, "exploration_initial_eps": model.exploration_initial_eps,
            "exploration_final_eps": model.exploration_final_eps}
@@ -315,7 +315,7 @@ def _new(config: ScheduleConfig, env: Any, out: Path) -> APGValue:
 
 
 def train_schedule(out: str | Path, config: ScheduleConfig | None = None, from_imitation: str | Path | None = None,
-                   log: Any = None) -> ScheduleResult:
+                   log: Any = None, threads: int | None = 1) -> ScheduleResult:
     """Run (or resume) the paper's schedule of ``config.variant`` in the folder ``out`` (see the module docstring).
 
     :param out: the run folder (created; a run there is resumed)
@@ -323,10 +323,15 @@ def train_schedule(out: str | Path, config: ScheduleConfig | None = None, from_i
     :param from_imitation: start RL from this saved post-imitation model instead of imitating again (its
         ``imitation_replay_buffer.npz`` beside it is loaded when present); ignored when resuming
     :param log: ``log(message)`` for progress lines (default: ``print`` with flush)
+    :param threads: torch's intra-op threads, set for the whole process (``torch.set_num_threads``) and for the
+        learner process; 1 is the fastest for these small networks on shared CPUs. None leaves the caller's.
     """
     config = ScheduleConfig() if config is None else config
     if not isinstance(config, ScheduleConfig):
         raise TypeError(f"config must be a ScheduleConfig, got {type(config).__name__}")
+    if threads is not None:
+        check_int("threads", threads, 1)
+        th.set_num_threads(threads)  # the training floor's choice (the algorithm never changes it)
     log = log if log is not None else (lambda message: print(message, flush=True))
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -360,7 +365,7 @@ def _train(out: Path, config: ScheduleConfig, from_imitation: str | Path | None,
         model.policy.set_pedestrian_model(config.pedestrian_model)
     callback = EpisodeCheckpoint(out, config.rl_episodes, config.checkpoint_episodes, config.eval_episodes,
                                  select_by=config.select_by, env_kwargs=env_kwargs, env_id=config.spec.env_id)
-    n = model._episode_num
+    n = model.episodes_done
     if latest is not None and progress.get("episodes") != n:  # killed after the checkpoint, before progress.json
         progress.update(episodes=n, timesteps=model.num_timesteps, checkpoint=checkpoint_path(out, n).name)
         write_json(out / "progress.json", progress)
@@ -370,16 +375,16 @@ def _train(out: Path, config: ScheduleConfig, from_imitation: str | Path | None,
     start = time.time()
     model.learn(total_timesteps=config.rl_episodes * STEPS_PER_EPISODE_BOUND, callback=callback,
                 reset_num_timesteps=reset, tb_log_name=config.variant, log_interval=50)
-    if model._episode_num not in checkpoints(out):  # the last episodes since the last checkpoint
+    if model.episodes_done not in checkpoints(out):  # the last episodes since the last checkpoint
         callback.save()
     if callback.stopped_by is not None:
-        log(f"stopped by signal {callback.stopped_by} after {model._episode_num} RL episodes, "
+        log(f"stopped by signal {callback.stopped_by} after {model.episodes_done} RL episodes, "
             f"{model.num_timesteps} steps; checkpoint written, run the same command again to resume")
     else:
         atomic_write(out / "final.zip", model.save)
         kill_point("final")
         write_json(out / "progress.json", {**(read_json(out / "progress.json") or {}), "finished": True})
-        log(f"done: {model._episode_num} RL episodes, {model.num_timesteps} steps, {time.time() - start:.0f} s this run")
+        log(f"done: {model.episodes_done} RL episodes, {model.num_timesteps} steps, {time.time() - start:.0f} s this run")
     return ScheduleResult(model, callback.stopped_by, time.time() - start)
 
 

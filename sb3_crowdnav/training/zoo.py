@@ -6,15 +6,25 @@ does exactly that and then hands the command line to rl-zoo3 unchanged, so every
 works (``--storage sqlite:///tune.db --study-name apg -optimize`` spreads tuning over machines
 through a shared database). ``--gym-packages sb3_crowdnav`` is added when missing.
 
+Its ``ppo``, ``a2c`` and ``dqn`` are SB3's algorithms that also know ``policy: 'ApgPolicy'`` (the APG
+encoder's :data:`~sb3_crowdnav.nn.APG_POLICIES`), so the package's hyperparameter files run here; SB3's
+own classes, and plain ``python -m rl_zoo3.train``, are left as they are (there, write ``MultiInputPolicy``
+with ``policy_kwargs: "dict(features_extractor_class=...)"``).
+
     sb3-crowdnav-zoo train --algo apg_value --env CrowdNav-v0 -conf zoo_hyperparams/apg_value.yml
     sb3-crowdnav-zoo enjoy --algo apg_value --env CrowdNav-v0 -f logs/ --no-render
-    python -m rl_zoo3.train --algo ppo --env CrowdNav-v0 --gym-packages sb3_crowdnav -conf zoo_hyperparams/ppo.yml
+    sb3-crowdnav-zoo train --algo ppo --env CrowdNav-v0 -conf zoo_hyperparams/ppo.yml
 """
 
 from __future__ import annotations
 
 import sys
-from typing import Any
+from typing import Any, ClassVar
+
+from stable_baselines3 import A2C, DQN, PPO
+from stable_baselines3.common.policies import BasePolicy
+
+from sb3_crowdnav.nn.policies import APG_POLICIES
 
 COMMANDS = ("train", "enjoy")
 
@@ -35,8 +45,30 @@ def sample_apg_value_params(trial, n_actions: int, n_envs: int, additional_args:
     }
 
 
+class ZooPPO(PPO):
+    """SB3's PPO for which ``"ApgPolicy"`` names :class:`~sb3_crowdnav.nn.ApgActorCriticPolicy`."""
+
+    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {**PPO.policy_aliases, "ApgPolicy": APG_POLICIES["ppo"]}
+
+
+class ZooA2C(A2C):
+    """SB3's A2C for which ``"ApgPolicy"`` names :class:`~sb3_crowdnav.nn.ApgActorCriticPolicy`."""
+
+    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {**A2C.policy_aliases, "ApgPolicy": APG_POLICIES["a2c"]}
+
+
+class ZooDQN(DQN):
+    """SB3's DQN for which ``"ApgPolicy"`` names :class:`~sb3_crowdnav.nn.ApgDQNPolicy`."""
+
+    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {**DQN.policy_aliases, "ApgPolicy": APG_POLICIES["dqn"]}
+
+
+ZOO_ALGOS: dict[str, type] = {"ppo": ZooPPO, "a2c": ZooA2C, "dqn": ZooDQN}
+
+
 def register() -> None:
-    """Add ``apg_value`` to rl-zoo3's algorithm table and tuning samplers (idempotent)."""
+    """Add ``apg_value`` to rl-zoo3's algorithm table and tuning samplers, and let its ``ppo``, ``a2c`` and
+    ``dqn`` resolve ``"ApgPolicy"`` (:data:`ZOO_ALGOS`; saved models load with SB3's own classes); idempotent."""
     try:
         from rl_zoo3 import hyperparams_opt, utils
     except ImportError as exc:  # pragma: no cover - depends on the extra
@@ -44,6 +76,7 @@ def register() -> None:
     from sb3_crowdnav.apg_value import APGValue
 
     utils.ALGOS["apg_value"] = APGValue
+    utils.ALGOS.update(ZOO_ALGOS)
     hyperparams_opt.HYPERPARAMS_SAMPLER["apg_value"] = sample_apg_value_params
     hyperparams_opt.HYPERPARAMS_CONVERTER["apg_value"] = lambda params: params
 
