@@ -276,10 +276,8 @@ def generate_layout(rng: np.random.Generator, ranges: LayoutRanges | None = None
     r = LayoutRanges() if ranges is None else ranges
     rows = int(rng.integers(r.rows[0], r.rows[1] + 1))
     segments = int(rng.integers(r.segments[0], r.segments[1] + 1))
-    # rng.uniform(lows, highs) of the four sizes as Generator.uniform computes it (low + (high - low) * draw, the
-    # same draws in the same order), without converting the bounds to arrays
-    length, depth, aisle, cross = [lo + (hi - lo) * u for (lo, hi), u in zip(
-        (r.rack_length, r.rack_depth, r.aisle_width, r.cross_aisle_width), rng.random(4).tolist(), strict=True)]
+    bounds = np.array([r.rack_length, r.rack_depth, r.aisle_width, r.cross_aisle_width])  # (4, 2) low, high [m]
+    length, depth, aisle, cross = rng.uniform(bounds[:, 0], bounds[:, 1]).tolist()
     return layout_from_sizes(rows, segments, length, depth, aisle, cross)
 
 
