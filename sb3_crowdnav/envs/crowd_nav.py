@@ -10,7 +10,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from sb3_crowdnav.sim.actions import N_ACTIONS, _wrap_scalar
+from sb3_crowdnav.sim.actions import N_ACTIONS, wrap
 from sb3_crowdnav.sim.config import REWARDS, RewardConfig, SceneConfig
 from sb3_crowdnav.sim.observation import HUMAN_DIM, Human, ObservationSchema, Robot
 from sb3_crowdnav.sim.rewards import is_sharp_turn
@@ -226,7 +226,7 @@ class CrowdNavEnv(gym.Env):
         if terms.in_comfort_zone:
             self._comfort_steps += 1
             self._comfort_dist_sum += min_dist
-        turn = _wrap_scalar(robot[Robot.HEADING] - prev[Robot.HEADING])
+        turn = wrap(robot[Robot.HEADING] - prev[Robot.HEADING])
         self._heading_change += abs(turn)
         self._sharp_turns += is_sharp_turn(turn, self.reward_config)
         self._discounted_return += self.gamma ** ((sim.steps - 1) * self.scene.time_step * self.scene.robot_v_pref) * reward

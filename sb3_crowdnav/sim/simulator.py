@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from sb3_crowdnav.sim.actions import N_ACTIONS, _apply_action_scalar, action_table, wrap_angle
+from sb3_crowdnav.sim.actions import N_ACTIONS, action_table, move, wrap_angle
 from sb3_crowdnav.sim.config import RewardConfig, SceneConfig
 from sb3_crowdnav.sim.observation import HUMAN_DIM, ROBOT_DIM, Human, Robot
 from sb3_crowdnav.sim.orca import OrcaCrowd, preferred_velocity
@@ -135,8 +135,8 @@ class CrowdSimulator:
         robot, hist = self.robot, self.history
         r = robot.tolist()
         (px, py), (gx, gy), heading0 = r[Robot.POS], r[Robot.GOAL], r[Robot.HEADING]
-        x, y, heading, vx, vy = _apply_action_scalar(
-            px, py, heading0, gx, gy, self._speed_list[action], self._direction_list[action], cfg.kinematics,
+        x, y, heading, vx, vy = move(
+            px, py, heading0, gx, gy, self._speed_list[action], self._direction_list[action], cfg.kinematics == "holonomic",
             cfg.time_step,
         )
         human_pos0 = hist[-1, :n, Human.POS].copy()
