@@ -322,12 +322,12 @@ def test_a_layouts_segments_are_its_polygons_edges(seed):
 
 
 def test_the_one_segment_clippings_are_segments_miss_boxes():
-    """The roadmap's clippings of one segment (kernels.misses_boxes: joins, sight; kernels.misses_all: the graph's
-    edges) answer as the NumPy clipping, on random segments and on degenerate ones: along the boxes' sides, through
-    their corners, axis-parallel, of zero length."""
+    """The roadmap's clipping of one segment (kernels.misses_boxes: the graph's edges, joins, sight) answers as the
+    NumPy clipping, on random segments and on degenerate ones: along the boxes' sides, through their corners,
+    axis-parallel, of zero length."""
     from warehouse_reference import segments_miss_boxes
 
-    from sb3_crowdnav.sim.warehouse.kernels import misses_all, misses_boxes
+    from sb3_crowdnav.sim.warehouse.kernels import misses_boxes
 
     rng = np.random.default_rng(0)
     for _ in range(40):
@@ -341,4 +341,3 @@ def test_the_one_segment_clippings_are_segments_miss_boxes():
         a, b = np.concatenate([a, rng.uniform(-6, 6, (200, 2))]), np.concatenate([b, rng.uniform(-6, 6, (200, 2))])
         expected = segments_miss_boxes(a, b, boxes).tolist()
         assert [misses_boxes(*p, *q, boxes) for p, q in zip(a.tolist(), b.tolist(), strict=True)] == expected
-        assert [misses_all(*p, *q, boxes) for p, q in zip(a.tolist(), b.tolist(), strict=True)] == expected

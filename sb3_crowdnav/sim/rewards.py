@@ -221,28 +221,13 @@ def _transition(robot_pos0, robot_pos1, heading0, heading1, goal, robot_radius, 
             closest, inside_any)
 
 
-class _Transitions(NamedTuple):
-    """The terms of n transitions, each (n,), in the order of :class:`RewardTerms`."""
-
-    reward: np.ndarray
-    success: np.ndarray
-    collision: np.ndarray
-    success_term: np.ndarray
-    collision_term: np.ndarray
-    discomfort_term: np.ndarray
-    social_term: np.ndarray
-    angular_term: np.ndarray
-    min_distance: np.ndarray
-    in_comfort_zone: np.ndarray
-
-
 @njit(**JIT)
 def _transitions(robot_pos0, robot_pos1, heading0, heading1, goal, robot_radius, human_pos0, human_pos1, human_dir,
                  human_radius, mask, *weights):  # pragma: no cover  (compiled)
-    """:func:`_transition` of n transitions, every array with a leading n."""
+    """:func:`_transition` of n transitions, every array with a leading n; :class:`RewardTerms` of (n,) arrays."""
     n = robot_pos0.shape[0]
-    out = _Transitions(np.empty(n), np.empty(n, np.bool_), np.empty(n, np.bool_), np.empty(n), np.empty(n),
-                       np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n, np.bool_))
+    out = RewardTerms(np.empty(n), np.empty(n, np.bool_), np.empty(n, np.bool_), np.empty(n), np.empty(n),
+                      np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n, np.bool_), np.zeros(n))
     for k in range(n):
         (reward, success, collision, success_term, collision_term, discomfort_term, social_term, angular_term, closest,
          inside) = _transition(robot_pos0[k], robot_pos1[k], heading0[k], heading1[k], goal[k], robot_radius[k],
@@ -298,7 +283,7 @@ def compute_reward(
         None if human_dir is None else _rows(human_dir, lead, humans), _rows(human_radius, lead, per_human),
         _rows(mask, lead, per_human, np.bool_), *weights,
     )
-    return RewardTerms(*(x.reshape(lead) for x in terms), progress_term=np.zeros(lead))
+    return RewardTerms(*(x.reshape(lead) for x in terms))
 
 
 def with_obstacle_collision(terms: RewardTerms, hit: np.ndarray, penalty: float) -> RewardTerms:

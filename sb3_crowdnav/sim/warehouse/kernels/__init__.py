@@ -11,7 +11,7 @@ process loads them in well under a second (where that folder is read-only, numba
 user's, or in ``NUMBA_CACHE_DIR``).
 """
 
-from sb3_crowdnav.sim.warehouse.kernels.base import misses_all, misses_boxes, point_clearance, segment_clearance
+from sb3_crowdnav.sim.warehouse.kernels.base import misses_boxes, point_clearance, segment_clearance
 from sb3_crowdnav.sim.warehouse.kernels.pickers import (
     AfterStep,
     far_from_both,
@@ -51,7 +51,6 @@ __all__ = [
     "far_from_both",
     "free_points",
     "joins",
-    "misses_all",
     "misses_boxes",
     "picker_after_step",
     "picker_preferences",

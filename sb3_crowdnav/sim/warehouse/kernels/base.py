@@ -6,51 +6,14 @@ import math
 
 from numba import njit
 
-from sb3_crowdnav.sim.geometry import JIT
-from sb3_crowdnav.sim.geometry import point_to_segment
-
-
-@njit(**JIT)
-def _nan_min(a, b):  # pragma: no cover  (compiled)
-    """``np.minimum`` of two floats: NaN when either is."""
-    if a != a:
-        return a
-    if b != b:
-        return b
-    return a if a < b else b
-
-
-@njit(**JIT)
-def _nan_max(a, b):  # pragma: no cover  (compiled)
-    """``np.maximum`` of two floats: NaN when either is."""
-    if a != a:
-        return a
-    if b != b:
-        return b
-    return a if a > b else b
-
-
-@njit(**JIT)
-def misses_all(ax, ay, bx, by, boxes):  # pragma: no cover  (compiled)
-    """Whether the segment from (ax, ay) to (bx, by) enters the open interior of none of ``boxes`` (B, 4):
-    Liang-Barsky clipping, with NumPy's ``minimum``/``maximum`` on the inf and NaN that a segment along an axis gives
-    (running along a box's side or through its corner is allowed). The roadmap's edges are tested so."""
-    dx, dy = bx - ax, by - ay
-    for k in range(boxes.shape[0]):
-        t_lo, t_hi = (boxes[k, 0] - ax) / dx, (boxes[k, 2] - ax) / dx
-        enter, leave = _nan_max(0.0, _nan_min(t_lo, t_hi)), _nan_min(1.0, _nan_max(t_lo, t_hi))
-        t_lo, t_hi = (boxes[k, 1] - ay) / dy, (boxes[k, 3] - ay) / dy
-        enter, leave = _nan_max(enter, _nan_min(t_lo, t_hi)), _nan_min(leave, _nan_max(t_lo, t_hi))
-        if enter < leave:
-            return False
-    return True
+from sb3_crowdnav.sim.geometry import JIT, point_to_segment
 
 
 @njit(**JIT)
 def misses_boxes(ax, ay, bx, by, boxes):  # pragma: no cover  (compiled)
-    """``roadmap._misses``: whether the segment from (ax, ay) to (bx, by) enters none of the open ``boxes`` (B, 4)
-    (boxes beside its bounding box skipped, the others by :func:`_meets_box`'s interior test); a route's ends and
-    lines of sight are tested so."""
+    """Whether the segment from (ax, ay) to (bx, by) enters the open interior of none of ``boxes`` (B, 4) (boxes beside
+    its bounding box skipped, the others by :func:`_meets_box`'s interior test): running along a box's side or through
+    its corner is allowed. The roadmap's edges, a route's ends and lines of sight are tested so."""
     sx0, sx1 = (ax, bx) if ax < bx else (bx, ax)
     sy0, sy1 = (ay, by) if ay < by else (by, ay)
     for k in range(boxes.shape[0]):
@@ -123,6 +86,3 @@ def segment_clearance(ax, ay, bx, by, boxes, w, h, cap):  # pragma: no cover  (c
                    point_to_segment(x0, y0, ax, ay, bx, by), point_to_segment(x0, y1, ax, ay, bx, by),
                    point_to_segment(x1, y0, ax, ay, bx, by), point_to_segment(x1, y1, ax, ay, bx, by))
     return max(best, 0.0)
-
-
-__all__ = ["misses_all", "misses_boxes", "point_clearance", "segment_clearance"]

@@ -172,16 +172,3 @@ def picker_after_step(state, room, grown, boxes, w, h, radius, dwell, waypoint, 
         return AfterStep(out, none, none)
     which, what = picker_progress(state, dwell, waypoint, routes, lengths, dt, arrival)
     return AfterStep(out, which, what)
-
-
-__all__ = [
-    "AfterStep",
-    "far_from_both",
-    "picker_after_step",
-    "picker_preferences",
-    "picker_progress",
-    "points_clearance",
-    "pressed",
-    "slot_points",
-    "spread",
-]

@@ -9,7 +9,7 @@ import numpy as np
 from numba import njit
 
 from sb3_crowdnav.sim.geometry import JIT, point_to_segment, segment_to_segment
-from sb3_crowdnav.sim.warehouse.kernels.base import misses_all, misses_boxes, segment_clearance
+from sb3_crowdnav.sim.warehouse.kernels.base import misses_boxes, segment_clearance
 
 
 class BoxRoadmap(NamedTuple):
@@ -152,7 +152,7 @@ def bitangent_edges(corners, sides, first, boxes):  # pragma: no cover  (compile
             bx, by = corners[j, 0], corners[j, 1]
             dx, dy = bx - ax, by - ay
             turn = dx * dy
-            if sides[i] * turn <= 0 and sides[j] * turn <= 0 and misses_all(ax, ay, bx, by, boxes):
+            if sides[i] * turn <= 0 and sides[j] * turn <= 0 and misses_boxes(ax, ay, bx, by, boxes):
                 out_i[count], out_j[count], out_len[count] = i, j, math.hypot(dx, dy)
                 count += 1
     return out_i[:count], out_j[:count], out_len[:count]
@@ -243,20 +243,3 @@ def distances_to(points, gx, gy):  # pragma: no cover  (compiled)
     for p in range(points.shape[0]):
         out[p] = math.hypot(points[p, 0] - gx, points[p, 1] - gy)
     return out
-
-
-__all__ = [
-    "BoxRoadmap",
-    "RouteQuery",
-    "Sensing",
-    "SensingAndRoute",
-    "bitangent_edges",
-    "box_roadmap",
-    "distances_to",
-    "free_points",
-    "joins",
-    "route_query",
-    "sense",
-    "sense_and_follow",
-    "separated",
-]
