@@ -1,8 +1,8 @@
 """Fast geometry of layouts whose racks are axis-aligned rectangles ("boxes"), as every generated layout's are.
 
-`shapely` answers every geometric question about a layout, but building the free space of a clearance (the hall
-minus the racks, buffered) costs a tenth of a millisecond and each predicate call microseconds, and an env that
-draws a layout per episode asks many. For boxes in a rectangular hall the same questions are a few comparisons:
+`shapely` answers every geometric question about a layout, but it builds the free space of a clearance (the hall
+minus the racks, buffered) as a general polygon and answers each question through a general predicate, and an env
+that draws a layout per episode asks many. For boxes in a rectangular hall the same questions are a few comparisons:
 
 * the free space of a disc of radius ``c`` with mitred corners (the roadmaps') is the hall shrunk by ``c`` minus
   the racks grown by ``c``, each grown rack again a box: a segment is in it when it enters none of those boxes

@@ -23,8 +23,7 @@ class AfterStep(NamedTuple):
 @njit(**JIT)
 def slot_points(segments, spacing, offset):  # pragma: no cover  (compiled)
     """``pick_slots``' candidate points (n, 2): along every edge (S, 4) ``length // spacing`` points at
-    ``(k + 0.5) * length / count`` from its start, ``offset`` out along its normal (dy, -dx) / length (the NumPy
-    form's operations, element by element)."""
+    ``(k + 0.5) * length / count`` from its start, ``offset`` out along its normal (dy, -dx) / length."""
     n_edges = segments.shape[0]
     length, count = np.empty(n_edges), np.empty(n_edges, np.int64)
     total = 0
