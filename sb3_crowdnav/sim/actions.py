@@ -17,11 +17,12 @@ range they are ``linspace(-range/2, range/2, 16)`` (end points included).
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
-from sb3_crowdnav.sim.geometry import JIT
+from sb3_crowdnav.sim.geometry import JIT, as_rows
 
 N_SPEEDS = 5
 N_DIRECTIONS = 16
@@ -64,14 +65,24 @@ def move(px, py, heading, gx, gy, speed, direction, holonomic, time_step):  # pr
     return px + vx * time_step, py + vy * time_step, new_heading, vx, vy
 
 
+class Motion(NamedTuple):
+    """The robots after a step: :func:`apply_action`'s result."""
+
+    position: np.ndarray  # (..., 2) [m]
+    heading: np.ndarray  # (...) [rad]
+    velocity: np.ndarray  # (..., 2) [m/s]
+
+
 @njit(**JIT)
 def _move_all(position, heading, goal, speed, direction, holonomic, time_step):  # pragma: no cover  (compiled)
-    """:func:`move` of every row: position, goal (n, 2); heading, speed, direction (n,); returns (n, 5)."""
-    out = np.empty((position.shape[0], 5))
-    for k in range(position.shape[0]):
-        out[k, 0], out[k, 1], out[k, 2], out[k, 3], out[k, 4] = move(
-            position[k, 0], position[k, 1], heading[k], goal[k, 0], goal[k, 1], speed[k], direction[k], holonomic,
-            time_step)
+    """:func:`move` of every row: position, goal (n, 2); heading, speed, direction (n,)."""
+    n = position.shape[0]
+    out = Motion(np.empty((n, 2)), np.empty(n), np.empty((n, 2)))
+    for k in range(n):
+        x, y, new_heading, vx, vy = move(position[k, 0], position[k, 1], heading[k], goal[k, 0], goal[k, 1], speed[k],
+                                         direction[k], holonomic, time_step)
+        out.position[k, 0], out.position[k, 1], out.heading[k] = x, y, new_heading
+        out.velocity[k, 0], out.velocity[k, 1] = vx, vy
     return out
 
 
@@ -104,7 +115,7 @@ def apply_action(
     direction: np.ndarray,
     kinematics: str,
     time_step: float,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+) -> Motion:
     """Move the robot one step.
 
     :param position: (..., 2) [m]
@@ -112,15 +123,15 @@ def apply_action(
     :param goal: (..., 2) [m]
     :param speed: (...) [m/s], broadcast against ``heading``
     :param direction: (...) [rad]
-    :return: ``(new_position (..., 2), new_heading (...), velocity (..., 2))``
+    :return: :class:`Motion`: ``(new_position (..., 2), new_heading (...), velocity (..., 2))``
     """
     holonomic = check_kinematics(kinematics)
     lead = np.broadcast_shapes(np.shape(position)[:-1], np.shape(heading), np.shape(goal)[:-1], np.shape(speed),
                                np.shape(direction))
-    rows = [np.ascontiguousarray(np.broadcast_to(np.asarray(x, dtype=np.float64), lead + tail)).reshape(-1, *tail)
-            for x, tail in ((position, (2,)), (heading, ()), (goal, (2,)), (speed, ()), (direction, ()))]
-    moved = _move_all(*rows, holonomic, float(time_step)).reshape(*lead, 5)
-    return moved[..., :2], moved[..., 2], moved[..., 3:]
+    rows = [as_rows(x, lead, tail) for x, tail in ((position, (2,)), (heading, ()), (goal, (2,)), (speed, ()),
+                                                   (direction, ()))]
+    moved = _move_all(*rows, holonomic, float(time_step))
+    return Motion(moved.position.reshape(*lead, 2), moved.heading.reshape(lead), moved.velocity.reshape(*lead, 2))
 
 
 def nearest_action(

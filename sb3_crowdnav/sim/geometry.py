@@ -77,16 +77,20 @@ def _swept_clearances(pos0, pos1, segments, mask):  # pragma: no cover  (compile
     return out
 
 
-def _rows(lead: tuple[int, ...], *arrays: tuple[np.ndarray, tuple[int, ...]]) -> list[np.ndarray]:
-    """Each array broadcast to ``lead + tail`` and flattened to (prod(lead), *tail), contiguous float64."""
-    return [np.ascontiguousarray(np.broadcast_to(np.asarray(a, dtype=np.float64), lead + tail)).reshape(-1, *tail)
-            for a, tail in arrays]
+def as_rows(x: np.ndarray, lead: tuple[int, ...], tail: tuple[int, ...], dtype: type = np.float64) -> np.ndarray:
+    """``x`` broadcast to ``lead + tail`` as (prod(lead), *tail) rows for a compiled loop (a view when ``x`` has that
+    shape and dtype: the env's one transition pays no copy)."""
+    if type(x) is not np.ndarray or x.dtype != dtype:
+        x = np.asarray(x, dtype=dtype)
+    if x.shape != lead + tail:
+        x = np.broadcast_to(x, lead + tail)
+    return x.reshape(-1, *tail)
 
 
 def point_segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Distance from points ``p`` to segments ``a``-``b``; all (..., 2), broadcast; returns (...)."""
     lead = np.broadcast_shapes(np.shape(p)[:-1], np.shape(a)[:-1], np.shape(b)[:-1])
-    return _points_to_segments(*_rows(lead, (p, (2,)), (a, (2,)), (b, (2,)))).reshape(lead)
+    return _points_to_segments(*(as_rows(x, lead, (2,)) for x in (p, a, b))).reshape(lead)
 
 
 def segment_distance(p0: np.ndarray, p1: np.ndarray, q0: np.ndarray, q1: np.ndarray) -> np.ndarray:
@@ -95,8 +99,7 @@ def segment_distance(p0: np.ndarray, p1: np.ndarray, q0: np.ndarray, q1: np.ndar
     Zero when they cross; otherwise the smallest of the four endpoint-to-segment distances.
     """
     lead = np.broadcast_shapes(*(np.shape(x)[:-1] for x in (p0, p1, q0, q1)))
-    rows = _rows(lead, (p0, (2,)), (p1, (2,)), (q0, (2,)), (q1, (2,)))
-    return _segments_to_segments(*rows).reshape(lead)
+    return _segments_to_segments(*(as_rows(x, lead, (2,)) for x in (p0, p1, q0, q1))).reshape(lead)
 
 
 def swept_clearance(pos0: np.ndarray, pos1: np.ndarray, segments: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -107,9 +110,9 @@ def swept_clearance(pos0: np.ndarray, pos1: np.ndarray, segments: np.ndarray, ma
     """
     m = np.shape(segments)[-2]
     lead = np.broadcast_shapes(np.shape(pos0)[:-1], np.shape(pos1)[:-1], np.shape(segments)[:-2], np.shape(mask)[:-1])
-    p0, p1, segs = _rows(lead, (pos0, (2,)), (pos1, (2,)), (segments, (m, SEGMENT_DIM)))
-    present = np.ascontiguousarray(np.broadcast_to(np.asarray(mask) > 0.5, (*lead, m))).reshape(-1, m)
-    return _swept_clearances(p0, p1, segs, present).reshape(lead)
+    present = as_rows(np.asarray(mask) > 0.5, lead, (m,), np.bool_)
+    rows = (as_rows(pos0, lead, (2,)), as_rows(pos1, lead, (2,)), as_rows(segments, lead, (m, SEGMENT_DIM)), present)
+    return _swept_clearances(*rows).reshape(lead)
 
 
 def polygon_segments(polygons: list[np.ndarray]) -> np.ndarray:

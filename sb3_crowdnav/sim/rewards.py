@@ -32,7 +32,7 @@ from numba import njit
 
 from sb3_crowdnav.sim.actions import wrap
 from sb3_crowdnav.sim.config import RewardConfig
-from sb3_crowdnav.sim.geometry import JIT
+from sb3_crowdnav.sim.geometry import JIT, as_rows
 
 STILL_SPEED = 1e-3  # [m/s] below this a pedestrian counts as standing still
 ANGLE_TOLERANCE = 1e-9  # [rad] a turn of exactly the threshold (a table direction) counts despite rounding
@@ -93,17 +93,8 @@ def closest_approach(
     :return: (...)
     """
     lead = np.broadcast_shapes(*(np.shape(x)[:-1] for x in (a0, a1, b0, b1)))
-    rows = [_rows(x, lead, (2,)) for x in (a0, a1, b0, b1)]
+    rows = [as_rows(x, lead, (2,)) for x in (a0, a1, b0, b1)]
     return _approaches(*rows).reshape(lead)
-
-
-def _rows(x: np.ndarray, lead: tuple[int, ...], tail: tuple[int, ...], dtype: type = np.float64) -> np.ndarray:
-    """``x`` broadcast to ``lead + tail`` as (prod(lead), *tail) rows (a view when it has that shape)."""
-    if type(x) is not np.ndarray or x.dtype != dtype:
-        x = np.asarray(x, dtype=dtype)
-    if x.shape != lead + tail:
-        x = np.broadcast_to(x, lead + tail)
-    return x.reshape(-1, *tail)
 
 
 def walking_direction(
@@ -265,9 +256,11 @@ def compute_reward(
     if human_dir is None and cfg.uses_social:
         raise ValueError(f"reward {cfg.name!r} has a social term: human_dir is required")
     weights = _weights(cfg, float(time_step))
-    if np.ndim(heading1) == 0 and np.ndim(human_pos1) == 2:  # one transition (the env's): no rows to make
-        terms = _transition(robot_pos0, robot_pos1, heading0, heading1, goal, robot_radius, human_pos0, human_pos1,
-                            human_dir, human_radius, np.asarray(mask, dtype=np.bool_), *weights)
+    one = np.ndim(robot_pos0) == np.ndim(robot_pos1) == np.ndim(goal) == 1 and np.ndim(heading1) == 0 and \
+        np.ndim(human_pos1) == 2
+    if one:  # one transition (the env's): no rows to make
+        terms = _transition(robot_pos0, robot_pos1, float(heading0), float(heading1), goal, float(robot_radius),
+                            human_pos0, human_pos1, human_dir, human_radius, np.asarray(mask, dtype=np.bool_), *weights)
         return RewardTerms(*(np.float64(x) if type(x) is float else np.bool_(x) for x in terms),
                            progress_term=np.float64(0.0))
     n_humans = np.shape(human_pos1)[-2]
@@ -277,11 +270,11 @@ def compute_reward(
     lead = np.broadcast_shapes(*shapes)
     points, humans, per_human = (2,), (n_humans, 2), (n_humans,)
     terms = _transitions(
-        _rows(robot_pos0, lead, points), _rows(robot_pos1, lead, points), _rows(heading0, lead, ()),
-        _rows(heading1, lead, ()), _rows(goal, lead, points), _rows(robot_radius, lead, ()),
-        _rows(human_pos0, lead, humans), _rows(human_pos1, lead, humans),
-        None if human_dir is None else _rows(human_dir, lead, humans), _rows(human_radius, lead, per_human),
-        _rows(mask, lead, per_human, np.bool_), *weights,
+        as_rows(robot_pos0, lead, points), as_rows(robot_pos1, lead, points), as_rows(heading0, lead, ()),
+        as_rows(heading1, lead, ()), as_rows(goal, lead, points), as_rows(robot_radius, lead, ()),
+        as_rows(human_pos0, lead, humans), as_rows(human_pos1, lead, humans),
+        None if human_dir is None else as_rows(human_dir, lead, humans), as_rows(human_radius, lead, per_human),
+        as_rows(mask, lead, per_human, np.bool_), *weights,
     )
     return RewardTerms(*(x.reshape(lead) for x in terms))
 
