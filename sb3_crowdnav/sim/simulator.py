@@ -23,10 +23,10 @@ class CrowdSimulator:
     walking directions of the comfort reward are tracked incrementally from the steps, so the
     state is meant to be changed through :meth:`reset` and :meth:`step` only.
 
-    A single transition runs in Python floats (kinematics, preferred velocities, walking
-    directions, and :func:`compute_reward`'s single-transition path): on 2-vectors and N <= 10
-    pedestrians NumPy's per-call overhead costs more than the arithmetic. Tests check each of
-    these against the NumPy functions the lookahead uses.
+    The kinematics (:func:`~sb3_crowdnav.sim.actions.move`) and :func:`compute_reward` are the
+    compiled functions the lookahead uses too. Preferred velocities and walking directions run in
+    Python floats: on 2-vectors and N <= 10 pedestrians NumPy's per-call overhead costs more than
+    the arithmetic. Tests check these against the NumPy functions the lookahead uses.
     """
 
     def __init__(self, scene: SceneConfig, reward: RewardConfig) -> None:
