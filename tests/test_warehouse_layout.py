@@ -238,7 +238,7 @@ def _networkx_route(roadmap, start, goal):
             np.concatenate([_networkx_route(roadmap, start, nearest), goal[None]])
     graph, n = roadmap.graph, len(roadmap.corners)
     points = np.concatenate([roadmap.corners, start[None], goal[None]])
-    remaining = np.hypot(*(points - goal).T).tolist()
+    remaining = np.linalg.norm(points - goal, axis=1).tolist()
     try:
         graph.add_weighted_edges_from(itertools.chain(
             zip([n] * len(from_start), from_start, start_lengths, strict=True),

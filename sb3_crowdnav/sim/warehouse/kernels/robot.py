@@ -153,7 +153,7 @@ def bitangent_edges(corners, sides, first, boxes):  # pragma: no cover  (compile
             dx, dy = bx - ax, by - ay
             turn = dx * dy
             if sides[i] * turn <= 0 and sides[j] * turn <= 0 and misses_boxes(ax, ay, bx, by, boxes):
-                out_i[count], out_j[count], out_len[count] = i, j, math.hypot(dx, dy)
+                out_i[count], out_j[count], out_len[count] = i, j, math.sqrt(dx * dx + dy * dy)
                 count += 1
     return out_i[:count], out_j[:count], out_len[:count]
 
@@ -169,7 +169,7 @@ def joins(px, py, corners, sides, first, boxes):  # pragma: no cover  (compiled)
         cx, cy = corners[k, 0], corners[k, 1]
         dx, dy = px - cx, py - cy
         if sides[k] * dx * dy <= 0 and misses_boxes(px, py, cx, cy, boxes):
-            out_k[count], out_len[count] = k, math.hypot(dx, dy)
+            out_k[count], out_len[count] = k, math.sqrt(dx * dx + dy * dy)
             count += 1
     return out_k[:count], out_len[:count]
 
@@ -198,7 +198,7 @@ def route_query(sx, sy, gx, gy, corners, sides, first, boxes, hall):  # pragma: 
     n = corners.shape[0]
     heuristic = np.empty(n + 2)
     heuristic[:n] = distances_to(corners, gx, gy)
-    heuristic[n] = math.hypot(sx - gx, sy - gy)
+    heuristic[n] = math.sqrt((sx - gx) * (sx - gx) + (sy - gy) * (sy - gy))
     heuristic[n + 1] = 0.0
     return RouteQuery(False, start_joins, goal_joins, start_lengths, goal_lengths, heuristic)
 
@@ -241,5 +241,6 @@ def distances_to(points, gx, gy):  # pragma: no cover  (compiled)
     """The distance from every row of ``points`` (n, 2) to (gx, gy)."""
     out = np.empty(points.shape[0])
     for p in range(points.shape[0]):
-        out[p] = math.hypot(points[p, 0] - gx, points[p, 1] - gy)
+        dx, dy = points[p, 0] - gx, points[p, 1] - gy
+        out[p] = math.sqrt(dx * dx + dy * dy)
     return out
