@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from sb3_crowdnav.sim import N_ACTIONS, action_table, apply_action, nearest_action, wrap_angle
-from sb3_crowdnav.sim.actions import N_DIRECTIONS
+from sb3_crowdnav.sim.actions import N_DIRECTIONS, move
 
 DT = 0.25
 
@@ -69,8 +69,8 @@ def test_unicycle_turn_is_relative_and_wrapped():
 
 
 @pytest.mark.parametrize("kinematics", ["unicycle", "holonomic"])
-def test_single_robot_path_equals_batched_path(kinematics):
-    """apply_action's scalar fast path and its NumPy path agree for every action."""
+def test_one_robot_equals_its_row_of_a_batch(kinematics):
+    """apply_action of one robot and of the 80 actions at once agree for every action."""
     speeds, directions = action_table(v_pref=0.9, rotation_range=math.pi)
     rng = np.random.default_rng(0)
     pos, goal, heading = rng.normal(size=2), rng.normal(size=2), rng.uniform(-math.pi, math.pi)
@@ -80,6 +80,25 @@ def test_single_robot_path_equals_batched_path(kinematics):
         np.testing.assert_allclose(s_pos, b_pos[a], rtol=0, atol=1e-12)
         np.testing.assert_allclose(s_vel, b_vel[a], rtol=0, atol=1e-12)
         assert float(s_head) == pytest.approx(float(b_head[a]), abs=1e-12)
+
+
+@pytest.mark.parametrize("kinematics", ["unicycle", "holonomic"])
+def test_the_compiled_kinematics_is_the_numpy_form(kinematics):
+    """move (the env's one robot) and apply_action (batches) against a NumPy form of the module docstring's rules."""
+    rng = np.random.default_rng(4)
+    pos, goal = rng.normal(size=(500, 2)) * 3, rng.normal(size=(500, 2)) * 3
+    heading, speed, direction = rng.uniform(-4, 4, 500), rng.uniform(0, 1, 500), rng.uniform(-math.pi, math.pi, 500)
+    base = np.arctan2(*(goal - pos).T[::-1]) if kinematics == "holonomic" else heading
+    expected_heading = np.mod(base + direction + np.pi, 2 * np.pi) - np.pi
+    velocity = speed[:, None] * np.stack([np.cos(expected_heading), np.sin(expected_heading)], axis=1)
+    new_pos, new_heading, vel = apply_action(pos, heading, goal, speed, direction, kinematics, DT)
+    np.testing.assert_allclose(new_heading, expected_heading, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(vel, velocity, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(new_pos, pos + velocity * DT, rtol=1e-12, atol=1e-15)
+    assert ((-math.pi < new_heading) & (new_heading <= math.pi)).all()
+    one = [move(*p, h, *g, s, d, kinematics == "holonomic", DT) for p, h, g, s, d in
+           zip(pos.tolist(), heading.tolist(), goal.tolist(), speed.tolist(), direction.tolist(), strict=True)]
+    np.testing.assert_array_equal(np.array(one), np.concatenate([new_pos, new_heading[:, None], vel], axis=1))
 
 
 def test_apply_action_rejects_unknown_kinematics():

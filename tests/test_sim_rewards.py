@@ -186,8 +186,53 @@ def random_transitions(rng, shape, n):
     )
 
 
+def numpy_reward(cfg, dt, robot_pos0, robot_pos1, heading0, heading1, goal, robot_radius, human_pos0, human_pos1,
+                 human_dir, human_radius, mask):
+    """A readable NumPy form of the reward (Eq. 9-14 with the module docstring's conventions), broadcast over (...)."""
+    radius_sum = human_radius + robot_radius[..., None]
+    d0 = robot_pos0[..., None, :] - human_pos0
+    dv = (robot_pos1 - robot_pos0)[..., None, :] - (human_pos1 - human_pos0)
+    dv2 = np.sum(dv * dv, axis=-1)
+    t = np.where(dv2 > 1e-12, np.clip(-np.sum(d0 * dv, axis=-1) / np.where(dv2 > 1e-12, dv2, 1.0), 0.0, 1.0), 0.0)
+    surface = np.where(mask, np.linalg.norm(d0 + t[..., None] * dv, axis=-1) - radius_sum, np.inf)
+    min_distance = surface.min(axis=-1)
+    collision = min_distance < 0
+    success = ~collision & (np.linalg.norm(robot_pos1 - goal, axis=-1) < robot_radius)
+    shaping = ~(collision | success)
+    rel = robot_pos1[..., None, :] - human_pos1
+    dist = np.linalg.norm(rel, axis=-1)
+    surf = rel * (np.maximum(dist - radius_sum, 0.0) / np.maximum(dist, 1e-9))[..., None]
+    x0 = np.sum(surf * human_dir, axis=-1)
+    y0 = surf[..., 1] * human_dir[..., 0] - surf[..., 0] * human_dir[..., 1]
+    w = np.sqrt(x0**2 * (cfg.comfort_side / cfg.comfort_person) ** 2 + y0**2)
+    inside = (w <= cfg.comfort_side) & (x0 >= 0) & mask
+    social = np.where(inside, -cfg.social_penalty * (np.exp(-(w - cfg.comfort_side)) - 1.0), 0.0).sum(axis=-1)
+    turn = np.abs(np.mod(heading1 - heading0 + np.pi, 2 * np.pi) - np.pi)
+    terms = dict(
+        success_term=np.where(success, cfg.success_reward, 0.0),
+        collision_term=np.where(collision, cfg.collision_penalty, 0.0),
+        discomfort_term=np.where(shaping & (min_distance < cfg.discomfort_dist) & cfg.uses_discomfort,
+                                 (min_distance - cfg.discomfort_dist) * cfg.discomfort_factor * dt, 0.0),
+        social_term=np.where(shaping & cfg.uses_social, social, 0.0),
+        angular_term=np.where(shaping & cfg.uses_angular & (turn >= cfg.angular_penalty_threshold - 1e-9),
+                              -cfg.angular_penalty, 0.0),
+    )
+    return dict(terms, reward=sum(terms.values()), success=success, collision=collision, min_distance=min_distance,
+                in_comfort_zone=inside.any(axis=-1))
+
+
 @pytest.mark.parametrize("name", ["crowdnav", "comfort", "comfort_angular"])
-def test_single_transition_fast_path_equals_batched_path(name):
+def test_the_compiled_reward_is_the_numpy_form(name):
+    cfg = RewardConfig(name)
+    batch = random_transitions(np.random.default_rng(3), (2000,), 6)
+    terms, expected = compute_reward(cfg, DT, **batch), numpy_reward(cfg, DT, **batch)
+    for field, value in expected.items():
+        np.testing.assert_allclose(getattr(terms, field), value, rtol=1e-12, atol=1e-15, err_msg=field)
+    assert terms.collision.any() and terms.success.any() and (terms.angular_term < 0).any() == cfg.uses_angular
+
+
+@pytest.mark.parametrize("name", ["crowdnav", "comfort", "comfort_angular"])
+def test_one_transition_equals_its_row_of_a_batch(name):
     cfg = RewardConfig(name)
     rng = np.random.default_rng(1)
     batch = random_transitions(rng, (400,), 6)

@@ -266,7 +266,6 @@ def test_the_fast_geometric_tests_of_a_step_agree_with_shapely_and_numpy():
     from shapely.geometry import LineString
 
     from sb3_crowdnav.sim.config import RewardConfig, SceneConfig
-    from sb3_crowdnav.sim.geometry import segment_distance_scalar
     from sb3_crowdnav.sim.warehouse.config import WarehouseConfig
     from sb3_crowdnav.sim.warehouse.simulator import WarehouseSimulator
 
@@ -286,8 +285,8 @@ def test_the_fast_geometric_tests_of_a_step_agree_with_shapely_and_numpy():
             np.testing.assert_array_equal(sim.pickers._pressed(group), [not room.contains(Point(p)) for p in group])
         for p0, p1, seg in zip(points[:-1:2], points[1::2], sim.segments[rng.integers(len(sim.segments), size=200)],
                                strict=False):
-            assert segment_distance_scalar(p0.tolist(), p1.tolist(), seg[:2].tolist(), seg[2:].tolist()) == \
-                float(segment_distance(p0, p1, seg[:2], seg[2:]))
+            expected = LineString([p0, p1]).distance(LineString([seg[:2], seg[2:]]))
+            assert float(segment_distance(p0, p1, seg[:2], seg[2:])) == pytest.approx(expected, rel=1e-12, abs=1e-12)
 
 
 def test_a_fixed_layout_keeps_its_maps_and_gives_the_episodes_of_a_fresh_env():
@@ -324,7 +323,7 @@ def test_a_picker_walks_from_its_slot_to_the_next_along_the_slots_route():
 def test_observed_segments_and_hit_candidates_come_from_the_stable_order_of_the_distances():
     """The observed segments are the first of the distances' stable order within range, and a rack or wall hit is
     the swept disc touching a segment, as with the distances themselves."""
-    from sb3_crowdnav.sim.geometry import point_segment_distance, segment_distance_scalar
+    from sb3_crowdnav.sim.geometry import point_segment_distance
 
     env = gym.make("CrowdNavWarehouse-v0", num_humans=6)
     sim, rng = env.unwrapped.sim, np.random.default_rng(0)
@@ -343,5 +342,6 @@ def test_observed_segments_and_hit_candidates_come_from_the_stable_order_of_the_
             segments, mask = sim.observed_obstacles()
             np.testing.assert_array_equal(segments[: len(seen)], sim.segments[seen])
             assert mask.sum() == len(seen) and not segments[len(seen):].any()
-            hit = any(segment_distance_scalar(p0, p1, s[:2], s[2:]) < sim.scene.robot_radius for s in sim.segments.tolist())
+            hit = segment_distance(np.array(p0), np.array(p1), sim.segments[:, :2], sim.segments[:, 2:]).min() < \
+                sim.scene.robot_radius
             assert (not hit or terminated) and (hit or not sim.hit_obstacle)

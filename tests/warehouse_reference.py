@@ -1,5 +1,6 @@
-"""The NumPy and Python-float forms of the warehouse's box geometry that the compiled kernels
-(``sb3_crowdnav.sim.warehouse.kernels``) replaced: the references the kernels are tested against, value for value."""
+"""Readable NumPy and Python-float forms of the geometry that the compiled kernels (``sb3_crowdnav.sim.geometry``,
+``sb3_crowdnav.sim.warehouse.kernels``) implement: the references the kernels are tested against, with tolerances
+(to rounding: the kernels' operations need not be these in this order) and properties."""
 
 from __future__ import annotations
 
@@ -7,6 +8,29 @@ import math
 from collections.abc import Sequence
 
 import numpy as np
+
+
+def point_segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Distance from points ``p`` to segments ``a``-``b``; all (..., 2), broadcast; returns (...)."""
+    ab = b - a
+    length2 = np.sum(ab * ab, axis=-1)
+    t = np.clip(np.sum((p - a) * ab, axis=-1) / np.where(length2 > 1e-18, length2, 1.0), 0.0, 1.0)
+    return np.linalg.norm(p - (a + t[..., None] * ab), axis=-1)
+
+
+def _cross(o: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return (a[..., 0] - o[..., 0]) * (b[..., 1] - o[..., 1]) - (a[..., 1] - o[..., 1]) * (b[..., 0] - o[..., 0])
+
+
+def segment_distance(p0: np.ndarray, p1: np.ndarray, q0: np.ndarray, q1: np.ndarray) -> np.ndarray:
+    """Minimum distance between segments ``p0``-``p1`` and ``q0``-``q1``; all (..., 2), broadcast: zero when they
+    cross, otherwise the smallest of the four endpoint-to-segment distances."""
+    crossing = (_cross(q0, q1, p0) * _cross(q0, q1, p1) < 0) & (_cross(p0, p1, q0) * _cross(p0, p1, q1) < 0)
+    ends = np.minimum(
+        np.minimum(point_segment_distance(p0, q0, q1), point_segment_distance(p1, q0, q1)),
+        np.minimum(point_segment_distance(q0, p0, p1), point_segment_distance(q1, p0, p1)),
+    )
+    return np.where(crossing, 0.0, ends)
 
 
 def separated(boxes: np.ndarray, inner: tuple[float, float, float, float]) -> bool:
@@ -89,6 +113,68 @@ def _point_segment(px: float, py: float, ax: float, ay: float, dx: float, dy: fl
     length2 = dx * dx + dy * dy
     t = 0.0 if length2 <= 1e-18 else min(1.0, max(0.0, ((px - ax) * dx + (py - ay) * dy) / length2))
     return math.hypot(px - ax - t * dx, py - ay - t * dy)
+
+
+def bitangent_edges(corners: np.ndarray, sides: np.ndarray, boxes: np.ndarray) -> tuple[list, list, list]:
+    """A box roadmap's edges: the pairs of corners from 4 on (``np.triu_indices``' order) that pass both ends on the
+    outside of their racks and enter none of the open ``boxes``, and their lengths."""
+    i, j = (np.arange(4, len(corners))[k] for k in np.triu_indices(len(corners) - 4, k=1))
+    d = corners[j] - corners[i]
+    turn = d[:, 0] * d[:, 1]
+    keep = (sides[i] * turn <= 0) & (sides[j] * turn <= 0)
+    i, j, d = i[keep], j[keep], d[keep]
+    visible = segments_miss_boxes(corners[i], corners[j], boxes)
+    return i[visible].tolist(), j[visible].tolist(), np.linalg.norm(d[visible], axis=1).tolist()
+
+
+def joins(point: Sequence[float], corners: np.ndarray, sides: np.ndarray, boxes: np.ndarray) -> tuple[list, list]:
+    """The corners from 4 on that ``point`` sees (the segment enters no open box) and passes on the outside, and
+    their distances."""
+    (px, py), nodes, lengths = point, [], []
+    for k in range(4, len(corners)):
+        cx, cy = corners[k].tolist()
+        dx, dy = px - cx, py - cy
+        (sx0, sx1), (sy0, sy1) = sorted((px, cx)), sorted((py, cy))
+        misses = not any(x0 < sx1 and sx0 < x1 and y0 < sy1 and sy0 < y1 and
+                         segment_meets_box(px, py, cx - px, cy - py, (x0, y0, x1, y1), interior=True)
+                         for x0, y0, x1, y1 in boxes.tolist())
+        if sides[k] * dx * dy <= 0 and misses:
+            nodes.append(k)
+            lengths.append(math.sqrt(dx * dx + dy * dy))
+    return nodes, lengths
+
+
+def slot_points(segments: np.ndarray, spacing: float, offset: float) -> np.ndarray:
+    """Along every edge (S, 4) ``length // spacing`` points, evenly spread, ``offset`` out along its normal."""
+    (ax, ay), (ex, ey) = segments[:, :2].T, (segments[:, 2:] - segments[:, :2]).T
+    length = np.hypot(ex, ey)
+    count = np.where(length >= spacing, length // spacing, 0.0).astype(np.int64)
+    edge = np.repeat(np.arange(len(count)), count)
+    k = np.arange(len(edge)) - np.repeat(np.cumsum(count) - count, count)
+    ax, ay, ex, ey, length = ax[edge], ay[edge], ex[edge], ey[edge], length[edge]
+    t = (k + 0.5) * length / count[edge]
+    return np.stack([ax + ex * (t / length) + ey / length * offset, ay + ey * (t / length) + -ex / length * offset], axis=1)
+
+
+def preferences(positions: np.ndarray, dwell: np.ndarray, waypoint: list[int], routes: list, v_pref: float,
+                arrival: float) -> list[list[float]]:
+    """The pickers' preferred velocities: towards the current waypoint (those within ``arrival`` passed, never the
+    last) at ``v_pref``, slowing into the last one; zero while standing. ``waypoint`` updated in place."""
+    out = []
+    for i, (x, y) in enumerate(positions.tolist()):
+        if dwell[i] > 0:
+            out.append([0.0, 0.0])
+            continue
+        route, w = routes[i], waypoint[i]
+        while w < len(route) - 1 and math.dist((x, y), route[w]) < arrival:
+            w += 1
+        waypoint[i] = w
+        dx, dy = route[w][0] - x, route[w][1] - y
+        norm = math.hypot(dx, dy)
+        if norm > v_pref or (w < len(route) - 1 and norm > 1e-9):
+            dx, dy = dx / norm * v_pref, dy / norm * v_pref
+        out.append([dx, dy])
+    return out
 
 
 def segment_meets_box(ax: float, ay: float, dx: float, dy: float, box: Sequence[float], interior: bool = False) -> bool:

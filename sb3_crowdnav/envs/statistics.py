@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from sb3_crowdnav.sim.actions import _wrap_scalar
+from sb3_crowdnav.sim.actions import wrap
 from sb3_crowdnav.sim.config import RewardConfig
 from sb3_crowdnav.sim.observation import Robot
 from sb3_crowdnav.sim.rewards import RewardTerms, is_sharp_turn
@@ -57,7 +57,7 @@ class EpisodeStatistics:
         if terms.in_comfort_zone:
             self.comfort_steps += 1
             self.comfort_sum += min_dist
-        turn = _wrap_scalar(after[Robot.HEADING] - before[Robot.HEADING])
+        turn = wrap(after[Robot.HEADING] - before[Robot.HEADING])
         self.heading_change += abs(turn)
         self.sharp_turns += is_sharp_turn(turn, self.reward)  # Eq. 13's trigger, counted under every reward
         self.discounted_return += self.gamma ** (self.steps * self.time_step * self.v_pref) * reward

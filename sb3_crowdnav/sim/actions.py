@@ -10,46 +10,87 @@ range they are ``linspace(-range/2, range/2, 16)`` (end points included).
 * ``"holonomic"``: the direction is an absolute angle in the frame whose x-axis points from
   the robot to its goal; the heading becomes the direction of motion.
 
-All functions broadcast over leading dimensions and are used by the env, the lookahead and
-the ORCA demonstrator alike.
+:func:`move` (compiled) is the kinematics: the env calls it on its one robot, and :func:`apply_action`
+(broadcast over leading dimensions: the lookahead's batch x 80 actions) loops over it.
 """
 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
+from numba import njit
+
+from sb3_crowdnav.sim.geometry import JIT, as_rows
 
 N_SPEEDS = 5
 N_DIRECTIONS = 16
 N_ACTIONS = N_SPEEDS * N_DIRECTIONS
+KINEMATICS = ("unicycle", "holonomic")
 _TWO_PI = 2 * math.pi
 
 
-def wrap_angle(angle: np.ndarray | float) -> np.ndarray:
-    """Wrap angles to (-π, π]."""
-    a = np.mod(np.asarray(angle, dtype=np.float64) + np.pi, 2 * np.pi) - np.pi
-    return np.where(a <= -np.pi, a + 2 * np.pi, a)
-
-
-def _wrap_scalar(angle: float) -> float:
-    """:func:`wrap_angle` of one Python float (same arithmetic: Python's ``%`` is NumPy's floor ``mod``)."""
+@njit(**JIT)
+def wrap(angle):  # pragma: no cover  (compiled)
+    """One angle [rad] wrapped to (-π, π]."""
     a = (angle + math.pi) % _TWO_PI - math.pi
     return a + _TWO_PI if a <= -math.pi else a
 
 
-def _apply_action_scalar(px: float, py: float, heading: float, gx: float, gy: float, speed: float,
-                         direction: float, kinematics: str, time_step: float
-                         ) -> tuple[float, float, float, float, float]:
-    """:func:`apply_action` for one robot, in Python floats: ``(x, y, heading, vx, vy)`` (the env's hot path)."""
-    if kinematics == "unicycle":
-        new_heading = _wrap_scalar(heading + direction)
-    elif kinematics == "holonomic":
-        new_heading = _wrap_scalar(math.atan2(gy - py, gx - px) + direction)
-    else:
-        raise ValueError(f"kinematics must be 'unicycle' or 'holonomic', got {kinematics!r}")
+@njit(**JIT)
+def _wrap_all(angles):  # pragma: no cover  (compiled)
+    out = np.empty(angles.shape[0])
+    for k in range(angles.shape[0]):
+        out[k] = wrap(angles[k])
+    return out
+
+
+def wrap_angle(angle: np.ndarray | float) -> np.ndarray:
+    """Angles wrapped to (-π, π] (:func:`wrap` of each), the shape of ``angle``."""
+    a = np.asarray(angle, dtype=np.float64)
+    return _wrap_all(a.reshape(-1)).reshape(a.shape)
+
+
+@njit(**JIT)
+def move(px, py, heading, gx, gy, speed, direction, holonomic, time_step):  # pragma: no cover  (compiled)
+    """One robot's step from (px, py) with ``heading`` towards the goal (gx, gy) under the action (``speed`` [m/s],
+    ``direction`` [rad]) of the module docstring's kinematics (``holonomic``: else unicycle).
+
+    :return: ``(x, y, heading, vx, vy)`` after the step
+    """
+    base = math.atan2(gy - py, gx - px) if holonomic else heading
+    new_heading = wrap(base + direction)
     vx, vy = speed * math.cos(new_heading), speed * math.sin(new_heading)
     return px + vx * time_step, py + vy * time_step, new_heading, vx, vy
+
+
+class Motion(NamedTuple):
+    """The robots after a step: :func:`apply_action`'s result."""
+
+    position: np.ndarray  # (..., 2) [m]
+    heading: np.ndarray  # (...) [rad]
+    velocity: np.ndarray  # (..., 2) [m/s]
+
+
+@njit(**JIT)
+def _move_all(position, heading, goal, speed, direction, holonomic, time_step):  # pragma: no cover  (compiled)
+    """:func:`move` of every row: position, goal (n, 2); heading, speed, direction (n,)."""
+    n = position.shape[0]
+    out = Motion(np.empty((n, 2)), np.empty(n), np.empty((n, 2)))
+    for k in range(n):
+        x, y, new_heading, vx, vy = move(position[k, 0], position[k, 1], heading[k], goal[k, 0], goal[k, 1], speed[k],
+                                         direction[k], holonomic, time_step)
+        out.position[k, 0], out.position[k, 1], out.heading[k] = x, y, new_heading
+        out.velocity[k, 0], out.velocity[k, 1] = vx, vy
+    return out
+
+
+def check_kinematics(kinematics: str) -> bool:
+    """Whether ``kinematics`` is holonomic (else unicycle); ``ValueError`` for any other value."""
+    if kinematics not in KINEMATICS:
+        raise ValueError(f"kinematics must be 'unicycle' or 'holonomic', got {kinematics!r}")
+    return kinematics == "holonomic"
 
 
 def action_table(v_pref: float = 1.0, rotation_range: float = 2 * math.pi) -> tuple[np.ndarray, np.ndarray]:
@@ -74,7 +115,7 @@ def apply_action(
     direction: np.ndarray,
     kinematics: str,
     time_step: float,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+) -> Motion:
     """Move the robot one step.
 
     :param position: (..., 2) [m]
@@ -82,22 +123,15 @@ def apply_action(
     :param goal: (..., 2) [m]
     :param speed: (...) [m/s], broadcast against ``heading``
     :param direction: (...) [rad]
-    :return: ``(new_position (..., 2), new_heading (...), velocity (..., 2))``
+    :return: :class:`Motion`: ``(new_position (..., 2), new_heading (...), velocity (..., 2))``
     """
-    if np.ndim(heading) == 0 and np.ndim(speed) == 0 and np.ndim(direction) == 0 and np.shape(position) == (2,) \
-            and np.shape(goal) == (2,):  # one robot: scalar math is ~10x faster than NumPy on 2-vectors
-        x, y, h, vx, vy = _apply_action_scalar(float(position[0]), float(position[1]), float(heading), float(goal[0]),
-                                               float(goal[1]), float(speed), float(direction), kinematics, time_step)
-        return np.array([x, y]), np.float64(h), np.array([vx, vy])
-    if kinematics == "unicycle":
-        new_heading = wrap_angle(heading + direction)
-    elif kinematics == "holonomic":
-        to_goal = goal - position
-        new_heading = wrap_angle(np.arctan2(to_goal[..., 1], to_goal[..., 0]) + direction)
-    else:
-        raise ValueError(f"kinematics must be 'unicycle' or 'holonomic', got {kinematics!r}")
-    velocity = np.stack(np.broadcast_arrays(speed * np.cos(new_heading), speed * np.sin(new_heading)), axis=-1)
-    return position + velocity * time_step, new_heading, velocity
+    holonomic = check_kinematics(kinematics)
+    lead = np.broadcast_shapes(np.shape(position)[:-1], np.shape(heading), np.shape(goal)[:-1], np.shape(speed),
+                               np.shape(direction))
+    rows = [as_rows(x, lead, tail) for x, tail in ((position, (2,)), (heading, ()), (goal, (2,)), (speed, ()),
+                                                   (direction, ()))]
+    moved = _move_all(*rows, holonomic, float(time_step))
+    return Motion(moved.position.reshape(*lead, 2), moved.heading.reshape(lead), moved.velocity.reshape(*lead, 2))
 
 
 def nearest_action(

@@ -1,7 +1,8 @@
 """The reward terms (paper Eq. 9-14), implemented once.
 
 The env calls :func:`compute_reward` on one transition; the lookahead calls it on all
-(batch x 80) propagated transitions. Everything broadcasts over leading dimensions.
+(batch x 80) propagated transitions. Everything broadcasts over leading dimensions; one compiled
+loop (``numba``) computes every transition, so both callers get the same arithmetic.
 
 Conventions (decisions on the paper's ambiguities, also in the docs: decisions):
 
@@ -27,17 +28,24 @@ import math
 from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 
-from sb3_crowdnav.sim.actions import _wrap_scalar, wrap_angle
+from sb3_crowdnav.sim.actions import wrap
 from sb3_crowdnav.sim.config import RewardConfig
+from sb3_crowdnav.sim.geometry import JIT, as_rows
 
 STILL_SPEED = 1e-3  # [m/s] below this a pedestrian counts as standing still
 ANGLE_TOLERANCE = 1e-9  # [rad] a turn of exactly the threshold (a table direction) counts despite rounding
 
 
+@njit(**JIT)
+def _sharp(turn, threshold):  # pragma: no cover  (compiled)
+    return abs(turn) >= threshold - ANGLE_TOLERANCE
+
+
 def is_sharp_turn(turn: float, cfg: RewardConfig) -> bool:
     """Whether a heading change of ``|turn|`` rad in one step triggers Eq. 13 (``>= angular_penalty_threshold``)."""
-    return abs(turn) >= cfg.angular_penalty_threshold - ANGLE_TOLERANCE
+    return bool(_sharp(turn, cfg.angular_penalty_threshold))
 
 
 class RewardTerms(NamedTuple):
@@ -56,6 +64,26 @@ class RewardTerms(NamedTuple):
     progress_term: np.ndarray | float = 0.0  # the warehouse's route-progress shaping (:func:`with_route_progress`)
 
 
+@njit(**JIT)
+def _approach(d0x, d0y, dvx, dvy):  # pragma: no cover  (compiled)
+    """Minimum of |d0 + t dv| over t in [0, 1]: the closest approach of two points whose offset starts at d0 and
+    changes by dv over the step (linearly)."""
+    dv2 = dvx * dvx + dvy * dvy
+    t = 0.0
+    if dv2 > 1e-12:
+        t = min(max(-(d0x * dvx + d0y * dvy) / dv2, 0.0), 1.0)
+    return math.hypot(d0x + t * dvx, d0y + t * dvy)
+
+
+@njit(**JIT)
+def _approaches(a0, a1, b0, b1):  # pragma: no cover  (compiled)
+    out = np.empty(a0.shape[0])
+    for k in range(a0.shape[0]):
+        out[k] = _approach(a0[k, 0] - b0[k, 0], a0[k, 1] - b0[k, 1], (a1[k, 0] - a0[k, 0]) - (b1[k, 0] - b0[k, 0]),
+                           (a1[k, 1] - a0[k, 1]) - (b1[k, 1] - b0[k, 1]))
+    return out
+
+
 def closest_approach(
     a0: np.ndarray, a1: np.ndarray, b0: np.ndarray, b1: np.ndarray
 ) -> np.ndarray:
@@ -64,14 +92,9 @@ def closest_approach(
     :param a0, a1, b0, b1: (..., 2), broadcast together
     :return: (...)
     """
-    d0 = a0 - b0
-    dv = (a1 - a0) - (b1 - b0)
-    dv2 = np.sum(dv * dv, axis=-1)
-    safe = np.where(dv2 > 1e-12, dv2, 1.0)
-    t = np.clip(-np.sum(d0 * dv, axis=-1) / safe, 0.0, 1.0)
-    t = np.where(dv2 > 1e-12, t, 0.0)
-    closest = d0 + t[..., None] * dv
-    return np.sqrt(np.sum(closest * closest, axis=-1))
+    lead = np.broadcast_shapes(*(np.shape(x)[:-1] for x in (a0, a1, b0, b1)))
+    rows = [as_rows(x, lead, (2,)) for x in (a0, a1, b0, b1)]
+    return _approaches(*rows).reshape(lead)
 
 
 def walking_direction(
@@ -101,26 +124,111 @@ def walking_direction(
     return np.where((idx >= 0)[..., None], chosen / np.maximum(chosen_speed, 1e-12), facing)
 
 
-def social_penalty(
-    rel_pos: np.ndarray, direction: np.ndarray, radius_sum: np.ndarray, mask: np.ndarray, cfg: RewardConfig
-) -> tuple[np.ndarray, np.ndarray]:
-    """Summed comfort-zone penalty (Eq. 9-11) and whether the robot is inside any zone.
+class _Weights(NamedTuple):
+    """What the compiled reward reads of a :class:`RewardConfig` (and the step)."""
 
-    :param rel_pos: (..., N, 2) robot centre minus pedestrian centre
-    :param direction: (..., N, 2) unit walking direction
-    :param radius_sum: (..., N)
-    :param mask: (..., N) boolean
-    :return: ``(penalty (...), inside_any (...))``
-    """
-    dist = np.linalg.norm(rel_pos, axis=-1)
-    scale = np.maximum(dist - radius_sum, 0.0) / np.maximum(dist, 1e-9)
-    surf = rel_pos * scale[..., None]
-    x0 = np.sum(surf * direction, axis=-1)
-    y0 = surf[..., 1] * direction[..., 0] - surf[..., 0] * direction[..., 1]
-    w = np.sqrt(x0**2 * (cfg.comfort_side / cfg.comfort_person) ** 2 + y0**2)
-    inside = (w <= cfg.comfort_side) & (x0 >= 0) & mask
-    pen = np.where(inside, -cfg.social_penalty * (np.exp(-(w - cfg.comfort_side)) - 1.0), 0.0)
-    return pen.sum(axis=-1), inside.any(axis=-1)
+    success_reward: float
+    collision_penalty: float
+    discomfort: bool
+    discomfort_dist: float
+    discomfort_scale: float  # discomfort_factor x Δt
+    social: bool
+    social_penalty: float
+    comfort_side: float
+    comfort_ratio2: float  # (comfort_side / comfort_person)²
+    angular: bool
+    angular_penalty: float
+    angular_threshold: float
+
+
+_WEIGHTS: dict[tuple[int, float], tuple[RewardConfig, _Weights]] = {}
+
+
+def _weights(cfg: RewardConfig, time_step: float) -> _Weights:
+    """The weights of ``cfg`` and the step, remembered per config object (the env asks every step)."""
+    known = _WEIGHTS.get((id(cfg), time_step))
+    if known is not None and known[0] is cfg:
+        return known[1]
+    weights = _Weights(float(cfg.success_reward), float(cfg.collision_penalty), cfg.uses_discomfort,
+                       float(cfg.discomfort_dist), float(cfg.discomfort_factor) * time_step, cfg.uses_social,
+                       float(cfg.social_penalty), float(cfg.comfort_side),
+                       (float(cfg.comfort_side) / float(cfg.comfort_person)) ** 2, cfg.uses_angular,
+                       float(cfg.angular_penalty), float(cfg.angular_penalty_threshold))
+    if len(_WEIGHTS) >= 64:
+        _WEIGHTS.clear()
+    _WEIGHTS[(id(cfg), time_step)] = (cfg, weights)
+    return weights
+
+
+@njit(**JIT)
+def _comfort(rx, ry, dx, dy, radius_sum, social_penalty, side, ratio2):  # pragma: no cover  (compiled)
+    """Eq. 9-11 of one pedestrian: the robot's offset (rx, ry) from its centre, shortened by the radii (surface to
+    surface), in the frame of its walking direction (dx, dy); returns (inside its comfort ellipse, the penalty)."""
+    dist = math.hypot(rx, ry)
+    scale = max(dist - radius_sum, 0.0) / max(dist, 1e-9)
+    sx, sy = rx * scale, ry * scale
+    x0 = sx * dx + sy * dy  # ahead of the pedestrian
+    y0 = sy * dx - sx * dy  # beside it
+    ellipse = math.sqrt(x0 * x0 * ratio2 + y0 * y0)
+    inside = ellipse <= side and x0 >= 0
+    return inside, -social_penalty * (math.exp(-(ellipse - side)) - 1.0) if inside else 0.0
+
+
+@njit(**JIT)
+def _transition(robot_pos0, robot_pos1, heading0, heading1, goal, robot_radius, human_pos0, human_pos1, human_dir,
+                human_radius, mask, success_reward, collision_penalty, discomfort, discomfort_dist, discomfort_scale,
+                social, social_penalty, comfort_side, comfort_ratio2, angular, angular_penalty,
+                angular_threshold):  # pragma: no cover  (compiled)
+    """The terms of one transition, in the order of :class:`RewardTerms`: robot positions and goal (2,), pedestrian
+    arrays (N, 2) and (N,) (``human_dir`` None: no comfort ellipses), then the :class:`_Weights`."""
+    ax0, ay0, ax1, ay1 = robot_pos0[0], robot_pos0[1], robot_pos1[0], robot_pos1[1]
+    closest, summed, inside_any = np.inf, 0.0, False
+    for j in range(human_pos0.shape[0]):
+        if not mask[j]:
+            continue
+        bx0, by0, bx1, by1 = human_pos0[j, 0], human_pos0[j, 1], human_pos1[j, 0], human_pos1[j, 1]
+        radius_sum = human_radius[j] + robot_radius
+        closest = min(closest, _approach(ax0 - bx0, ay0 - by0, (ax1 - ax0) - (bx1 - bx0), (ay1 - ay0) - (by1 - by0))
+                      - radius_sum)
+        if human_dir is not None:
+            inside, penalty = _comfort(ax1 - bx1, ay1 - by1, human_dir[j, 0], human_dir[j, 1], radius_sum,
+                                       social_penalty, comfort_side, comfort_ratio2)
+            inside_any = inside_any or inside
+            summed += penalty
+    collision = closest < 0
+    success = not collision and math.hypot(ax1 - goal[0], ay1 - goal[1]) < robot_radius
+    success_term = success_reward if success else 0.0
+    collision_term = collision_penalty if collision else 0.0
+    discomfort_term = social_term = angular_term = 0.0
+    if not (collision or success):  # the shaping terms, on non-terminal steps only
+        if discomfort and closest < discomfort_dist:
+            discomfort_term = (closest - discomfort_dist) * discomfort_scale
+        if social:
+            social_term = summed
+        if angular and _sharp(wrap(heading1 - heading0), angular_threshold):
+            angular_term = -angular_penalty
+    reward = success_term + collision_term + discomfort_term + social_term + angular_term
+    return (reward, success, collision, success_term, collision_term, discomfort_term, social_term, angular_term,
+            closest, inside_any)
+
+
+@njit(**JIT)
+def _transitions(robot_pos0, robot_pos1, heading0, heading1, goal, robot_radius, human_pos0, human_pos1, human_dir,
+                 human_radius, mask, *weights):  # pragma: no cover  (compiled)
+    """:func:`_transition` of n transitions, every array with a leading n; :class:`RewardTerms` of (n,) arrays."""
+    n = robot_pos0.shape[0]
+    out = RewardTerms(np.empty(n), np.empty(n, np.bool_), np.empty(n, np.bool_), np.empty(n), np.empty(n),
+                      np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n, np.bool_), np.zeros(n))
+    for k in range(n):
+        (reward, success, collision, success_term, collision_term, discomfort_term, social_term, angular_term, closest,
+         inside) = _transition(robot_pos0[k], robot_pos1[k], heading0[k], heading1[k], goal[k], robot_radius[k],
+                               human_pos0[k], human_pos1[k], None if human_dir is None else human_dir[k],
+                               human_radius[k], mask[k], *weights)
+        out.reward[k], out.success[k], out.collision[k] = reward, success, collision
+        out.success_term[k], out.collision_term[k], out.discomfort_term[k] = success_term, collision_term, discomfort_term
+        out.social_term[k], out.angular_term[k] = social_term, angular_term
+        out.min_distance[k], out.in_comfort_zone[k] = closest, inside
+    return out
 
 
 def compute_reward(
@@ -141,141 +249,34 @@ def compute_reward(
     """Reward of the transitions robot_pos0 → robot_pos1 while pedestrians move human_pos0 → human_pos1.
 
     Shapes: robot positions and goal (..., 2); headings and robot radius (...);
-    pedestrian positions and unit walking directions (..., N, 2); radius and mask (..., N).
-    ``human_dir=None`` (batched path only) skips the comfort ellipses: allowed when the reward has
-    no social term, and then ``in_comfort_zone`` is all False (the lookahead's case).
-    A single transition (no leading dimensions, the env's case) takes a scalar fast path with
-    the same arithmetic; a test checks that both paths agree on random transitions.
+    pedestrian positions and unit walking directions (..., N, 2); radius and mask (..., N); broadcast together.
+    ``human_dir=None`` skips the comfort ellipses: allowed when the reward has no social term, and then
+    ``in_comfort_zone`` is all False (the lookahead's case).
     """
     if human_dir is None and cfg.uses_social:
         raise ValueError(f"reward {cfg.name!r} has a social term: human_dir is required")
-    if np.ndim(robot_pos1) == 1 and np.ndim(human_pos1) == 2 and np.ndim(heading1) == 0 and human_dir is not None:
-        return _compute_reward_single(cfg, time_step, robot_pos0, robot_pos1, heading0, heading1, goal, robot_radius,
-                                      human_pos0, human_pos1, human_dir, human_radius, mask)
-    mask = mask.astype(bool)
-    radius_sum = human_radius + robot_radius[..., None]
-    centre = closest_approach(robot_pos0[..., None, :], robot_pos1[..., None, :], human_pos0, human_pos1)
-    surface = np.where(mask, centre - radius_sum, np.inf)
-    min_distance = surface.min(axis=-1) if surface.shape[-1] else np.full(surface.shape[:-1], np.inf)
-    collision = min_distance < 0
-    success = ~collision & (np.linalg.norm(robot_pos1 - goal, axis=-1) < robot_radius)
-    terminal = collision | success
-    zero = np.zeros(collision.shape)
-
-    success_term = np.where(success, cfg.success_reward, 0.0)
-    collision_term = np.where(collision, cfg.collision_penalty, 0.0)
-    if human_dir is None:
-        social, inside = zero, np.zeros(collision.shape, dtype=bool)
-    else:
-        social, inside = social_penalty(robot_pos1[..., None, :] - human_pos1, human_dir, radius_sum, mask, cfg)
-    discomfort = zero
-    if cfg.uses_discomfort:
-        discomfort = np.where(
-            ~terminal & (min_distance < cfg.discomfort_dist),
-            (min_distance - cfg.discomfort_dist) * cfg.discomfort_factor * time_step,
-            0.0,
-        )
-    social_term = np.where(~terminal, social, 0.0) if cfg.uses_social else zero
-    angular_term = zero
-    if cfg.uses_angular:
-        turn = np.abs(wrap_angle(heading1 - heading0))
-        sharp = turn >= cfg.angular_penalty_threshold - ANGLE_TOLERANCE  # is_sharp_turn, broadcast
-        angular_term = np.where(~terminal & sharp, -cfg.angular_penalty, 0.0)
-    reward = success_term + collision_term + discomfort + social_term + angular_term
-    return RewardTerms(
-        reward=reward,
-        success=success,
-        collision=collision,
-        success_term=success_term,
-        collision_term=collision_term,
-        discomfort_term=discomfort,
-        social_term=social_term,
-        angular_term=angular_term,
-        min_distance=min_distance,
-        in_comfort_zone=inside,
-        progress_term=zero,
+    weights = _weights(cfg, float(time_step))
+    one = np.ndim(robot_pos0) == np.ndim(robot_pos1) == np.ndim(goal) == 1 and np.ndim(heading1) == 0 and \
+        np.ndim(human_pos1) == 2
+    if one:  # one transition (the env's): no rows to make
+        terms = _transition(robot_pos0, robot_pos1, float(heading0), float(heading1), goal, float(robot_radius),
+                            human_pos0, human_pos1, human_dir, human_radius, np.asarray(mask, dtype=np.bool_), *weights)
+        return RewardTerms(*(np.float64(x) if type(x) is float else np.bool_(x) for x in terms),
+                           progress_term=np.float64(0.0))
+    n_humans = np.shape(human_pos1)[-2]
+    shapes = (np.shape(robot_pos0)[:-1], np.shape(robot_pos1)[:-1], np.shape(heading0), np.shape(heading1),
+              np.shape(goal)[:-1], np.shape(robot_radius), np.shape(human_pos0)[:-2], np.shape(human_pos1)[:-2],
+              np.shape(human_radius)[:-1], np.shape(mask)[:-1], () if human_dir is None else np.shape(human_dir)[:-2])
+    lead = np.broadcast_shapes(*shapes)
+    points, humans, per_human = (2,), (n_humans, 2), (n_humans,)
+    terms = _transitions(
+        as_rows(robot_pos0, lead, points), as_rows(robot_pos1, lead, points), as_rows(heading0, lead, ()),
+        as_rows(heading1, lead, ()), as_rows(goal, lead, points), as_rows(robot_radius, lead, ()),
+        as_rows(human_pos0, lead, humans), as_rows(human_pos1, lead, humans),
+        None if human_dir is None else as_rows(human_dir, lead, humans), as_rows(human_radius, lead, per_human),
+        as_rows(mask, lead, per_human, np.bool_), *weights,
     )
-
-
-def _compute_reward_single(cfg, time_step, robot_pos0, robot_pos1, heading0, heading1, goal, robot_radius,
-                           human_pos0, human_pos1, human_dir, human_radius, mask) -> RewardTerms:
-    """:func:`compute_reward` of one transition in Python floats (NumPy's per-call overhead dominates at N <= 10).
-
-    Line by line the same formulas as :func:`closest_approach`, :func:`social_penalty` and the
-    batched body; results agree to rounding (NumPy sums 8+ terms pairwise).
-    """
-    ax0, ay0 = float(robot_pos0[0]), float(robot_pos0[1])
-    ax1, ay1 = float(robot_pos1[0]), float(robot_pos1[1])
-    rr = float(robot_radius)
-    k2 = (cfg.comfort_side / cfg.comfort_person) ** 2
-    side = cfg.comfort_side
-    # inside an ellipse needs w <= d_side, and w >= min(1, d_side/d_person) * |offset| for a unit direction
-    reach = max(cfg.comfort_person, cfg.comfort_side) * (1 + 1e-9)
-    min_distance = math.inf
-    social = 0.0
-    inside_any = False
-    for (bx0, by0), (bx1, by1), (dx, dy), hr, present in zip(
-        human_pos0.tolist(), human_pos1.tolist(), human_dir.tolist(), human_radius.tolist(), mask.tolist(),
-        strict=True,
-    ):
-        if not present:
-            continue
-        rs = hr + rr
-        # closest approach of the two straight-line motions (closest_approach)
-        d0x, d0y = ax0 - bx0, ay0 - by0
-        dvx, dvy = (ax1 - ax0) - (bx1 - bx0), (ay1 - ay0) - (by1 - by0)
-        dv2 = dvx * dvx + dvy * dvy
-        t = 0.0
-        if dv2 > 1e-12:
-            t = -(d0x * dvx + d0y * dvy) / dv2
-            t = 0.0 if t < 0.0 else 1.0 if t > 1.0 else t
-        cx, cy = d0x + t * dvx, d0y + t * dvy
-        surface = math.sqrt(cx * cx + cy * cy) - rs
-        if surface < min_distance:
-            min_distance = surface
-        # comfort ellipse at the end of the step (social_penalty)
-        rx, ry = ax1 - bx1, ay1 - by1
-        dist = math.sqrt(rx * rx + ry * ry)
-        gap = dist - rs
-        if gap > reach:
-            continue
-        scale = (gap if gap > 0.0 else 0.0) / (dist if dist > 1e-9 else 1e-9)
-        sx, sy = rx * scale, ry * scale
-        x0 = sx * dx + sy * dy
-        y0 = sy * dx - sx * dy
-        w = math.sqrt(x0**2 * k2 + y0**2)
-        if w <= side and x0 >= 0:
-            inside_any = True
-            social += -cfg.social_penalty * (math.exp(-(w - side)) - 1.0)
-    collision = min_distance < 0
-    gx, gy = ax1 - float(goal[0]), ay1 - float(goal[1])
-    success = not collision and math.sqrt(gx * gx + gy * gy) < rr
-    terminal = collision or success
-    success_term = cfg.success_reward if success else 0.0
-    collision_term = cfg.collision_penalty if collision else 0.0
-    discomfort = 0.0
-    if cfg.uses_discomfort and not terminal and min_distance < cfg.discomfort_dist:
-        discomfort = (min_distance - cfg.discomfort_dist) * cfg.discomfort_factor * time_step
-    social_term = social if cfg.uses_social and not terminal else 0.0
-    angular_term = 0.0
-    if cfg.uses_angular and not terminal:
-        if is_sharp_turn(_wrap_scalar(float(heading1) - float(heading0)), cfg):
-            angular_term = -cfg.angular_penalty
-    reward = success_term + collision_term + discomfort + social_term + angular_term
-    f64, b_ = np.float64, np.bool_
-    return RewardTerms(
-        reward=f64(reward),
-        success=b_(success),
-        collision=b_(collision),
-        success_term=f64(success_term),
-        collision_term=f64(collision_term),
-        discomfort_term=f64(discomfort),
-        social_term=f64(social_term),
-        angular_term=f64(angular_term),
-        min_distance=f64(min_distance),
-        in_comfort_zone=b_(inside_any),
-        progress_term=f64(0.0),
-    )
+    return RewardTerms(*(x.reshape(lead) for x in terms))
 
 
 def with_obstacle_collision(terms: RewardTerms, hit: np.ndarray, penalty: float) -> RewardTerms:

@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from sb3_crowdnav.sim.actions import N_ACTIONS, _apply_action_scalar, action_table, wrap_angle
+from sb3_crowdnav.sim.actions import N_ACTIONS, action_table, move, wrap_angle
 from sb3_crowdnav.sim.config import RewardConfig, SceneConfig
 from sb3_crowdnav.sim.observation import HUMAN_DIM, ROBOT_DIM, Human, Robot
 from sb3_crowdnav.sim.orca import OrcaCrowd, preferred_velocity
@@ -23,10 +23,10 @@ class CrowdSimulator:
     walking directions of the comfort reward are tracked incrementally from the steps, so the
     state is meant to be changed through :meth:`reset` and :meth:`step` only.
 
-    A single transition runs in Python floats (kinematics, preferred velocities, walking
-    directions, and :func:`compute_reward`'s single-transition path): on 2-vectors and N <= 10
-    pedestrians NumPy's per-call overhead costs more than the arithmetic. Tests check each of
-    these against the NumPy functions the lookahead uses.
+    The kinematics (:func:`~sb3_crowdnav.sim.actions.move`) and :func:`compute_reward` are the
+    compiled functions the lookahead uses too. Preferred velocities and walking directions run in
+    Python floats: on 2-vectors and N <= 10 pedestrians NumPy's per-call overhead costs more than
+    the arithmetic. Tests check these against the NumPy functions the lookahead uses.
     """
 
     # the open floor has no static obstacles: every collision is with a pedestrian (the warehouse sets it per step)
@@ -139,8 +139,8 @@ class CrowdSimulator:
         robot, hist = self.robot, self.history
         r = robot.tolist()
         (px, py), (gx, gy), heading0 = r[Robot.POS], r[Robot.GOAL], r[Robot.HEADING]
-        x, y, heading, vx, vy = _apply_action_scalar(
-            px, py, heading0, gx, gy, self._speed_list[action], self._direction_list[action], cfg.kinematics,
+        x, y, heading, vx, vy = move(
+            px, py, heading0, gx, gy, self._speed_list[action], self._direction_list[action], cfg.kinematics == "holonomic",
             cfg.time_step,
         )
         human_pos0 = hist[-1, :n, Human.POS].copy()

@@ -277,10 +277,8 @@ def generate_layout(rng: np.random.Generator, ranges: LayoutRanges | None = None
     r = LayoutRanges() if ranges is None else ranges
     rows = int(rng.integers(r.rows[0], r.rows[1] + 1))
     segments = int(rng.integers(r.segments[0], r.segments[1] + 1))
-    # rng.uniform(lows, highs) of the four sizes as Generator.uniform computes it (low + (high - low) * draw, the
-    # same draws in the same order), without converting the bounds to arrays
-    length, depth, aisle, cross = [lo + (hi - lo) * u for (lo, hi), u in zip(
-        (r.rack_length, r.rack_depth, r.aisle_width, r.cross_aisle_width), rng.random(4).tolist(), strict=True)]
+    bounds = np.array([r.rack_length, r.rack_depth, r.aisle_width, r.cross_aisle_width])  # (4, 2) low, high [m]
+    length, depth, aisle, cross = rng.uniform(bounds[:, 0], bounds[:, 1]).tolist()
     return layout_from_sizes(rows, segments, length, depth, aisle, cross)
 
 
@@ -299,11 +297,6 @@ def layout_from_sizes(rows: int, segments: int, rack_length: float, rack_depth: 
             boxes += (x0, y0, x1, y1)
     w, h = width / 2, height / 2
     flat += (w, -h, w, h, -w, h, -w, -h)  # hall_vertices'
-    # every vertex with its successor along its ring (polygon_segments' rows), from the same floats
-    edges = []
-    for k in range(0, len(flat), 8):
-        ring = flat[k : k + 8]
-        edges += (*ring[0:4], *ring[2:6], *ring[4:8], *ring[6:8], *ring[0:2])
     rings = np.array(flat, dtype=np.float64).reshape(-1, 4, 2)
     vertices = rings[:-1]
     layout = WarehouseLayout(width=width, height=height, racks=vertices)
@@ -311,7 +304,7 @@ def layout_from_sizes(rows: int, segments: int, rack_length: float, rack_depth: 
     # racks, counter-clockwise already
     layout.__dict__["boxes"] = np.array(boxes, dtype=np.float64).reshape(-1, 4)
     layout.__dict__["rack_vertices"] = list(layout.racks)
-    segments = np.array(edges, dtype=np.float64).reshape(-1, 4)
+    segments = np.concatenate([rings, np.roll(rings, -1, axis=1)], axis=2).reshape(-1, 4)  # each vertex and the next
     segments.setflags(write=False)
     layout.__dict__["segments"], layout.__dict__["rack_segments"] = segments, segments[: 4 * len(vertices)]
     return layout

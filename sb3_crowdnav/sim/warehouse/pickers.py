@@ -102,8 +102,6 @@ class PickerCrowd:
         c, w, h = scene.human_radius - 1e-6, layout.width / 2, layout.height / 2
         self._room, self._hall = np.array([-w + c, -h + c, w - c, h - c]), (w, h)  # inside it, outside the grown boxes:
         self._grown = None if layout.boxes is None else layout.boxes + np.array([-c, -c, c, c])  # clear of every rack
-        # what kernels.picker_after_step reads of them: the room, the grown boxes, the boxes
-        self._guard = None if self._grown is None else np.concatenate([self._room[None], self._grown, layout.boxes])
         self._preferences = np.zeros((n, 2))  # filled by kernels.picker_preferences
         self.orca = OrcaCrowd(scene, self.slots[starts], np.full(n, scene.human_radius), np.full(n, scene.human_v_pref),
                               robot, obstacles=rvo_obstacles(layout))
@@ -167,8 +165,9 @@ class PickerCrowd:
         progress = (self.dwell, self.waypoint, self._route_array, self._route_lengths, dt, ARRIVAL)
         if self._grown is not None:  # (one kernel for both when no picker is pressed)
             (w, h), radius = self._hall, self.scene.human_radius - 1e-6
-            packed = kernels.picker_after_step(state, self._guard, w, h, radius, *progress).tolist()
-            pressed, events = packed[1 : 1 + packed[0]], packed[1 + packed[0] :]
+            after = kernels.picker_after_step(state, self._room, self._grown, self._layout.boxes, w, h, radius, *progress)
+            pressed = after.pressed.tolist()
+            events = [v for pair in zip(after.which.tolist(), after.what.tolist(), strict=True) for v in pair]
         else:
             pressed, events = self._pressed_indices(state), None
         for i in pressed:  # never seen at Δt <= 0.5 s; a guard

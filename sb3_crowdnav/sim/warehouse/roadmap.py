@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import functools
-import itertools
-import math
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
@@ -15,15 +13,10 @@ from shapely.geometry import Point
 
 from sb3_crowdnav.sim.validation import check_number
 from sb3_crowdnav.sim.warehouse import kernels
+from sb3_crowdnav.sim.warehouse.boxes import BoxSpace
 
 if TYPE_CHECKING:
     from sb3_crowdnav.sim.warehouse.layout import WarehouseLayout
-
-
-@functools.lru_cache(maxsize=64)
-def _pairs(n: int) -> tuple[np.ndarray, np.ndarray]:
-    """``np.triu_indices(n, k=1)``, remembered (a roadmap of n nodes is built every episode)."""
-    return np.triu_indices(n, k=1)
 
 
 class _BuiltGraph(nx.Graph):
@@ -83,6 +76,73 @@ class _BuiltGraph(nx.Graph):
         return nx.Graph, (nx.to_dict_of_dicts(self),)
 
 
+class PolygonSpace:
+    """The free space of a disc among racks of any shape: shapely's ``free`` polygon (buffered by 1 µm for the
+    visibility tests, so that a segment along its boundary counts as inside) and its corners. Asked through the same
+    methods as :class:`~sb3_crowdnav.sim.warehouse.boxes.BoxSpace`."""
+
+    def __init__(self, free: Any) -> None:
+        self.free = free
+        self._cover = free.buffer(1e-6)
+        shapely.prepare(self._cover)
+        rings = [ring for poly in getattr(free, "geoms", [free]) if not poly.is_empty
+                 for ring in (poly.exterior, *poly.interiors)]
+        self.corners = np.concatenate([np.asarray(r.coords)[:-1] for r in rings]) if rings else np.zeros((0, 2))
+        self.nodes = np.arange(len(self.corners))
+        self._joins_of: dict[tuple[float, float], tuple[list[int], list[float]]] = {}
+
+    def _visible(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """(n,) bool: the segments a[k]-b[k] (n, 2) lie in the free space."""
+        if not len(a):
+            return np.zeros(0, dtype=bool)
+        return shapely.covers(self._cover, shapely.linestrings(np.stack([a, b], axis=1)))
+
+    def edges(self) -> tuple[list[int], list[int], list[float]]:
+        """Both corners and the length of every pair of corners that see each other, in the order of
+        ``np.triu_indices``."""
+        i, j = np.triu_indices(len(self.nodes), k=1)
+        a, b = self.corners[i], self.corners[j]
+        visible = self._visible(a, b)
+        lengths = np.linalg.norm((b - a)[visible], axis=1)
+        return i[visible].tolist(), j[visible].tolist(), lengths.tolist()
+
+    def free_points(self, points: np.ndarray) -> list[bool]:
+        """:meth:`is_free` of each of ``points`` (n, 2)."""
+        return [self.is_free(p) for p in points.tolist()]
+
+    def is_free(self, point: Sequence[float]) -> bool:
+        """Whether the disc centred at ``point`` is in the free space."""
+        return bool(self.free.contains(Point(point)))
+
+    def sees(self, a: Sequence[float], b: Sequence[float]) -> bool:
+        """Whether the segment ``a``-``b`` lies in the free space."""
+        return bool(self._visible(np.asarray(a, dtype=np.float64)[None], np.asarray(b, dtype=np.float64)[None])[0])
+
+    def joins(self, point: Sequence[float]) -> tuple[list[int], list[float]]:
+        """The corners a route's end at ``point`` sees and their distances; none when ``point`` is outside the free
+        space. Remembered per point (pick slots and goals recur)."""
+        key = (float(point[0]), float(point[1]))
+        joins = self._joins_of.get(key)
+        if joins is None:
+            nodes = self.nodes[self._visible(np.broadcast_to(key, self.corners.shape), self.corners)]
+            joins = (nodes.tolist(), np.linalg.norm(self.corners[nodes] - key, axis=1).tolist())
+            if len(self._joins_of) >= 4096:  # a fixed layout's roadmap lives for many episodes
+                self._joins_of.clear()
+            self._joins_of[key] = joins
+        return joins
+
+    def query(self, start: Sequence[float], goal: Sequence[float]) -> kernels.RouteQuery:
+        """What a route from ``start`` to ``goal`` asks before its search."""
+        if self.sees(start, goal):
+            none, empty = np.zeros(0, dtype=np.int64), np.zeros(0)
+            return kernels.RouteQuery(True, none, none, empty, empty, empty)
+        (start_joins, start_lengths), (goal_joins, goal_lengths) = self.joins(start), self.joins(goal)
+        points = np.concatenate([self.corners, [start, goal]])
+        return kernels.RouteQuery(False, np.array(start_joins, dtype=np.int64), np.array(goal_joins, dtype=np.int64),
+                                  np.array(start_lengths), np.array(goal_lengths),
+                                  np.linalg.norm(points - np.asarray(goal), axis=1))
+
+
 class Roadmap:
     """Shortest routes through the free space of a disc of radius ``clearance``: A* on a visibility graph.
 
@@ -94,63 +154,29 @@ class Roadmap:
     shrunk free space (a picker pressed against a rack) is joined to its nearest corner, from which the route goes
     on as from a start.
 
-    When the racks are boxes whose grown copies stay apart and off the walls (every generated layout), the free
-    space is the shrunk hall minus the boxes grown by ``clearance`` (shapely's mitred buffers of the racks, whose
-    corners are the buffered free space's, to within an ulp), and the roadmap is built and queried without it
-    (:mod:`~sb3_crowdnav.sim.warehouse.boxes`). The graph then keeps only what a shortest path can use: the
-    racks' corners (a shortest path never bends at a corner of the hall) and the edges that pass each of their
-    ends on the outside of its rack (bitangents; a route's end is joined likewise): the same shortest routes, from
-    a graph of about a third of the edges. Otherwise every test is a shapely predicate on :attr:`free`.
+    The free space is chosen once, in the constructor, as :attr:`space`: a
+    :class:`~sb3_crowdnav.sim.warehouse.boxes.BoxSpace` when the racks are boxes whose grown copies stay apart and
+    off the walls (every generated layout; a few comparisons per question, and only the bitangent edges), else a
+    :class:`PolygonSpace` (shapely's predicates on :attr:`free`).
     """
 
     def __init__(self, layout: WarehouseLayout, clearance: float) -> None:
         check_number("clearance", clearance, allow_zero=True)
         self.layout, self.clearance = layout, float(clearance)
         w, h, c = layout.width / 2, layout.height / 2, self.clearance
-        self._hall = (-w + c, -h + c, w - c, h - c)  # the free space's outline (shapely's mitred buffer gives these)
-        self._joins_of: dict[tuple[float, float], tuple[list[int], list[float]]] = {}
-        boxes, self.grown = layout.boxes, None  # grown: (B, 4) the racks grown by the clearance, or None (see above)
-        if boxes is not None and len(boxes):
-            # a mitred buffer of a box is the box grown by c (shapely's corners within an ulp); the corners are the
-            # hall's, then each grown rack's counter-clockwise from (xmin, ymin); a segment leaving a rack's corner
-            # along (dx, dy) passes it on the outside when side * dx * dy <= 0; touching a grown rack is allowed (open)
-            apart, grown, self.corners, self._sides, self._open = kernels.box_roadmap(boxes, c, *self._hall)
-            self.grown = grown if apart else None
-        if self.grown is not None:
-            self._grown_list, self._corner_list = self.grown.tolist(), self.corners.tolist()
-            self._nodes = np.arange(4, len(self.corners))
-        else:
-            self._cover = self.free.buffer(1e-6)  # segments along the boundary count as inside
-            shapely.prepare(self._cover)
-            rings = [ring for poly in getattr(self.free, "geoms", [self.free]) if not poly.is_empty
-                     for ring in (poly.exterior, *poly.interiors)]
-            self.corners = np.concatenate([np.asarray(r.coords)[:-1] for r in rings]) if rings else np.zeros((0, 2))
-            self._nodes = np.arange(len(self.corners))
-            self._corner_list = self.corners.tolist()
+        hall = (-w + c, -h + c, w - c, h - c)  # the free space's outline (shapely's mitred buffer gives these)
+        boxes = layout.boxes
+        geometry = kernels.box_roadmap(boxes, c, *hall) if boxes is not None and len(boxes) else None
+        self.space: BoxSpace | PolygonSpace = BoxSpace(hall, geometry) if geometry is not None and geometry.apart \
+            else PolygonSpace(self.free)
+        self.corners = self.space.corners
+        self._corner_list = self.corners.tolist()
 
     @functools.cached_property
     def graph(self) -> nx.Graph:
         """The visibility graph of the corners, built when a route first needs it (a route's ends that see each other
         need none)."""
-        return _BuiltGraph.from_edges(self._nodes.tolist(), *self._edges())
-
-    def _edges(self) -> tuple[list[int], list[int], list[float]]:
-        """The graph's edges: both corners and the length of every pair of corners that see each other, in the order
-        of ``np.triu_indices``.
-
-        With boxes only the bitangents: a segment leaving a rack's corner along (dx, dy) passes it on the outside
-        of the rack (both sides of the rack at the corner on one side of the segment, as each segment of a shortest
-        route does at a corner it bends around) when side * dx * dy <= 0, at either end (the product keeps its
-        sign along -(dx, dy)); and the corners are inside the hall, so the segment is in it.
-        """
-        if self.grown is not None:  # (kernels.bitangent_edges: the loops of this NumPy form, the same values)
-            i, j, lengths = kernels.bitangent_edges(self.corners, self._sides, 4, self._open)
-            return i.tolist(), j.tolist(), lengths.tolist()
-        i, j = (self._nodes[k] for k in _pairs(len(self._nodes)))
-        a, b = self.corners[i], self.corners[j]
-        visible = self._visible(a, b)
-        lengths = np.linalg.norm((b - a)[visible], axis=1)
-        return i[visible].tolist(), j[visible].tolist(), lengths.tolist()
+        return _BuiltGraph.from_edges(self.space.nodes.tolist(), *self.space.edges())
 
     @functools.cached_property
     def free(self) -> Any:
@@ -159,53 +185,13 @@ class Roadmap:
         shapely.prepare(free)
         return free
 
-    def _visible(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        """(n,) bool: the segments a[k]-b[k] lie in the free space (shapely's ``covers``: racks that are not boxes;
-        with boxes the kernels decide, :meth:`_edges`, :meth:`_joins`, :meth:`_visible_one`)."""
-        if not len(a):
-            return np.zeros(0, dtype=bool)
-        return shapely.covers(self._cover, shapely.linestrings(np.stack([a, b], axis=1)))
-
     def free_points(self, points: np.ndarray) -> list[bool]:
-        """:meth:`is_free` of each of ``points`` (n, 2) (with boxes for racks at once, :func:`kernels.free_points`)."""
-        if self.grown is None:
-            return [self.is_free(p) for p in points.tolist()]
-        return kernels.free_points(points, self._hall, self.grown).tolist()
+        """:meth:`is_free` of each of ``points`` (n, 2)."""
+        return self.space.free_points(points)
 
     def is_free(self, point: Sequence[float]) -> bool:
         """Whether a disc of radius ``clearance`` centred at ``point`` is in the free space."""
-        if self.grown is None:
-            return bool(self.free.contains(Point(point)))
-        (x, y), (x0, y0, x1, y1) = point, self._hall
-        return bool(x0 < x < x1 and y0 < y < y1 and not any(gx0 <= x <= gx1 and gy0 <= y <= gy1
-                                                            for gx0, gy0, gx1, gy1 in self._grown_list))
-
-    def _visible_one(self, a: np.ndarray, b: np.ndarray) -> bool:
-        """:meth:`_visible` of the one segment ``a``-``b`` (in floats when the racks are boxes)."""
-        if self.grown is None:
-            return bool(self._visible(np.asarray(a, dtype=np.float64)[None], np.asarray(b, dtype=np.float64)[None])[0])
-        (ax, ay), (bx, by), (x0, y0, x1, y1) = _floats(a), _floats(b), self._hall
-        inside = x0 - 1e-6 <= min(ax, bx) and max(ax, bx) <= x1 + 1e-6 and y0 - 1e-6 <= min(ay, by) and \
-            max(ay, by) <= y1 + 1e-6
-        return inside and kernels.misses_boxes(ax, ay, bx, by, self._open)
-
-    def _joins(self, point: np.ndarray) -> tuple[list[int], list[float]]:
-        """The graph's corners a route's end at ``point`` sees (and passes on the outside) and the edges' lengths;
-        none when ``point`` is outside the free space. Remembered per point (pick slots and goals recur)."""
-        key = (float(point[0]), float(point[1]))
-        joins = self._joins_of.get(key)
-        if joins is None and self.grown is None:
-            nodes = self._nodes[self._visible(np.broadcast_to(point, self.corners.shape), self.corners)]
-            joins = (nodes.tolist(), np.linalg.norm(self.corners[nodes] - point, axis=1).tolist())
-        elif joins is None:  # the corners it sees and passes on the outside (kernels.joins), lengths as np.linalg.norm's
-            (px, py), (x0, y0, x1, y1), joins = key, self._hall, ([], [])
-            if x0 - 1e-6 <= px <= x1 + 1e-6 and y0 - 1e-6 <= py <= y1 + 1e-6:
-                nodes, lengths = kernels.joins(px, py, self.corners, self._sides, 4, self._open)
-                joins = (nodes.tolist(), lengths.tolist())
-        if len(self._joins_of) >= 4096:  # a fixed layout's roadmap lives for many episodes
-            self._joins_of.clear()
-        self._joins_of[key] = joins
-        return joins
+        return self.space.is_free(point)
 
     def route(self, start: Sequence[float], goal: Sequence[float]) -> np.ndarray:
         """Waypoints (n, 2) from ``start`` to ``goal`` (both included) through the free space; ``ValueError`` when
@@ -215,20 +201,10 @@ class Roadmap:
     def waypoints(self, start: Sequence[float], goal: Sequence[float]) -> list[list[float]]:
         """:meth:`route` as a list of ``[x, y]`` floats (the same values)."""
         start, goal = [float(start[0]), float(start[1])], [float(goal[0]), float(goal[1])]
-        remaining = None
-        if self.grown is not None:  # the sight test, both ends' joins and the heuristic in one kernel call
-            (sx, sy), (gx, gy) = start, goal
-            query = kernels.route_query(sx, sy, gx, gy, self.corners, self._sides, 4, self._open, self._hall).tolist()
-            if query[0]:
-                return [start, goal]
-            a, b = int(query[1]), int(query[2])
-            from_start, to_goal = [int(k) for k in query[3 : 3 + a]], [int(k) for k in query[3 + a : 3 + a + b]]
-            start_lengths, goal_lengths = query[3 + a + b : 3 + 2 * a + b], query[3 + 2 * a + b : 3 + 2 * (a + b)]
-            remaining = query[3 + 2 * (a + b) :]
-        elif self._visible_one(start, goal):
+        query = self.space.query(start, goal)
+        if query.direct:
             return [start, goal]
-        else:
-            (from_start, start_lengths), (to_goal, goal_lengths) = self._joins(start), self._joins(goal)
+        from_start, to_goal = query.start_joins.tolist(), query.goal_joins.tolist()
         if len(self.corners) and not (from_start and to_goal):  # an end outside the free space: via its nearest corner
             if not from_start:
                 nearest = self.corners[np.argmin(np.linalg.norm(self.corners - start, axis=1))].tolist()
@@ -236,34 +212,19 @@ class Roadmap:
             nearest = self.corners[np.argmin(np.linalg.norm(self.corners - goal, axis=1))].tolist()
             return [start, goal] if nearest == start else [*self.waypoints(start, nearest), goal]
         graph, n = self.graph, len(self.corners)
-        points = [*self._corner_list, start, goal]
-        if remaining is None:  # the A* heuristic of every node (np.linalg.norm's operations)
-            (sx, sy), (gx, gy) = start, goal
-            remaining = kernels.distances_to(self.corners, gx, gy).tolist()
-            remaining += (math.sqrt((sx - gx) * (sx - gx) + (sy - gy) * (sy - gy)), 0.0)
-        try:  # (the graph with the ends added: what add_weighted_edges_from would make of it, the graph kept)
-            path = nx.astar_path(graph.with_ends(n, from_start, start_lengths, to_goal, goal_lengths), n, n + 1,
-                                 heuristic=lambda u, _: remaining[u])
+        remaining = query.heuristic.tolist()
+        ended = graph.with_ends(n, from_start, query.start_lengths.tolist(), to_goal, query.goal_lengths.tolist())
+        try:
+            path = nx.astar_path(ended, n, n + 1, heuristic=lambda u, _: remaining[u])
         except (nx.NetworkXNoPath, nx.NodeNotFound):
             raise ValueError(f"no route from {tuple(start)} to {tuple(goal)} in the free space") from None
+        points = [*self._corner_list, start, goal]
         return [[*points[k]] for k in path]  # (copies: the corners' lists stay the roadmap's)
 
     @staticmethod
     def route_length(route: np.ndarray | list[list[float]]) -> float:
-        """The length [m] of the polyline ``route`` (n, 2): ``np.sum`` of ``np.linalg.norm`` of ``np.diff``; in floats
-        below 8 segments (NumPy adds fewer than 8 values one after the other, from 0; more pairwise)."""
-        if len(route) > 8:
-            return float(np.sum(np.linalg.norm(np.diff(np.asarray(route, dtype=np.float64), axis=0), axis=1)))
-        points = route.tolist() if isinstance(route, np.ndarray) else route
-        total = 0.0
-        for (x0, y0), (x1, y1) in itertools.pairwise(points):
-            dx, dy = x1 - x0, y1 - y0
-            total += math.sqrt(dx * dx + dy * dy)
-        return total
+        """The length [m] of the polyline ``route`` (n, 2)."""
+        return float(np.linalg.norm(np.diff(np.asarray(route, dtype=np.float64), axis=0), axis=1).sum())
 
 
-def _floats(point: Sequence[float]) -> list[float]:
-    return point.tolist() if isinstance(point, np.ndarray) else point
-
-
-__all__ = ["Roadmap"]
+__all__ = ["PolygonSpace", "Roadmap"]

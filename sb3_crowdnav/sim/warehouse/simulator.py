@@ -97,7 +97,6 @@ class WarehouseSimulator(CrowdSimulator):
             self._segments_of, self.segments = self.layout, self.layout.segments
             self._sight = None  # where the robot's centre may go (shapely), built when _in_sight needs it
             self._boxes = self.layout.boxes
-            self._seg_geometry = kernels.segment_geometry(self.segments)  # what kernels.sense reads of every segment
             # filled by every sensing: the distance from the robot's centre to every segment, their stable order
             self._seg_dist, self._seg_order = np.zeros(len(self.segments)), np.zeros(len(self.segments), dtype=np.int64)
         start, goal = self._stations(rng)
@@ -140,13 +139,9 @@ class WarehouseSimulator(CrowdSimulator):
         in the hall, ``STATION_BATCH`` at a time: the first free one is the start, the first free one after it far
         enough away the goal (a new start after ``MAX_TRIES`` free ones too close)."""
         w, h, far = self.layout.width / 2, self.layout.height / 2, self.config.min_route_distance
-        # rng.uniform((-w, -h), (w, h), (STATION_BATCH, 2)) as Generator.uniform computes it (low + range * draw,
-        # the same draws), without converting the bounds at every call
-        low = np.array([-w, -h])
-        span = np.array([w, h]) - low
         start, tries = None, 0
         for _ in range(MAX_TRIES * MAX_TRIES // STATION_BATCH):
-            points = low + span * rng.random((STATION_BATCH, 2))
+            points = rng.uniform((-w, -h), (w, h), (STATION_BATCH, 2))
             for (x, y), free in zip(points.tolist(), self.robot_map.free_points(points), strict=True):
                 if not free:
                     continue
@@ -175,7 +170,7 @@ class WarehouseSimulator(CrowdSimulator):
         distances to every segment, their stable order, the observed segments; a step senses in
         :func:`kernels.sense_and_follow`."""
         radius = self.scene.robot_radius
-        _, *self._observed = kernels.sense(self._seg_geometry, x, y, x, y, radius, radius, self.config.sensor_range,
+        _, *self._observed = kernels.sense(self.segments, x, y, x, y, radius, radius, self.config.sensor_range,
                                            self.config.max_obstacles, self._seg_dist, self._seg_order)
 
     def observed_obstacles(self) -> tuple[np.ndarray, np.ndarray]:
@@ -245,7 +240,7 @@ class WarehouseSimulator(CrowdSimulator):
         # the sensing of the step (the candidates of the swept test: the segments closer than the radius + the step)
         # and the route's bookkeeping at p1, applied below unless the step ends the episode
         hit, *self._observed, index, off, blocked = kernels.sense_and_follow(
-            self._seg_geometry, x0, y0, x1, y1, radius + math.dist(p0, p1), radius, cfg.sensor_range,
+            self.segments, x0, y0, x1, y1, radius + math.dist(p0, p1), radius, cfg.sensor_range,
             cfg.max_obstacles, self._seg_dist, self._seg_order, self.route, self.route_index, cfg.waypoint_radius,
             cfg.replan_distance, self._boxes, self.layout.width / 2, self.layout.height / 2)
         if hit:  # (without a hit, with_obstacle_collision returns the terms unchanged)

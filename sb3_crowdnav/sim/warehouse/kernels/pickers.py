@@ -3,18 +3,27 @@
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
-from sb3_crowdnav.sim.warehouse.kernels.base import _JIT, point_clearance, py_hypot
+from sb3_crowdnav.sim.geometry import JIT
+from sb3_crowdnav.sim.warehouse.kernels.base import point_clearance
 
 
-@njit(**_JIT)
+class AfterStep(NamedTuple):
+    """:func:`picker_after_step`'s answer."""
+
+    pressed: np.ndarray  # (p,) int64 the pickers pressed into a rack or a wall
+    which: np.ndarray  # (k,) int64 the pickers with something to do next (none when p > 0), in order
+    what: np.ndarray  # (k,) int64 1: its dwell is over (a new job); 2: it reached its route's end (a dwell is drawn)
+
+
+@njit(**JIT)
 def slot_points(segments, spacing, offset):  # pragma: no cover  (compiled)
     """``pick_slots``' candidate points (n, 2): along every edge (S, 4) ``length // spacing`` points at
-    ``(k + 0.5) * length / count`` from its start, ``offset`` out along its normal (dy, -dx) / length (the NumPy
-    form's operations, element by element)."""
+    ``(k + 0.5) * length / count`` from its start, ``offset`` out along its normal (dy, -dx) / length."""
     n_edges = segments.shape[0]
     length, count = np.empty(n_edges), np.empty(n_edges, np.int64)
     total = 0
@@ -35,24 +44,17 @@ def slot_points(segments, spacing, offset):  # pragma: no cover  (compiled)
     return out
 
 
-@njit(**_JIT)
+@njit(**JIT)
 def points_clearance(points, boxes, w, h):  # pragma: no cover  (compiled)
     """The distance from each of ``points`` (n, 2) to the nearest rack (a box of ``boxes`` (B, 4), solid) or wall (the
     hall [-w, w] x [-h, h]), (n,); 0 inside a rack, negative outside the hall."""
-    n = points.shape[0]
-    out = np.empty(n)
-    for p in range(n):
-        x, y = points[p, 0], points[p, 1]
-        best = min(min(x + w, w - x), min(y + h, h - y))
-        for k in range(boxes.shape[0]):
-            dx = max(max(boxes[k, 0] - x, x - boxes[k, 2]), 0.0)
-            dy = max(max(boxes[k, 1] - y, y - boxes[k, 3]), 0.0)
-            best = min(best, math.sqrt(dx * dx + dy * dy))
-        out[p] = best
+    out = np.empty(points.shape[0])
+    for p in range(points.shape[0]):
+        out[p] = point_clearance(points[p, 0], points[p, 1], boxes, w, h)
     return out
 
 
-@njit(**_JIT)
+@njit(**JIT)
 def pressed(state, room, grown, boxes, w, h, radius):  # pragma: no cover  (compiled)
     """``PickerCrowd._pressed_indices`` with boxes for racks: the rows of ``state`` (n, >= 2: x, y first) whose centre
     is closer than ``radius`` to a rack or a wall (:func:`point_clearance`), asked only of those outside ``room``
@@ -75,7 +77,7 @@ def pressed(state, room, grown, boxes, w, h, radius):  # pragma: no cover  (comp
     return out[:count]
 
 
-@njit(**_JIT)
+@njit(**JIT)
 def far_from_both(points, ax, ay, bx, by, gap):  # pragma: no cover  (compiled)
     """The indices of ``points`` (n, 2) at least ``gap`` from (ax, ay) and from (bx, by) (``np.hypot``)."""
     out = np.empty(points.shape[0], np.int64)
@@ -88,10 +90,10 @@ def far_from_both(points, ax, ay, bx, by, gap):  # pragma: no cover  (compiled)
     return out[:count]
 
 
-@njit(**_JIT)
+@njit(**JIT)
 def spread(points, permutation, n, spacing):  # pragma: no cover  (compiled)
     """``WarehouseSimulator._spread``: the first ``n`` of ``points`` (u, 2) in the order of ``permutation`` that are
-    pairwise at least ``spacing`` apart (``math.hypot``, :func:`py_hypot`), greedily; fewer when they do not fit."""
+    pairwise at least ``spacing`` apart greedily; fewer when they do not fit."""
     chosen = np.empty(n, np.int64)
     count = 0
     for i in permutation:
@@ -100,7 +102,7 @@ def spread(points, permutation, n, spacing):  # pragma: no cover  (compiled)
         fits = True
         for c in range(count):
             k = chosen[c]
-            if not py_hypot(points[i, 0] - points[k, 0], points[i, 1] - points[k, 1]) >= spacing:
+            if not math.hypot(points[i, 0] - points[k, 0], points[i, 1] - points[k, 1]) >= spacing:
                 fits = False
                 break
         if fits:
@@ -109,7 +111,7 @@ def spread(points, permutation, n, spacing):  # pragma: no cover  (compiled)
     return chosen[:count]
 
 
-@njit(**_JIT)
+@njit(**JIT)
 def picker_preferences(positions, dwell, waypoint, routes, lengths, v_pref, arrival, out):  # pragma: no cover
     """``PickerCrowd.preferred_velocities`` into ``out`` (n, 2): towards each walking picker's current waypoint at
     ``v_pref`` (slowing into the last one), zero for a standing one (``dwell`` > 0); a walking picker first passes the
@@ -122,17 +124,17 @@ def picker_preferences(positions, dwell, waypoint, routes, lengths, v_pref, arri
         if dwell[i] > 0:
             continue
         x, y, w, last = positions[i, 0], positions[i, 1], waypoint[i], lengths[i] - 1
-        while w < last and py_hypot(x - routes[i, w, 0], y - routes[i, w, 1]) < arrival:
+        while w < last and math.hypot(x - routes[i, w, 0], y - routes[i, w, 1]) < arrival:
             w += 1
         waypoint[i] = w
         dx, dy = routes[i, w, 0] - x, routes[i, w, 1] - y
-        norm = py_hypot(dx, dy)
+        norm = math.hypot(dx, dy)
         if norm > v_pref or (w < last and norm > 1e-9):
             dx, dy = dx / norm * v_pref, dy / norm * v_pref
         out[i, 0], out[i, 1] = dx, dy
 
 
-@njit(**_JIT)
+@njit(**JIT)
 def picker_progress(state, dwell, waypoint, routes, lengths, dt, arrival):  # pragma: no cover  (compiled)
     """After a step: a standing picker's dwell counts down by ``dt`` (to 0 at least; ``dwell`` updated in place); the
     pickers with something to do next, in order, (k,), and what: 1 its dwell is over (a new job), 2 it walked within
@@ -148,7 +150,7 @@ def picker_progress(state, dwell, waypoint, routes, lengths, dt, arrival):  # pr
                 event = 1
         else:
             last = lengths[i] - 1
-            if waypoint[i] == last and py_hypot(state[i, 0] - routes[i, last, 0], state[i, 1] - routes[i, last, 1]) < \
+            if waypoint[i] == last and math.hypot(state[i, 0] - routes[i, last, 0], state[i, 1] - routes[i, last, 1]) < \
                     arrival:
                 event = 2
         if event:
@@ -157,33 +159,15 @@ def picker_progress(state, dwell, waypoint, routes, lengths, dt, arrival):  # pr
     return which[:count], what[:count]
 
 
-@njit(**_JIT)
-def picker_after_step(state, geometry, w, h, radius, dwell, waypoint, routes, lengths, dt,
+@njit(**JIT)
+def picker_after_step(state, room, grown, boxes, w, h, radius, dwell, waypoint, routes, lengths, dt,
                       arrival):  # pragma: no cover  (compiled)
-    """:func:`pressed`, then, when no picker is pressed into a rack (always so far), :func:`picker_progress`, in one
-    call and one array: ``[p, the p pressed pickers..., then (picker, event) pairs...]`` (no pairs when p > 0: the
-    caller moves the pressed ones out first, then asks :func:`picker_progress`).
-
-    :param geometry: (2B + 1, 4) the ``room`` of :func:`pressed`, then its ``grown`` boxes, then the ``boxes``
-    """
-    b = (geometry.shape[0] - 1) // 2
-    out = pressed(state, geometry[0], geometry[1 : b + 1], geometry[b + 1 :], w, h, radius)
+    """:func:`pressed`, then, when no picker is pressed into a rack, :func:`picker_progress`, in one call
+    (:class:`AfterStep`; no events when a picker is pressed: the caller moves the pressed ones out first, then asks
+    :func:`picker_progress`)."""
+    out = pressed(state, room, grown, boxes, w, h, radius)
     if out.shape[0]:
-        return np.concatenate((np.array([out.shape[0]]), out))
+        none = np.empty(0, np.int64)
+        return AfterStep(out, none, none)
     which, what = picker_progress(state, dwell, waypoint, routes, lengths, dt, arrival)
-    packed = np.empty(1 + 2 * which.shape[0], np.int64)
-    packed[0] = 0
-    packed[1::2], packed[2::2] = which, what
-    return packed
-
-
-__all__ = [
-    "far_from_both",
-    "picker_after_step",
-    "picker_preferences",
-    "picker_progress",
-    "points_clearance",
-    "pressed",
-    "slot_points",
-    "spread",
-]
+    return AfterStep(out, which, what)

@@ -3,28 +3,59 @@
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
-from sb3_crowdnav.sim.warehouse.kernels.base import (
-    _JIT,
-    _misses_all,
-    _point_segment,
-    misses_boxes,
-    py_hypot,
-    segment_clearance,
-    segment_distance,
-)
+from sb3_crowdnav.sim.geometry import JIT, point_to_segment, segment_to_segment
+from sb3_crowdnav.sim.warehouse.kernels.base import misses_boxes, segment_clearance
 
 
-@njit(**_JIT)
+class BoxRoadmap(NamedTuple):
+    """:func:`box_roadmap`'s geometry of a box roadmap."""
+
+    apart: bool  # the grown racks lie strictly inside the shrunk hall and pairwise apart
+    grown: np.ndarray  # (B, 4) the racks grown by the clearance
+    corners: np.ndarray  # (4 + 4B, 2) the hall's corners, then each grown rack's counter-clockwise from (xmin, ymin)
+    sides: np.ndarray  # (4 + 4B,) 0 for the hall's corners, then 1, -1, 1, -1 per rack
+    opened: np.ndarray  # (B, 4) the grown racks shrunk by 1e-6 (open: touching them is allowed)
+
+
+class Sensing(NamedTuple):
+    """:func:`sense`'s answer."""
+
+    hit: bool  # the swept disc touched a segment
+    observed: np.ndarray  # (max_count, 4) the observed segments, nearest first, zeros after them
+    mask: np.ndarray  # (max_count,) bool
+
+
+class SensingAndRoute(NamedTuple):
+    """:func:`sense_and_follow`'s answer: the step's :class:`Sensing`, then the route's bookkeeping."""
+
+    hit: bool
+    observed: np.ndarray
+    mask: np.ndarray
+    index: int  # the new current waypoint
+    off: bool  # the robot strayed more than the replanning distance from the leg to it
+    blocked: bool  # the robot's disc does not fit along the segment to it
+
+
+class RouteQuery(NamedTuple):
+    """:func:`route_query`'s answer; without ``direct``, the joins of both ends and the A* heuristic."""
+
+    direct: bool  # the start sees the goal (the arrays below are then empty)
+    start_joins: np.ndarray  # (a,) int64 the corners the start sees
+    goal_joins: np.ndarray  # (b,) int64 the corners the goal sees
+    start_lengths: np.ndarray  # (a,) their distances
+    goal_lengths: np.ndarray  # (b,)
+    heuristic: np.ndarray  # (n + 2,) every node's distance to the goal (the corners, the start, the goal)
+
+
+@njit(**JIT)
 def box_roadmap(boxes, c, x0, y0, x1, y1):  # pragma: no cover  (compiled)
-    """A box roadmap's geometry: the racks ``boxes`` (B, 4) grown by the clearance ``c`` (each box + (-c, -c, c, c)),
-    whether they lie strictly inside the shrunk hall (x0, y0, x1, y1) and pairwise apart (:func:`separated`), the
-    corners (4 + 4B, 2) (the hall's, then each grown rack's counter-clockwise from (xmin, ymin)), their sides around
-    their racks (0 for the hall's, then 1, -1, 1, -1 per rack) and the grown racks shrunk by 1e-6 (open: touching them
-    is allowed)."""
+    """A box roadmap's geometry (:class:`BoxRoadmap`): the racks ``boxes`` (B, 4) grown by the clearance ``c``, checked
+    against the shrunk hall (x0, y0, x1, y1) (:func:`separated`), their corners and sides, and their open copies."""
     b = boxes.shape[0]
     grown, opened = np.empty((b, 4)), np.empty((b, 4))
     for k in range(b):
@@ -40,44 +71,25 @@ def box_roadmap(boxes, c, x0, y0, x1, y1):  # pragma: no cover  (compiled)
         corners[r, 0], corners[r, 1], corners[r + 1, 0], corners[r + 1, 1] = gx0, gy0, gx1, gy0
         corners[r + 2, 0], corners[r + 2, 1], corners[r + 3, 0], corners[r + 3, 1] = gx1, gy1, gx0, gy1
         sides[r], sides[r + 1], sides[r + 2], sides[r + 3] = 1.0, -1.0, 1.0, -1.0
-    return separated(grown, x0, y0, x1, y1), grown, corners, sides, opened
+    return BoxRoadmap(separated(grown, x0, y0, x1, y1), grown, corners, sides, opened)
 
 
-@njit(**_JIT)
-def segment_geometry(segments):  # pragma: no cover  (compiled)
-    """What :func:`sense` reads of every segment (S, 4): (S, 9) its start (x, y), direction (dx, dy), squared length
-    (dx * dx + dy * dy, at least 1e-18), and the segment."""
-    out = np.empty((segments.shape[0], 9))
-    for k in range(segments.shape[0]):
-        dx, dy = segments[k, 2] - segments[k, 0], segments[k, 3] - segments[k, 1]
-        out[k, 0], out[k, 1], out[k, 2], out[k, 3] = segments[k, 0], segments[k, 1], dx, dy
-        out[k, 4] = max(dx * dx + dy * dy, 1e-18)
-        out[k, 5:] = segments[k]
-    return out
-
-
-@njit(**_JIT)
-def sense(geometry, p0x, p0y, p1x, p1y, reach, radius, sensor_range, max_count, dist,
+@njit(**JIT)
+def sense(segments, p0x, p0y, p1x, p1y, reach, radius, sensor_range, max_count, dist,
           order):  # pragma: no cover  (compiled)
-    """The robot's sensing after it moved from p0 to p1, against the segments of a layout.
+    """The robot's sensing after it moved from p0 to p1, against the segments (S, 4) of a layout.
 
-    :param geometry: (S, 9) every segment's start (x, y), direction (dx, dy), squared length (at least 1e-18), and
-        the segment ``[x0, y0, x1, y1]``
     :param reach: the radius + the step's length: only segments closer than it to p1 can be touched
-    :param dist: (S,) filled with the distance from p1 to every segment (``np.hypot`` of the clamped projection, as
-        ``WarehouseSimulator``'s NumPy form)
+    :param dist: (S,) filled with the distance from p1 to every segment
     :param order: (S,) filled with the stable order of ``dist``
-    :return: whether the disc of ``radius`` swept from p0 to p1 touches a segment closer than ``reach``
-        (:func:`segment_distance` below ``radius``), and the observed segments: the first of that order within
-        ``sensor_range``, at most ``max_count``, padded with zeros (max_count, 4), with their mask (max_count,) bool
+    :return: :class:`Sensing`: whether the disc of ``radius`` swept from p0 to p1 touches a segment closer than
+        ``reach`` (:func:`~sb3_crowdnav.sim.geometry.segment_to_segment` below ``radius``), and the observed segments:
+        the first of that order within ``sensor_range``, at most ``max_count``, padded with zeros (max_count, 4), with
+        their mask (max_count,) bool
     """
-    ax, ay, abx, aby, len2, segments = geometry[:, 0], geometry[:, 1], geometry[:, 2], geometry[:, 3], \
-        geometry[:, 4], geometry[:, 5:]
-    n = ax.shape[0]
+    n = segments.shape[0]
     for k in range(n):
-        dx, dy = p1x - ax[k], p1y - ay[k]
-        t = min(max((dx * abx[k] + dy * aby[k]) / len2[k], 0.0), 1.0)
-        dist[k] = math.hypot(dx - t * abx[k], dy - t * aby[k])
+        dist[k] = point_to_segment(p1x, p1y, segments[k, 0], segments[k, 1], segments[k, 2], segments[k, 3])
     order[:] = np.argsort(dist, kind="mergesort")  # stable
     observed, mask = np.zeros((max_count, 4)), np.zeros(max_count, np.bool_)
     seen = 0
@@ -89,46 +101,46 @@ def sense(geometry, p0x, p0y, p1x, p1y, reach, radius, sensor_range, max_count, 
     for k in order:
         if dist[k] >= reach:
             break
-        if segment_distance(p0x, p0y, p1x, p1y, segments[k, 0], segments[k, 1], segments[k, 2],
-                            segments[k, 3]) < radius:
+        if segment_to_segment(p0x, p0y, p1x, p1y, segments[k, 0], segments[k, 1], segments[k, 2],
+                              segments[k, 3]) < radius:
             hit = True
             break
-    return hit, observed, mask
+    return Sensing(hit, observed, mask)
 
 
-@njit(**_JIT)
-def sense_and_follow(geometry, p0x, p0y, p1x, p1y, reach, radius, sensor_range, max_count, dist, order, route, index,
+@njit(**JIT)
+def sense_and_follow(segments, p0x, p0y, p1x, p1y, reach, radius, sensor_range, max_count, dist, order, route, index,
                      waypoint_radius, replan_distance, boxes, w, h):  # pragma: no cover  (compiled)
     """A step's :func:`sense`, then the route's bookkeeping of ``WarehouseSimulator._advance_route`` at p1 (what the
-    caller applies unless the step ended the episode): the waypoints passed (``math.dist`` below
-    ``waypoint_radius``, never the last) give the new current ``index``; ``off``: p1 strayed more than
+    caller applies unless the step ended the episode): the waypoints passed (closer than ``waypoint_radius``, never
+    the last) give the new current ``index``; ``off``: p1 strayed more than
     ``replan_distance`` from the leg to it; ``blocked`` (asked only when not off, and only of ``boxes`` (B, 4), None
     for a layout of other racks): the robot's disc does not fit along the segment to it (:func:`segment_clearance`
     below ``radius`` - 1 µm).
 
     :param route: (R, 2) the route's waypoints
-    :return: hit, observed segments, their mask (:func:`sense`), the new index, off, blocked
+    :return: :class:`SensingAndRoute`
     """
-    hit, observed, mask = sense(geometry, p0x, p0y, p1x, p1y, reach, radius, sensor_range, max_count, dist, order)
+    hit, observed, mask = sense(segments, p0x, p0y, p1x, p1y, reach, radius, sensor_range, max_count, dist, order)
     last = route.shape[0] - 1
-    while index < last and py_hypot(p1x - route[index, 0], p1y - route[index, 1]) < waypoint_radius:
+    while index < last and math.hypot(p1x - route[index, 0], p1y - route[index, 1]) < waypoint_radius:
         index += 1
-    off = _point_segment(p1x, p1y, route[index - 1, 0], route[index - 1, 1], route[index, 0],
+    off = point_to_segment(p1x, p1y, route[index - 1, 0], route[index - 1, 1], route[index, 0],
                          route[index, 1]) > replan_distance
     blocked = False
     if not off and boxes is not None:
         blocked = not segment_clearance(p1x, p1y, route[index, 0], route[index, 1], boxes, w, h, radius) >= \
             radius - 1e-6
-    return hit, observed, mask, index, off, blocked
+    return SensingAndRoute(hit, observed, mask, index, off, blocked)
 
 
-@njit(**_JIT)
+@njit(**JIT)
 def bitangent_edges(corners, sides, first, boxes):  # pragma: no cover  (compiled)
-    """The edges of a box roadmap's visibility graph (``Roadmap._edges``' NumPy form): every pair of corners i < j
-    from ``first`` on, in the order of ``np.triu_indices``, that passes both ends on the outside of their racks
+    """The edges of a box roadmap's visibility graph: every pair of corners i < j from ``first`` on, in the order of
+    ``np.triu_indices``, that passes both ends on the outside of their racks
     (``sides[i] * dx * dy <= 0`` and likewise for j) and enters none of the open ``boxes``.
 
-    :return: i (E,), j (E,), and the lengths (E,) (``np.linalg.norm``'s value, sqrt(dx * dx + dy * dy))
+    :return: i (E,), j (E,), and the lengths (E,)
     """
     n = corners.shape[0]
     size = max((n - first) * (n - first - 1) // 2, 0)
@@ -140,15 +152,15 @@ def bitangent_edges(corners, sides, first, boxes):  # pragma: no cover  (compile
             bx, by = corners[j, 0], corners[j, 1]
             dx, dy = bx - ax, by - ay
             turn = dx * dy
-            if sides[i] * turn <= 0 and sides[j] * turn <= 0 and _misses_all(ax, ay, bx, by, boxes):
+            if sides[i] * turn <= 0 and sides[j] * turn <= 0 and misses_boxes(ax, ay, bx, by, boxes):
                 out_i[count], out_j[count], out_len[count] = i, j, math.sqrt(dx * dx + dy * dy)
                 count += 1
     return out_i[:count], out_j[:count], out_len[:count]
 
 
-@njit(**_JIT)
+@njit(**JIT)
 def joins(px, py, corners, sides, first, boxes):  # pragma: no cover  (compiled)
-    """``Roadmap._joins`` of a point inside the hall: the corners from ``first`` on that (px, py) sees and passes on
+    """A route's end inside the hall joined to a box roadmap: the corners from ``first`` on that (px, py) sees and passes on
     the outside (``side * dx * dy <= 0`` with (dx, dy) = point - corner, :func:`misses_boxes`), and the lengths."""
     n = corners.shape[0]
     out_k, out_len = np.empty(max(n - first, 0), np.int64), np.empty(max(n - first, 0))
@@ -162,7 +174,7 @@ def joins(px, py, corners, sides, first, boxes):  # pragma: no cover  (compiled)
     return out_k[:count], out_len[:count]
 
 
-@njit(**_JIT)
+@njit(**JIT)
 def _ends_joins(px, py, corners, sides, first, boxes, hall):  # pragma: no cover  (compiled)
     """:func:`joins` of a route's end inside the hall (to within 1 µm), none outside it."""
     if hall[0] - 1e-6 <= px <= hall[2] + 1e-6 and hall[1] - 1e-6 <= py <= hall[3] + 1e-6:
@@ -170,33 +182,28 @@ def _ends_joins(px, py, corners, sides, first, boxes, hall):  # pragma: no cover
     return np.empty(0, np.int64), np.empty(0)
 
 
-@njit(**_JIT)
+@njit(**JIT)
 def route_query(sx, sy, gx, gy, corners, sides, first, boxes, hall):  # pragma: no cover  (compiled)
-    """What ``Roadmap.waypoints`` asks before its A* on a box roadmap, in one call and one array: whether the start
-    sees the goal (both within the hall ``(x0, y0, x1, y1)`` to within 1 µm and the segment entering no open box:
-    then the rest is empty), the corners each end sees (:func:`joins`) and their lengths, and the A* heuristic of
-    every node (the corners, the start, the goal: sqrt((x - gx)^2 + (y - gy)^2)).
-
-    :return: ``[direct, a, b, the start's a corners, the goal's b corners, their a + b lengths, n + 2 heuristics]``
-        (floats: the corners' numbers are exact)
-    """
+    """What a box roadmap asks before its A*, in one call (:class:`RouteQuery`): whether the start sees the goal (both
+    within the hall ``(x0, y0, x1, y1)`` to within 1 µm and the segment entering no open box), else the corners each
+    end sees (:func:`joins`) with their lengths, and the A* heuristic of every node (the corners, the start, the
+    goal)."""
     inside = hall[0] - 1e-6 <= min(sx, gx) and max(sx, gx) <= hall[2] + 1e-6 and \
         hall[1] - 1e-6 <= min(sy, gy) and max(sy, gy) <= hall[3] + 1e-6
     if inside and misses_boxes(sx, sy, gx, gy, boxes):
-        return np.ones(1)
-    s_nodes, s_lengths = _ends_joins(sx, sy, corners, sides, first, boxes, hall)
-    g_nodes, g_lengths = _ends_joins(gx, gy, corners, sides, first, boxes, hall)
-    a, b, n = s_nodes.shape[0], g_nodes.shape[0], corners.shape[0]
-    out = np.empty(3 + 2 * (a + b) + n + 2)
-    out[0], out[1], out[2] = 0.0, a, b
-    out[3 : 3 + a], out[3 + a : 3 + a + b] = s_nodes, g_nodes
-    out[3 + a + b : 3 + 2 * a + b], out[3 + 2 * a + b : 3 + 2 * (a + b)] = s_lengths, g_lengths
-    out[3 + 2 * (a + b) : 3 + 2 * (a + b) + n] = distances_to(corners, gx, gy)
-    out[-2], out[-1] = math.sqrt((sx - gx) * (sx - gx) + (sy - gy) * (sy - gy)), 0.0
-    return out
+        none, empty = np.empty(0, np.int64), np.empty(0)
+        return RouteQuery(True, none, none, empty, empty, empty)
+    start_joins, start_lengths = _ends_joins(sx, sy, corners, sides, first, boxes, hall)
+    goal_joins, goal_lengths = _ends_joins(gx, gy, corners, sides, first, boxes, hall)
+    n = corners.shape[0]
+    heuristic = np.empty(n + 2)
+    heuristic[:n] = distances_to(corners, gx, gy)
+    heuristic[n] = math.sqrt((sx - gx) * (sx - gx) + (sy - gy) * (sy - gy))
+    heuristic[n + 1] = 0.0
+    return RouteQuery(False, start_joins, goal_joins, start_lengths, goal_lengths, heuristic)
 
 
-@njit(**_JIT)
+@njit(**JIT)
 def free_points(points, hall, grown):  # pragma: no cover  (compiled)
     """``Roadmap.is_free`` of each of ``points`` (n, 2): strictly inside ``hall`` (x0, y0, x1, y1) and in none of the
     closed ``grown`` boxes (B, 4)."""
@@ -213,7 +220,7 @@ def free_points(points, hall, grown):  # pragma: no cover  (compiled)
     return out
 
 
-@njit(**_JIT)
+@njit(**JIT)
 def separated(boxes, x0, y0, x1, y1):  # pragma: no cover  (compiled)
     """Whether ``boxes`` (B, 4) lie strictly inside the rectangle (x0, y0, x1, y1) and pairwise apart (a gap in x or
     y): the roadmap's fast geometry applies to grown racks that are."""
@@ -229,25 +236,11 @@ def separated(boxes, x0, y0, x1, y1):  # pragma: no cover  (compiled)
     return True
 
 
-@njit(**_JIT)
+@njit(**JIT)
 def distances_to(points, gx, gy):  # pragma: no cover  (compiled)
-    """sqrt((x - gx)^2 + (y - gy)^2) of every row of ``points`` (n, 2) (``np.linalg.norm``'s operations)."""
+    """The distance from every row of ``points`` (n, 2) to (gx, gy)."""
     out = np.empty(points.shape[0])
     for p in range(points.shape[0]):
         dx, dy = points[p, 0] - gx, points[p, 1] - gy
         out[p] = math.sqrt(dx * dx + dy * dy)
     return out
-
-
-__all__ = [
-    "bitangent_edges",
-    "box_roadmap",
-    "distances_to",
-    "free_points",
-    "joins",
-    "route_query",
-    "segment_geometry",
-    "sense",
-    "sense_and_follow",
-    "separated",
-]
