@@ -1,10 +1,12 @@
-"""The house rules of the package: floors with one-way doors, small modules, one owner of the observation schema."""
+"""The house rules of the package: floors with one-way doors, small modules, one owner of the observation schema, no
+reach into another module's private attributes, no import circle, one validator module, one policy-grammar reader."""
 
 from __future__ import annotations
 
 import ast
 from pathlib import Path
 
+import networkx as nx
 import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "sb3_crowdnav"
@@ -128,3 +130,136 @@ def test_schema_round_trip_and_env_space():
     np.testing.assert_array_equal(schema.flatten_humans(view), obs["humans"])
     batch = np.stack([obs["humans"]] * 3)
     assert schema.humans_view(batch).shape == (3, 5, 7, 5)
+
+
+# ---------------------------------------------------------------- no reach into another module's private attributes
+# Attributes with a leading underscore that belong to a public protocol, not to an object's insides.
+PUBLIC_UNDERSCORED = {"_replace", "_asdict", "_fields", "_make"}  # namedtuple's API
+# torch's oneDNN kernels have no public name: nn/layers.py probes and calls them, falling back when they are absent
+ALLOWED_REACHES = {("nn/layers.py", "_linear_pointwise"), ("nn/layers.py", "_is_mkldnn_bf16_supported")}
+
+
+def _own_private_names(tree: ast.AST) -> set[str]:
+    """Private names a module defines: its functions and classes, the attributes and names it assigns, arguments."""
+    owned = set()
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            owned.add(node.name)
+        elif isinstance(node, ast.Attribute) and isinstance(node.ctx, ast.Store):
+            owned.add(node.attr)
+        elif isinstance(node, ast.Name) and isinstance(node.ctx, ast.Store):
+            owned.add(node.id)
+    return {name for name in owned if name.startswith("_")}
+
+
+def private_reaches(source: str, name: str) -> list[str]:
+    """``obj._attr`` where ``obj`` is not ``self``, ``cls`` or ``super()`` and this module does not define
+    ``_attr`` (an object of its own class may be read), and private names imported from another module."""
+    tree = ast.parse(source)
+    owned = _own_private_names(tree) | PUBLIC_UNDERSCORED
+    found = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Attribute) and node.attr.startswith("_") and not node.attr.startswith("__"):
+            base = node.value
+            if isinstance(base, ast.Name) and base.id in ("self", "cls"):
+                continue
+            if isinstance(base, ast.Call) and isinstance(base.func, ast.Name) and base.func.id == "super":
+                continue
+            if node.attr not in owned and (name, node.attr) not in ALLOWED_REACHES:
+                found.append(f"{name}:{node.lineno} {ast.unparse(node)}")
+        elif isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("sb3_crowdnav"):
+            found += [f"{name}:{node.lineno} imports {a.name} from {node.module}"
+                      for a in node.names if a.name.startswith("_") and not a.name.startswith("__")]
+    return found
+
+
+def test_no_module_reaches_into_another_modules_private_attributes():
+    found = [hit for path in _modules() for hit in private_reaches(path.read_text(), str(path.relative_to(PACKAGE)))]
+    assert not found, "\n".join(found)
+
+
+def test_the_private_reach_check_sees_one():
+    probe = ("from sb3_crowdnav.imitation.pretrain import _loss\n\n"
+             "class A:\n    def f(self, model, other):\n        return self._x, model._last_obs, other._mine, t._replace()\n"
+             "    def g(self):\n        self._mine = 1\n")
+    assert sorted(private_reaches(probe, "probe.py")) == ["probe.py:1 imports _loss from sb3_crowdnav.imitation.pretrain",
+                                                          "probe.py:5 model._last_obs"]
+
+
+# ---------------------------------------------------------------- no import circle
+MODULE_NAMES = {".".join(p.relative_to(PACKAGE.parent).with_suffix("").parts).removesuffix(".__init__"): p
+                for p in _modules()}
+
+
+def import_graph(modules: dict[str, Path]) -> nx.DiGraph:
+    """Module -> module edges of every ``sb3_crowdnav`` import (top level, inside functions, under TYPE_CHECKING);
+    ``from package import module`` is an edge to the module. A package's ``__init__`` re-exporting its own modules
+    is not a circle with them: edges from a module to a package that contains it are left out."""
+    graph = nx.DiGraph()
+    for name, path in modules.items():
+        graph.add_node(name)
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import):
+                targets = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.module:
+                targets = [f"{node.module}.{a.name}" if f"{node.module}.{a.name}" in modules else node.module
+                           for a in node.names]
+            else:
+                continue
+            graph.add_edges_from((name, t) for t in targets if t in modules and t != name
+                                 and not name.startswith(t + "."))
+    return graph
+
+
+def test_no_import_circle():
+    cycles = list(nx.simple_cycles(import_graph(MODULE_NAMES)))
+    assert not cycles, "\n".join(" -> ".join(cycle) for cycle in cycles)
+
+
+def test_the_circle_check_sees_one(tmp_path):
+    (tmp_path / "a.py").write_text("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from sb3_crowdnav.b import B\n")
+    (tmp_path / "b.py").write_text("def f():\n    from sb3_crowdnav.a import A\n")
+    graph = import_graph({"sb3_crowdnav.a": tmp_path / "a.py", "sb3_crowdnav.b": tmp_path / "b.py"})
+    assert list(nx.simple_cycles(graph)) in ([["sb3_crowdnav.a", "sb3_crowdnav.b"]], [["sb3_crowdnav.b", "sb3_crowdnav.a"]])
+
+
+# ---------------------------------------------------------------- one validator module, one grammar reader
+VALIDATORS = {"check_int", "check_number", "check_choice", "check_bool", "check_range", "check_probability",
+              "check_positive", "check_instance", "check_at_most"}
+
+
+def _code_strings(tree: ast.AST) -> list[str]:
+    """The string constants of a module that are not docstrings."""
+    docstrings = {id(node.body[0].value) for node in ast.walk(tree)
+                  if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef))
+                  and node.body and isinstance(node.body[0], ast.Expr)
+                  and isinstance(node.body[0].value, ast.Constant)}
+    return [node.value for node in ast.walk(tree)
+            if isinstance(node, ast.Constant) and isinstance(node.value, str) and id(node) not in docstrings]
+
+
+def test_the_validators_are_defined_once():
+    defined: dict[str, list[str]] = {}
+    for path in _modules():
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.FunctionDef) and node.name.lstrip("_") in VALIDATORS | {"check_positive_int"}:
+                defined.setdefault(node.name, []).append(str(path.relative_to(PACKAGE)))
+    assert defined == {name: ["sim/validation.py"] for name in VALIDATORS}
+
+
+def _reads_the_grammar(source: str) -> bool:
+    """Whether code (not a docstring) compares text with a grammar prefix or splits it at the colon."""
+    tree = ast.parse(source)
+    prefixes = any(s.lower().startswith(("pretrained:", "random:")) for s in _code_strings(tree))
+    splits = any(isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.func.attr == "partition"
+                 and [getattr(a, "value", None) for a in node.args] == [":"] for node in ast.walk(tree))
+    return prefixes or splits
+
+
+def test_the_policy_grammar_is_read_in_one_module():
+    """Only policy_spec.py takes a spec apart: the runner and the CLI ask a PolicySpec."""
+    readers = {str(path.relative_to(PACKAGE)) for path in _modules() if _reads_the_grammar(path.read_text())}
+    assert readers == {"evaluation/policy_spec.py"}
+    # not vacuous: the form a second parser would take is seen
+    assert _reads_the_grammar('def f(s):\n    return s.lower().startswith("pretrained:")\n')
+    assert not _reads_the_grammar('def f(s):\n    """pretrained:NAME"""\n    return s\n')

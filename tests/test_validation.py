@@ -3,10 +3,8 @@ and both name the parameter. Checked here over a sample of every floor's public 
 
 from __future__ import annotations
 
-import ast
 import re
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
@@ -127,46 +125,3 @@ def test_numpy_scalars_are_accepted_like_python_ones():
     check_range("open interval", 0.5, 0, 1, low_open=True, high_open=True)
     with pytest.raises(ValueError, match=r"must be in \(0, 1\)"):
         check_range("open interval", 1.0, 0, 1, low_open=True, high_open=True)
-
-
-# ---------------------------------------------------------------- one validator module, one grammar
-PACKAGE = Path(__file__).resolve().parents[1] / "sb3_crowdnav"
-VALIDATORS = {"check_int", "check_number", "check_choice", "check_bool", "check_range", "check_probability",
-              "check_positive", "check_instance", "check_at_most"}
-
-
-def _code_strings(tree: ast.AST) -> list[str]:
-    """The string constants of a module that are not docstrings."""
-    docstrings = {id(node.body[0].value) for node in ast.walk(tree)
-                  if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef))
-                  and node.body and isinstance(node.body[0], ast.Expr)
-                  and isinstance(node.body[0].value, ast.Constant)}
-    return [node.value for node in ast.walk(tree)
-            if isinstance(node, ast.Constant) and isinstance(node.value, str) and id(node) not in docstrings]
-
-
-def test_the_validators_are_defined_once():
-    defined = {}
-    for path in PACKAGE.rglob("*.py"):
-        for node in ast.walk(ast.parse(path.read_text())):
-            if isinstance(node, ast.FunctionDef) and node.name.lstrip("_") in VALIDATORS | {"check_positive_int"}:
-                defined.setdefault(node.name, []).append(str(path.relative_to(PACKAGE)))
-    assert defined == {name: ["sim/validation.py"] for name in VALIDATORS}
-
-
-def _reads_the_grammar(source: str) -> bool:
-    """Whether code (not a docstring) compares text with a grammar prefix or splits it at the colon."""
-    tree = ast.parse(source)
-    prefixes = any(s.lower().startswith(("pretrained:", "random:")) for s in _code_strings(tree))
-    splits = any(isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.func.attr == "partition"
-                 and [getattr(a, "value", None) for a in node.args] == [":"] for node in ast.walk(tree))
-    return prefixes or splits
-
-
-def test_the_policy_grammar_is_read_in_one_module():
-    """Only policy_spec.py takes a spec apart: the runner and the CLI ask a PolicySpec."""
-    readers = {str(path.relative_to(PACKAGE)) for path in PACKAGE.rglob("*.py") if _reads_the_grammar(path.read_text())}
-    assert readers == {"evaluation/policy_spec.py"}
-    # not vacuous: the form a second parser would take is seen
-    assert _reads_the_grammar('def f(s):\n    return s.lower().startswith("pretrained:")\n')
-    assert not _reads_the_grammar('def f(s):\n    """pretrained:NAME"""\n    return s\n')

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import networkx as nx
 import numpy as np
@@ -15,8 +15,18 @@ from sb3_crowdnav.sim.validation import check_number
 from sb3_crowdnav.sim.warehouse import kernels
 from sb3_crowdnav.sim.warehouse.boxes import BoxSpace
 
-if TYPE_CHECKING:
-    from sb3_crowdnav.sim.warehouse.layout import WarehouseLayout
+
+class RackLayout(Protocol):
+    """What a roadmap reads of its layout (a :class:`~sb3_crowdnav.sim.warehouse.layout.WarehouseLayout`, which
+    builds its roadmaps: typed by what is read, so that the two modules do not import each other)."""
+
+    width: float  # [m]
+    height: float  # [m]
+
+    @property
+    def boxes(self) -> np.ndarray | None: ...
+
+    def free_space(self, clearance: float = 0.0, join_style: str = "round") -> Any: ...
 
 
 class _BuiltGraph(nx.Graph):
@@ -30,10 +40,10 @@ class _BuiltGraph(nx.Graph):
     """
 
     def __init__(self, node_dict: dict | None = None, adjacency: dict | None = None) -> None:
-        node_dict = {} if node_dict is None else node_dict
-        adjacency = {} if adjacency is None else adjacency
-        self.node_dict_factory = lambda: node_dict
-        self.adjlist_outer_dict_factory = lambda: adjacency
+        self.built_nodes = {} if node_dict is None else node_dict  # the very dicts networkx's factories hand it
+        self.built_adjacency = {} if adjacency is None else adjacency
+        self.node_dict_factory = lambda: self.built_nodes
+        self.adjlist_outer_dict_factory = lambda: self.built_adjacency
         super().__init__()
 
     @classmethod
@@ -56,9 +66,9 @@ class _BuiltGraph(nx.Graph):
         route = self.__dict__.get("_route")
         if route is None:
             route = self.__dict__["_route"] = _BuiltGraph()
-        node_dict, adjacency, base = route._node, route._adj, self._adj
+        node_dict, adjacency, base = route.built_nodes, route.built_adjacency, self.built_adjacency
         node_dict.clear()
-        node_dict.update(self._node)
+        node_dict.update(self.built_nodes)
         adjacency.clear()
         adjacency.update(base)
         route.__networkx_cache__.clear()
@@ -160,7 +170,7 @@ class Roadmap:
     :class:`PolygonSpace` (shapely's predicates on :attr:`free`).
     """
 
-    def __init__(self, layout: WarehouseLayout, clearance: float) -> None:
+    def __init__(self, layout: RackLayout, clearance: float) -> None:
         check_number("clearance", clearance, allow_zero=True)
         self.layout, self.clearance = layout, float(clearance)
         w, h, c = layout.width / 2, layout.height / 2, self.clearance
