@@ -8,16 +8,8 @@ from typing import Any
 
 import numpy as np
 
-from sb3_crowdnav.envs.base import (
-    ENV_KEYS,
-    REWARD_KEYS,
-    SCENE_KEYS,
-    CrowdEnvBase,
-    check_env_arguments,
-    refuse_unused,
-    split_env_kwargs,
-    unused_reward_weights,
-)
+from sb3_crowdnav.envs import base
+from sb3_crowdnav.envs.base import CrowdEnvBase
 from sb3_crowdnav.sim.config import RewardConfig, SceneConfig
 from sb3_crowdnav.sim.observation import ObservationSchema
 from sb3_crowdnav.sim.warehouse import LayoutRanges, WarehouseLayout
@@ -128,9 +120,9 @@ class CrowdNavWarehouseEnv(CrowdEnvBase):
     def __init__(self, render_mode: str | None = None, reward: str = "crowdnav", gamma: float = 0.9,
                  **kwargs: Any) -> None:
         name = type(self).__name__
-        check_env_arguments(self.metadata["render_modes"], render_mode, gamma)
+        base.check_env_arguments(self.metadata["render_modes"], render_mode, gamma)
         warehouse = {k: kwargs[k] for k in kwargs if k in WAREHOUSE_KEYS}
-        scene_kwargs, reward_kwargs = split_env_kwargs(kwargs, name, WAREHOUSE_KEYS)
+        scene_kwargs, reward_kwargs = base.split_env_kwargs(kwargs, name, WAREHOUSE_KEYS)
         if scene_kwargs.setdefault("scenario", "warehouse") != "warehouse":
             raise ValueError(f"scenario must be 'warehouse' in CrowdNavWarehouse-v0, got {scene_kwargs['scenario']!r}")
         if scene_kwargs.get("human_policy", "orca") != "orca":
@@ -143,7 +135,7 @@ class CrowdNavWarehouseEnv(CrowdEnvBase):
                              f"fixed time, {' and '.join(ROUTE_TIME_KEYS)} by its route's length; pass one or the other")
         scene = SceneConfig(**scene_kwargs)
         reward_config = RewardConfig(name=reward, **reward_kwargs)
-        refuse_unused(kwargs, {**UNUSED_SCENE, **unused_reward_weights(reward_config)}, name)
+        base.refuse_unused(kwargs, {**UNUSED_SCENE, **base.unused_reward_weights(reward_config)}, name)
         self.warehouse = WarehouseConfig(**_layout_objects(warehouse))
         sim = WarehouseSimulator(scene, reward_config, self.warehouse, fixed_time_limit)
         largest = max(math.hypot(layout.width, layout.height) / 2 for layout in self._largest_layouts())
@@ -154,7 +146,7 @@ class CrowdNavWarehouseEnv(CrowdEnvBase):
     @classmethod
     def option_names(cls) -> set[str]:
         """Every keyword argument the constructor knows (each changes the episodes or is refused)."""
-        return SCENE_KEYS | REWARD_KEYS | WAREHOUSE_KEYS | ENV_KEYS
+        return base.SCENE_KEYS | base.REWARD_KEYS | WAREHOUSE_KEYS | base.ENV_KEYS
 
     def _largest_layouts(self) -> list[WarehouseLayout]:
         if self.warehouse.layout is not None:
