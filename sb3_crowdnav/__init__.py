@@ -12,6 +12,7 @@ import gymnasium as gym
 
 from sb3_crowdnav.sim.config import RewardConfig, SceneConfig
 from sb3_crowdnav.sim.orca import OrcaPolicy
+from sb3_crowdnav.sim.world import World
 from sb3_crowdnav.version import __version__
 
 ENV_IDS = {
@@ -56,6 +57,7 @@ __all__ = [
     "RewardConfig",
     "SceneConfig",
     "ValueLookaheadPolicy",
+    "World",
     "__version__",
     "available_pretrained",
     "pretrained",
