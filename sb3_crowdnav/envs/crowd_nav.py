@@ -105,13 +105,15 @@ class CrowdNavEnv(CrowdEnvBase):
         name = type(self).__name__
         check_env_arguments(self.metadata["render_modes"], render_mode, gamma)
         scene_kwargs, reward_kwargs = split_env_kwargs(kwargs, name)
+        if "crowd" in kwargs and "human_policy" in kwargs:
+            raise ValueError("human_policy is the old name of crowd: pass crowd only")
         check_choice("scenario", scene_kwargs.get("scenario", "circle_crossing"), self.SCENARIOS)
         scene = SceneConfig(**scene_kwargs)
         reward_config = RewardConfig(name=reward, **reward_kwargs)
         refuse_unused(kwargs, {**unused_options(scene), **unused_reward_weights(reward_config)}, name)
         half = max(scene.circle_radius + scene.start_noise, scene.square_width / 2)
         # no agent gets farther than its start plus v_pref x time_limit: the clip in _get_obs is only a guard
-        pos_bound = half + max(scene.robot_v_pref, scene.human_v_pref) * scene.time_limit + 1.0
+        pos_bound = half + max(scene.robot_v_pref, scene.max_human_speed) * scene.time_limit + 1.0
         super().__init__(scene, reward_config, CrowdSimulator(scene, reward_config),
                          ObservationSchema(scene.history_length, scene.max_humans), pos_bound, gamma, render_mode)
 
@@ -129,9 +131,13 @@ def unused_options(scene: SceneConfig) -> dict[str, str]:
     else:
         for key in ("circle_radius", "start_noise"):
             unused[key] = "sets scenario 'circle_crossing'; the square never reads it"
-    if scene.human_policy == "linear":
+    if scene.crowd == "linear":
         for key in (*ORCA_KEYS, "robot_visible"):
-            unused[key] = "concerns ORCA pedestrians; human_policy='linear' walk straight to their goals"
+            unused[key] = "concerns ORCA pedestrians; crowd='linear' walk straight to their goals"
+    if scene.human_speed == "measured":
+        unused["human_v_pref"] = "is the speed of human_speed='fixed'; 'measured' draws each person's speed"
+    if scene.stop_probability == 0:
+        unused["stop_duration"] = "is how long stopping people stand, and with stop_probability=0 no one stops"
     return unused
 
 
