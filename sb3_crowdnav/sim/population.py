@@ -87,9 +87,5 @@ class PreferredVelocities:
             out = [(0.0, 0.0) if start <= time < end else v for v, (start, end) in zip(out, self.stops, strict=True)]
         return out
 
-    def standing(self, time: float) -> list[bool]:
-        """Who stands (stopped on its walk) at ``time`` [s]."""
-        return [start <= time < end for start, end in self.stops]
-
 
 __all__ = ["People", "PreferredVelocities", "draw_people"]
