@@ -227,7 +227,7 @@ def test_a_share_of_people_seeing_the_robot_changes_the_episodes_between_none_an
     assert runs[0.5] != runs[False] and runs[0.5] != runs[True]
 
 
-def test_orca_safety_space_widens_the_peoples_berth():
+def test_crowd_kwargs_are_stored_as_the_models_frozen_settings():
     assert SceneConfig(crowd_kwargs={"safety_space": 0.1}).crowd_kwargs == OrcaCrowdSettings(0.1)
 
 
