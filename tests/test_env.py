@@ -208,7 +208,8 @@ def test_success_episode_statistics():
     assert stats["navigation_time"] == pytest.approx(steps * 0.25)
     assert stats["path_length"] == pytest.approx(steps * 0.25)
     assert stats["discounted_return"] == pytest.approx(0.9 ** ((steps - 1) * 0.25))
-    assert stats["min_separation"] == math.inf and stats["discomfort_frequency"] == 0.0
+    # no one present: the finite no-one distance (the diagonal of the observable positions), not inf
+    assert stats["min_separation"] == env.no_one_distance and stats["discomfort_frequency"] == 0.0
 
 
 def test_in_zone_separation_statistics_match_the_steps():

@@ -26,6 +26,8 @@ NON_DEFAULT = {
     "human_radius": 0.35, "human_v_pref": 0.8, "robot_visible": True, "scenario": ("square_crossing", "circle_crossing"),
     "circle_radius": 5.0, "start_noise": 0.2, "human_policy": "linear", "square_width": 8.0,
     "orca_neighbor_dist": 2.0, "orca_max_neighbors": 1, "orca_time_horizon": 1.0, "orca_time_horizon_obst": 0.5,
+    "crowd": "linear", "crowd_kwargs": {"safety_space": 0.2}, "human_speed": "measured", "stop_probability": 0.5,
+    "stop_duration": (0.5, 1.0),
     # RewardConfig and the env's own
     "reward": ("comfort", "crowdnav"), "gamma": 0.5, "render_mode": "rgb_array",
     "success_reward": 2.0, "collision_penalty": -1.0, "discomfort_dist": 0.5, "discomfort_factor": 2.0,
@@ -38,14 +40,15 @@ NON_DEFAULT = {
     "progress_reward": 0.1,
 }
 # the keywords each env refuses because its setting never reads them (with the non-default value above)
-OPEN_FLOOR_REFUSED = {"orca_time_horizon_obst"}
+OPEN_FLOOR_REFUSED = {"orca_time_horizon_obst", "stop_duration"}  # stop_duration: no one stops by default
 REFUSED = {
     "CrowdNav-v0": OPEN_FLOOR_REFUSED | {"square_width", "social_penalty", "angular_penalty"},
     "CrowdNavSquare-v0": OPEN_FLOOR_REFUSED | {"circle_radius", "start_noise", "social_penalty", "angular_penalty"},
     "CrowdNavComfort-v0": OPEN_FLOOR_REFUSED | {"square_width", "discomfort_factor", "angular_penalty"},
     "CrowdNavComfortAngular-v0": OPEN_FLOOR_REFUSED | {"square_width", "discomfort_factor"},
     "CrowdNavWarehouse-v0": {"circle_radius", "square_width", "start_noise", "human_policy", "scenario",
-                             "social_penalty", "angular_penalty"},
+                             "social_penalty", "angular_penalty", "crowd", "crowd_kwargs", "human_speed",
+                             "stop_probability", "stop_duration"},
 }
 
 

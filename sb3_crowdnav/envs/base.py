@@ -95,14 +95,17 @@ class CrowdEnvBase(gym.Env):
         self.gamma = float(gamma)
         self.render_mode = render_mode
         self.schema = schema
-        vel_bound = max(scene.robot_v_pref, scene.human_v_pref) * 1.5 + 1.0
+        vel_bound = max(scene.robot_v_pref, scene.max_human_speed) * 1.5 + 1.0
         rad_bound = max(scene.robot_radius, scene.human_radius) + 1.0
         bounds = schema.bounds(pos_bound, vel_bound, rad_bound, scene.robot_v_pref + 1.0)
         self.observation_space = spaces.Dict({key: spaces.Box(low, high, dtype=np.float32)
                                               for key, (low, high) in bounds.items()})
         self.action_space = spaces.Discrete(N_ACTIONS)
         self._pos_bound = pos_bound
-        self.stats = EpisodeStatistics(reward, self.gamma, scene.time_step, scene.robot_v_pref)
+        # the separation reported while no one is present: the diagonal of the observable positions' box, farther
+        # than any two agents can be (finite in info; the metrics leave episodes without people out of the gap)
+        self.no_one_distance = float(2 * np.sqrt(2) * pos_bound)
+        self.stats = EpisodeStatistics(reward, self.gamma, scene.time_step, scene.robot_v_pref, self.no_one_distance)
         self.trajectory: list[tuple[np.ndarray, np.ndarray]] = []  # (robot (9,), humans (n, 5)) per state
         self._renderer = None
 
@@ -199,7 +202,7 @@ class CrowdEnvBase(gym.Env):
             "reward_discomfort": float(terms.discomfort_term),
             "reward_social": float(terms.social_term),
             "reward_angular": float(terms.angular_term),
-            "min_distance": float(terms.min_distance),
+            "min_distance": min(float(terms.min_distance), self.no_one_distance),
             "in_comfort_zone": bool(terms.in_comfort_zone),
             "time": self.sim.time,
         }

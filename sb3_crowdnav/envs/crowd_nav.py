@@ -27,8 +27,8 @@ class CrowdNavEnv(CrowdEnvBase):
     ## Description
 
     A robot crosses a circle of radius 4 m from (0, -4) to (0, 4) while pedestrians, driven by
-    ORCA (the RVO2 library through ``pyrvo``), cross the same circle towards their antipodes
-    (paper §3). By default the robot is invisible to the pedestrians: they do not
+    ORCA (the RVO2 library through ``pyrvo``; another crowd model with ``crowd=``), cross the same
+    circle towards their antipodes (paper §3). By default the robot is invisible to the pedestrians: they do not
     yield, so the robot must avoid them.
 
     ## Action Space
@@ -87,10 +87,36 @@ class CrowdNavEnv(CrowdEnvBase):
     ``render_mode`` is ``"rgb_array"`` or ``"human"``. ``scenario`` is ``"circle_crossing"`` (default) or
     ``"square_crossing"`` (``CrowdNavSquare-v0``).
 
+    The crowd (:mod:`sb3_crowdnav.sim.crowd`, :mod:`sb3_crowdnav.sim.population`); the defaults are the paper's:
+
+    * ``crowd``: the model that moves the people, ``"orca"`` (default; RVO2) or ``"linear"`` (straight to the goal,
+      seeing no one; for tests). ``crowd_kwargs``: a dict of the model's settings, each checked, an unknown one
+      refused: ``"orca"`` takes ``safety_space`` [m] (extra radius each person's ORCA keeps, default 0),
+      ``"linear"`` none. ``human_policy`` is the old name of ``crowd``, kept for existing scripts (the same
+      values and effect); passing both is refused.
+    * ``human_speed``: ``"fixed"`` (default: everyone at ``human_v_pref``, 1 m/s) or ``"measured"``: each person's
+      preferred speed drawn at reset from Normal(1.34, 0.26) m/s clipped to [0.5, 2.0], the desired walking speeds
+      of Helbing et al. (2001, after Henderson 1971 and Weidmann 1993); ``human_v_pref`` is then refused.
+    * ``stop_probability`` (default 0): the probability that a person stops once on its walk, at a time drawn
+      uniformly over the time it needs to walk straight to its goal, and stands (preferred velocity zero; ORCA
+      people still step aside) for ``stop_duration`` = (min, max) seconds, drawn uniformly (default (2, 8));
+      ``stop_duration`` is refused while ``stop_probability`` is 0.
+    * ``robot_visible``: False (default: no one yields to the robot), True (everyone sees it: the robot is one more
+      ORCA agent, moved each step to its actual position and velocity), or a share in [0, 1]: each person sees it
+      with that probability, drawn at reset; the others ignore it (0.0 and 1.0 are False and True).
+    * ``num_humans`` may be 0 (or a range from 0): the observation's mask is all 0, and a step's
+      ``info["min_distance"]`` (and ``episode_stats["min_separation"]``) is the diagonal of the observation's
+      position box, ``2·√2·pos_bound`` (``env.no_one_distance``, 87.7 m in ``CrowdNav-v0``), finite and farther than
+      anyone can be.
+
+    Random draws come from the env's ``np_random`` at reset, after the scenario's and only for a setting away from
+    its default (speeds, visibility, stops in this order), so the default episodes are the paper env's.
+
     Every argument changes the episodes or is refused at construction (``ValueError`` naming it) where the
     setting never reads it: ``square_width`` on the circle, ``circle_radius`` and ``start_noise`` on the square,
     ``orca_time_horizon_obst`` (no static obstacles here), the ORCA fields and ``robot_visible`` with
-    ``human_policy="linear"``, and a reward weight of another reward (``discomfort_factor`` is ``"crowdnav"``'s,
+    ``crowd="linear"``, ``human_v_pref`` with ``human_speed="measured"``, ``stop_duration`` with
+    ``stop_probability=0``, and a reward weight of another reward (``discomfort_factor`` is ``"crowdnav"``'s,
     ``social_penalty`` the comfort rewards', ``angular_penalty`` ``"comfort_angular"``'s).
 
     ## Version History
@@ -105,13 +131,15 @@ class CrowdNavEnv(CrowdEnvBase):
         name = type(self).__name__
         check_env_arguments(self.metadata["render_modes"], render_mode, gamma)
         scene_kwargs, reward_kwargs = split_env_kwargs(kwargs, name)
+        if "crowd" in kwargs and "human_policy" in kwargs:
+            raise ValueError("human_policy is the old name of crowd: pass crowd only")
         check_choice("scenario", scene_kwargs.get("scenario", "circle_crossing"), self.SCENARIOS)
         scene = SceneConfig(**scene_kwargs)
         reward_config = RewardConfig(name=reward, **reward_kwargs)
         refuse_unused(kwargs, {**unused_options(scene), **unused_reward_weights(reward_config)}, name)
         half = max(scene.circle_radius + scene.start_noise, scene.square_width / 2)
         # no agent gets farther than its start plus v_pref x time_limit: the clip in _get_obs is only a guard
-        pos_bound = half + max(scene.robot_v_pref, scene.human_v_pref) * scene.time_limit + 1.0
+        pos_bound = half + max(scene.robot_v_pref, scene.max_human_speed) * scene.time_limit + 1.0
         super().__init__(scene, reward_config, CrowdSimulator(scene, reward_config),
                          ObservationSchema(scene.history_length, scene.max_humans), pos_bound, gamma, render_mode)
 
@@ -129,9 +157,13 @@ def unused_options(scene: SceneConfig) -> dict[str, str]:
     else:
         for key in ("circle_radius", "start_noise"):
             unused[key] = "sets scenario 'circle_crossing'; the square never reads it"
-    if scene.human_policy == "linear":
+    if scene.crowd == "linear":
         for key in (*ORCA_KEYS, "robot_visible"):
-            unused[key] = "concerns ORCA pedestrians; human_policy='linear' walk straight to their goals"
+            unused[key] = "concerns ORCA pedestrians; crowd='linear' walk straight to their goals"
+    if scene.human_speed == "measured":
+        unused["human_v_pref"] = "is the speed of human_speed='fixed'; 'measured' draws each person's speed"
+    if scene.stop_probability == 0:
+        unused["stop_duration"] = "is how long stopping people stand, and with stop_probability=0 no one stops"
     return unused
 
 

@@ -23,13 +23,16 @@ class EpisodeStatistics:
     :param gamma: discount of ``discounted_return``, Σ gamma^(t·Δt·v_pref) r_t
     :param time_step: Δt [s]
     :param v_pref: the robot's preferred speed [m/s] (the discount is per metre at full speed, as the lookahead's)
+    :param no_one_distance: [m] the separation of a step with no one present (finite, farther than anyone can be)
     """
 
-    def __init__(self, reward: RewardConfig, gamma: float, time_step: float, v_pref: float) -> None:
+    def __init__(self, reward: RewardConfig, gamma: float, time_step: float, v_pref: float,
+                 no_one_distance: float = math.inf) -> None:
         self.reward = reward
         self.gamma = gamma
         self.time_step = time_step
         self.v_pref = v_pref
+        self.no_one_distance = no_one_distance
         self.reset()
 
     def reset(self) -> None:
@@ -47,7 +50,7 @@ class EpisodeStatistics:
 
     def update(self, before: list[float], after: list[float], terms: RewardTerms, reward: float) -> None:
         """Add one transition: the robot's state (9 floats) ``before`` and ``after`` it, its reward terms and reward."""
-        min_dist = float(terms.min_distance)
+        min_dist = min(float(terms.min_distance), self.no_one_distance)
         (x0, y0), (x1, y1) = before[Robot.POS], after[Robot.POS]
         self.path_length += math.hypot(x1 - x0, y1 - y0)
         self.min_separation = min(self.min_separation, min_dist)

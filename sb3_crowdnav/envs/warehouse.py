@@ -12,6 +12,7 @@ from sb3_crowdnav.envs import base
 from sb3_crowdnav.envs.base import CrowdEnvBase
 from sb3_crowdnav.sim.config import RewardConfig, SceneConfig
 from sb3_crowdnav.sim.observation import ObservationSchema
+from sb3_crowdnav.sim.validation import check_bool
 from sb3_crowdnav.sim.warehouse import LayoutRanges, WarehouseLayout
 from sb3_crowdnav.sim.warehouse.config import WarehouseConfig
 from sb3_crowdnav.sim.warehouse.simulator import WarehouseSimulator
@@ -23,6 +24,11 @@ UNUSED_SCENE = {
     "circle_radius": "sets the open floor's circle; the warehouse's hall comes from its layout",
     "square_width": "sets the open floor's square; the warehouse's hall comes from its layout",
     "start_noise": "sets the open floor's starts; the warehouse draws its stations from its layout",
+    # the open floor's crowd seam and population (the pickers stay the warehouse's own ORCA crowd for now)
+    "crowd_kwargs": "sets the open floor's crowd model; the pickers are the warehouse's own ORCA crowd",
+    "human_speed": "draws the open floor's walking speeds; pickers walk at human_v_pref",
+    "stop_probability": "makes people on the open floor stop; pickers stand at pick faces for dwell_time",
+    "stop_duration": "is how long people on the open floor stand; pickers stand at pick faces for dwell_time",
 }
 ROUTE_TIME_KEYS = ("time_limit_factor", "time_limit_slack")
 
@@ -109,8 +115,9 @@ class CrowdNavWarehouseEnv(CrowdEnvBase):
     * ``time_limit`` [s] replaces the route-based limit, so it excludes ``time_limit_factor`` and
       ``time_limit_slack``;
     * ``circle_radius``, ``square_width`` and ``start_noise`` (the open floor's) are refused, as are
-      ``human_policy`` other than ``"orca"``, ``scenario`` other than ``"warehouse"`` and a reward weight of
-      another reward (as in ``CrowdNav-v0``).
+      ``human_policy`` or ``crowd`` other than ``"orca"``, a share for ``robot_visible``, the open floor's
+      population (``crowd_kwargs``, ``human_speed``, ``stop_probability``, ``stop_duration``), ``scenario`` other
+      than ``"warehouse"`` and a reward weight of another reward (as in ``CrowdNav-v0``).
 
     ## Version History
 
@@ -125,15 +132,17 @@ class CrowdNavWarehouseEnv(CrowdEnvBase):
         scene_kwargs, reward_kwargs = base.split_env_kwargs(kwargs, name, WAREHOUSE_KEYS)
         if scene_kwargs.setdefault("scenario", "warehouse") != "warehouse":
             raise ValueError(f"scenario must be 'warehouse' in CrowdNavWarehouse-v0, got {scene_kwargs['scenario']!r}")
-        if scene_kwargs.get("human_policy", "orca") != "orca":
-            raise ValueError(f"human_policy must be 'orca' in CrowdNavWarehouse-v0 (pickers are ORCA agents that see the "
-                             f"racks), got {scene_kwargs['human_policy']!r}")
+        for key in ("human_policy", "crowd"):
+            if scene_kwargs.get(key, "orca") != "orca":
+                raise ValueError(f"{key} must be 'orca' in CrowdNavWarehouse-v0 (pickers are ORCA agents that see the "
+                                 f"racks), got {scene_kwargs[key]!r}")
         fixed_time_limit = "time_limit" in kwargs
         both = [key for key in ROUTE_TIME_KEYS if key in kwargs]
         if fixed_time_limit and both:
             raise ValueError(f"time_limit and {both[0]} exclude each other: time_limit truncates every episode at a "
                              f"fixed time, {' and '.join(ROUTE_TIME_KEYS)} by its route's length; pass one or the other")
         scene = SceneConfig(**scene_kwargs)
+        check_bool("robot_visible", scene.robot_visible)  # all pickers or none: a share is the open floor's for now
         reward_config = RewardConfig(name=reward, **reward_kwargs)
         base.refuse_unused(kwargs, {**UNUSED_SCENE, **base.unused_reward_weights(reward_config)}, name)
         self.warehouse = WarehouseConfig(**_layout_objects(warehouse))

@@ -12,7 +12,16 @@ from typing import Any, Literal
 
 import numpy as np
 
-from sb3_crowdnav.sim.validation import check_at_most, check_bool, check_choice, check_int, check_number
+from sb3_crowdnav.sim.crowd_settings import crowd_settings
+from sb3_crowdnav.sim.validation import (
+    check_at_most,
+    check_choice,
+    check_instance,
+    check_int,
+    check_number,
+    check_probability,
+    check_share,
+)
 
 SCENARIOS = ("circle_crossing", "square_crossing", "warehouse")  # "warehouse": CrowdNavWarehouse-v0 only
 MAX_EPISODE_STEPS = 10_000
@@ -30,7 +39,13 @@ REWARD_LIMITS = (  # on the absolute value
     ("social_penalty", 100.0, ""), ("angular_penalty", 100.0, ""), ("angular_penalty_threshold", math.pi, " rad"),
 )
 KINEMATICS = ("unicycle", "holonomic")
-HUMAN_POLICIES = ("orca", "linear")
+HUMAN_POLICIES = ("orca", "linear")  # the values of the old name of ``crowd``
+HUMAN_SPEEDS = ("fixed", "measured")
+# human_speed="measured": each person's preferred speed ~ Normal(mean, sd) clipped to [low, high] [m/s]; the desired
+# speeds of Helbing, Molnár, Farkas & Bolay (2001), "Self-organizing pedestrian movement", Environment and Planning B
+# 28: 1.34 ± 0.26 m/s (after Henderson 1971 and Weidmann 1993's 1.34 m/s free walking speed)
+MEASURED_SPEED = (1.34, 0.26, 0.5, 2.0)
+MAX_STOP_DURATION = 3600.0  # [s]
 REWARDS = ("crowdnav", "comfort", "comfort_angular")
 
 
@@ -60,10 +75,21 @@ class SceneConfig:
     :param circle_radius: radius of the crossing circle [m]
     :param square_width: side of the square-crossing area [m]
     :param start_noise: uniform noise on each start coordinate, ± [m]
-    :param robot_visible: whether pedestrians see (and avoid) the robot
+    :param robot_visible: whether pedestrians see (and avoid) the robot: a bool (everyone or no one), or a share in
+        [0, 1], each person seeing it with that probability, drawn at reset (0.0 and 1.0 are stored as the bools)
     :param kinematics: ``"unicycle"`` (direction = rotation of the heading) or ``"holonomic"``
     :param rotation_range: width of the direction fan [rad]; 2π = all directions
-    :param human_policy: ``"orca"`` (pyrvo) or ``"linear"`` (constant velocity towards the goal; for tests)
+    :param crowd: the crowd model that moves the people (``sb3_crowdnav.sim.crowd.CROWD_MODELS``): ``"orca"``
+        (pyrvo) or ``"linear"`` (constant velocity towards the goal; for tests)
+    :param crowd_kwargs: the model's settings, a dict (``sb3_crowdnav.sim.crowd_settings``); stored as its frozen
+        settings object
+    :param human_policy: the old name of ``crowd`` (``"orca"`` or ``"linear"``), kept for existing scripts; folded
+        into ``crowd`` (and stored as None); a ``crowd`` other than the default beside it must agree
+    :param human_speed: ``"fixed"`` (everyone at ``human_v_pref``, the paper's) or ``"measured"`` (each person's
+        preferred speed drawn at reset from :data:`MEASURED_SPEED`, Normal(1.34, 0.26) m/s clipped to [0.5, 2.0])
+    :param stop_probability: the probability that a person stops once during its walk and stands for a while, drawn
+        per person at reset (when: uniform over the time it needs to walk straight to its goal)
+    :param stop_duration: (min, max) [s] how long a stopping person stands, drawn uniformly per person
     :param history_length: T, number of past pedestrian states in the observation
     :param orca_neighbor_dist: [m]
     :param orca_max_neighbors:
@@ -87,7 +113,12 @@ class SceneConfig:
     scenario: Literal["circle_crossing", "square_crossing", "warehouse"] = "circle_crossing"
     circle_radius: float = 4.0
     start_noise: float = 0.5
-    human_policy: Literal["orca", "linear"] = "orca"
+    human_policy: Literal["orca", "linear"] | None = None
+    crowd: str = "orca"
+    crowd_kwargs: Any = None
+    human_speed: Literal["fixed", "measured"] = "fixed"
+    stop_probability: float = 0.0
+    stop_duration: tuple[float, float] = (2.0, 8.0)
     square_width: float = 10.0
     orca_neighbor_dist: float = 10.0
     orca_max_neighbors: int = 10
@@ -113,11 +144,13 @@ class SceneConfig:
             raise ValueError(f"rotation_range must be in (0, 2π], got {self.rotation_range!r}")
         if self.time_step > self.time_limit:
             raise ValueError(f"time_step ({self.time_step}) must not exceed time_limit ({self.time_limit})")
-        check_bool("robot_visible", self.robot_visible)
+        check_share("robot_visible", self.robot_visible)
         _to_python_scalars(self)
+        if self.robot_visible in (0.0, 1.0):  # all or no one: the bool (nothing drawn)
+            object.__setattr__(self, "robot_visible", bool(self.robot_visible))
         check_choice("scenario", self.scenario, SCENARIOS)
         check_choice("kinematics", self.kinematics, KINEMATICS)
-        check_choice("human_policy", self.human_policy, HUMAN_POLICIES)
+        self._check_crowd()
         check_int("history_length", self.history_length, 1)
         check_int("orca_max_neighbors", self.orca_max_neighbors, 1)
         for name, limit, unit in SCENE_LIMITS:
@@ -126,6 +159,33 @@ class SceneConfig:
             raise ValueError(f"time_limit / time_step must be <= {MAX_EPISODE_STEPS} steps per episode, got "
                              f"{self.time_limit} / {self.time_step} = {self.max_steps}")
         self._check_placement()
+
+    def _check_crowd(self) -> None:
+        """The crowd model (``human_policy`` folded into ``crowd``), its settings and the population."""
+        if self.human_policy is not None:
+            check_choice("human_policy", self.human_policy, HUMAN_POLICIES)
+            if self.crowd not in ("orca", self.human_policy):
+                raise ValueError(f"human_policy is the old name of crowd; got crowd={self.crowd!r} and "
+                                 f"human_policy={self.human_policy!r}: pass crowd only")
+            object.__setattr__(self, "crowd", self.human_policy)
+            object.__setattr__(self, "human_policy", None)
+        object.__setattr__(self, "crowd_kwargs", crowd_settings(self.crowd, self.crowd_kwargs))
+        check_choice("human_speed", self.human_speed, HUMAN_SPEEDS)
+        check_probability("stop_probability", self.stop_probability)
+        check_instance("stop_duration", self.stop_duration, (tuple, list), "a (min, max) pair [s]")
+        if len(self.stop_duration) != 2:
+            raise ValueError(f"stop_duration must be a (min, max) pair [s], got {self.stop_duration!r}")
+        for value in self.stop_duration:
+            check_number("stop_duration", value, allow_zero=True)
+            check_at_most("stop_duration", value, MAX_STOP_DURATION, " s")
+        if self.stop_duration[1] < self.stop_duration[0]:
+            raise ValueError(f"stop_duration must satisfy min <= max, got {self.stop_duration!r}")
+        object.__setattr__(self, "stop_duration", tuple(float(v) for v in self.stop_duration))
+
+    @property
+    def max_human_speed(self) -> float:
+        """The fastest preferred speed a person can have [m/s] (the observation's bounds)."""
+        return MEASURED_SPEED[3] if self.human_speed == "measured" else self.human_v_pref
 
     def _check_placement(self) -> None:
         """``ValueError`` unless the largest crowd can be placed (starts and goals apart) with room to spare.

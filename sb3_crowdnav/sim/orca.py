@@ -107,6 +107,13 @@ class OrcaCrowd:
         self.sim.do_step()
         return self.rows()
 
+    def set_agents(self, positions: np.ndarray, velocities: np.ndarray) -> None:
+        """Put the pedestrians in these states, each (N, 2) (a crowd split over two simulators keeps them equal)."""
+        set_pos, set_vel = self.sim.set_agent_position, self.sim.set_agent_velocity
+        for i, ((x, y), (vx, vy)) in enumerate(zip(positions.tolist(), velocities.tolist(), strict=True)):
+            set_pos(i, (x, y))
+            set_vel(i, (vx, vy))
+
     def move_agent(self, i: int, position: np.ndarray) -> None:
         """Put pedestrian ``i`` at ``position`` (2,) (the warehouse pushes a picker out of a rack it was pressed into)."""
         self.sim.set_agent_position(i, (float(position[0]), float(position[1])))

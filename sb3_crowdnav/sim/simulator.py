@@ -1,4 +1,4 @@
-"""``CrowdSimulator``: one robot among ORCA pedestrians, no RL API (numpy + pyrvo only)."""
+"""``CrowdSimulator``: one robot among a crowd (a :mod:`~sb3_crowdnav.sim.crowd` model), no RL API (numpy + pyrvo only)."""
 
 from __future__ import annotations
 
@@ -8,8 +8,9 @@ import numpy as np
 
 from sb3_crowdnav.sim.actions import N_ACTIONS, action_table, move, wrap_angle
 from sb3_crowdnav.sim.config import RewardConfig, SceneConfig
+from sb3_crowdnav.sim.crowd import CrowdModel, RobotAgent, make_crowd
 from sb3_crowdnav.sim.observation import HUMAN_DIM, ROBOT_DIM, Human, Robot
-from sb3_crowdnav.sim.orca import OrcaCrowd, preferred_velocity
+from sb3_crowdnav.sim.population import People, PreferredVelocities, draw_people
 from sb3_crowdnav.sim.rewards import STILL_SPEED, RewardTerms, compute_reward
 from sb3_crowdnav.sim.scenarios import generate_scenario
 
@@ -24,7 +25,8 @@ class CrowdSimulator:
     state is meant to be changed through :meth:`reset` and :meth:`step` only.
 
     The kinematics (:func:`~sb3_crowdnav.sim.actions.move`) and :func:`compute_reward` are the
-    compiled functions the lookahead uses too. Preferred velocities and walking directions run in
+    compiled functions the lookahead uses too. The people are drawn by :func:`draw_people` (``people``) and moved by
+    the scene's crowd model (``crowd``, built once). Preferred velocities and walking directions run in
     Python floats: on 2-vectors and N <= 10 pedestrians NumPy's per-call overhead costs more than
     the arithmetic. Tests check these against the NumPy functions the lookahead uses.
     """
@@ -41,14 +43,15 @@ class CrowdSimulator:
         self.history = np.zeros((scene.history_length, scene.max_humans, HUMAN_DIM))
         self.mask = np.zeros(scene.max_humans, dtype=bool)
         self.human_goals = np.zeros((0, 2))
-        self._goals_list: list[list[float]] = []
+        self.crowd: CrowdModel = make_crowd(scene)
+        self.people: People | None = None  # the episode's population (set by reset)
+        self._preferred: PreferredVelocities | None = None
         # walking direction of each pedestrian and the steps since it last walked (see _walking_directions)
         self._walk_dir: list[tuple[float, float]] = []
         self._walk_age: list[int] = []
         self.num_humans = 0
         self.steps = 0
         self.max_steps = scene.max_steps  # the episode is truncated after this many steps (the env reads it)
-        self._crowd: OrcaCrowd | None = None
 
     # ------------------------------------------------------------------ reset
     def reset(self, rng: np.random.Generator) -> None:
@@ -71,40 +74,23 @@ class CrowdSimulator:
         self.mask = np.zeros(cfg.max_humans, dtype=bool)
         self.mask[:n] = True
         self.human_goals = sc.human_goals
-        self._goals_list = sc.human_goals.tolist()
         self._walk_dir = [(1.0, 0.0)] * n
         self._walk_age = [cfg.history_length] * n  # everyone still over the whole initial window
         self.steps = 0
-        self._crowd = None
-        if cfg.human_policy == "orca" and n > 0:
-            robot = None
-            if cfg.robot_visible:
-                robot = (sc.robot_start, np.zeros(2), cfg.robot_radius)
-            self._crowd = OrcaCrowd(cfg, sc.human_starts, np.full(n, cfg.human_radius), np.full(n, cfg.human_v_pref),
-                                    robot)
+        self.people = draw_people(cfg, sc.human_starts, sc.human_goals, rng)
+        self._preferred = PreferredVelocities(self.people)
+        if n > 0:
+            self.crowd.reset(rng, self.people, self._robot_agent())
 
     # ------------------------------------------------------------------ step
+    def _robot_agent(self) -> RobotAgent:
+        r = self.robot.tolist()
+        return RobotAgent(tuple(r[Robot.POS]), tuple(r[Robot.VEL]), r[Robot.RADIUS])
+
     def _move_humans(self) -> tuple[np.ndarray, np.ndarray]:
         """New positions and velocities (n, 2) of the present pedestrians."""
-        cfg, n = self.scene, self.num_humans
-        pos = self.history[-1, :n, Human.POS]
-        if self._crowd is None:  # "linear": constant preferred velocity, exact integration
-            pref = preferred_velocity(pos, self.human_goals, cfg.human_v_pref)
-            return pos + pref * cfg.time_step, pref
-        v_pref = cfg.human_v_pref
-        pref_list = []
-        # preferred_velocity() in Python floats: a NumPy call per 6 x 2 array costs more than the arithmetic
-        for (x, y), (gx, gy) in zip(pos.tolist(), self._goals_list, strict=True):
-            dx, dy = gx - x, gy - y
-            norm = math.sqrt(dx * dx + dy * dy)
-            if norm > v_pref:
-                dx, dy = dx / max(norm, 1e-12) * v_pref, dy / max(norm, 1e-12) * v_pref
-            pref_list.append((dx, dy))
-        robot_state = None
-        if cfg.robot_visible:
-            r = self.robot.tolist()
-            robot_state = (r[Robot.POS], r[Robot.VEL])
-        return self._crowd.step(pref_list, robot_state)
+        pos = self.history[-1, : self.num_humans, Human.POS].tolist()
+        return self.crowd.step(self._preferred.at(pos, self.time), self._robot_agent())
 
     def _walking_directions(self, robot_x: float, robot_y: float) -> np.ndarray:
         """:func:`walking_direction` of the present pedestrians (n, 2) from the newest history row.

@@ -28,6 +28,7 @@ __all__ = [
     "check_positive",
     "check_probability",
     "check_range",
+    "check_share",
 ]
 
 
@@ -90,6 +91,16 @@ def check_range(name: str, value: Any, low: float, high: float, *, low_open: boo
 
 def check_probability(name: str, value: Any) -> None:
     """``TypeError`` unless ``value`` is a real number; ``ValueError`` outside [0, 1]."""
+    check_range(name, value, 0, 1)
+
+
+def check_share(name: str, value: Any) -> None:
+    """``TypeError`` unless ``value`` is a bool or a float (not an int: ``1`` is a slip); ``ValueError`` for a float
+    outside [0, 1]. An option that is all-or-none or a share (``robot_visible=0.5``)."""
+    if _is_bool(value):
+        return
+    if not isinstance(value, (float, np.floating)):
+        raise TypeError(f"{name} must be a bool or a float share in [0, 1], got {value!r} ({type(value).__name__})")
     check_range(name, value, 0, 1)
 
 

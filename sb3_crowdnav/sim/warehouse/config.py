@@ -109,3 +109,17 @@ def _packing(points: np.ndarray, spacing: float) -> int:
         if all(np.hypot(*(p - q)) >= spacing for q in kept):
             kept.append(p)
     return len(kept)
+
+
+OPEN_FLOOR_ONLY = ("crowd", "crowd_kwargs", "human_speed", "stop_probability", "stop_duration")
+
+
+def check_pickers(scene: SceneConfig) -> None:
+    """``ValueError`` naming a crowd setting the pickers do not have (yet): another crowd model than ORCA, its
+    settings, the open floor's population, a share of people seeing the robot (all pickers or none)."""
+    default = SceneConfig()
+    for name in OPEN_FLOOR_ONLY:
+        if getattr(scene, name) != getattr(default, name):
+            raise ValueError(f"{name} is the open floor's; the warehouse's pickers are its own ORCA crowd, got "
+                             f"{getattr(scene, name)!r}")
+    check_instance("robot_visible", scene.robot_visible, bool, "a bool in the warehouse (all pickers or none)")

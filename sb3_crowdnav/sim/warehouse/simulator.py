@@ -15,7 +15,7 @@ from sb3_crowdnav.sim.observation import HUMAN_DIM, ROBOT_DIM, Human, Robot
 from sb3_crowdnav.sim.rewards import RewardTerms, with_obstacle_collision, with_route_progress
 from sb3_crowdnav.sim.simulator import CrowdSimulator
 from sb3_crowdnav.sim.warehouse import kernels
-from sb3_crowdnav.sim.warehouse.config import WarehouseConfig, check_feasible
+from sb3_crowdnav.sim.warehouse.config import WarehouseConfig, check_feasible, check_pickers
 from sb3_crowdnav.sim.warehouse.layout import Roadmap, WarehouseLayout, generate_layout
 from sb3_crowdnav.sim.warehouse.pickers import PickerCrowd, PickSlots, pick_slots
 
@@ -55,6 +55,7 @@ class WarehouseSimulator(CrowdSimulator):
     def __init__(self, scene: SceneConfig, reward: RewardConfig, config: WarehouseConfig,
                  fixed_time_limit: bool = False) -> None:
         check_feasible(scene, config, pick_slots)
+        check_pickers(scene)
         super().__init__(scene, reward)
         self.config = config
         self.fixed_time_limit = fixed_time_limit
