@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from sb3_crowdnav.sim.actions import N_ACTIONS, action_table, move, wrap_angle
+from sb3_crowdnav.sim.actions import N_ACTIONS, action_table, move
 from sb3_crowdnav.sim.config import RewardConfig, SceneConfig
 from sb3_crowdnav.sim.crowd import CrowdModel, RobotAgent, make_crowd
 from sb3_crowdnav.sim.observation import HUMAN_DIM, ROBOT_DIM, Human, Robot
@@ -151,5 +151,3 @@ class CrowdSimulator:
     def time(self) -> float:
         return self.steps * self.scene.time_step
 
-    def heading_change(self, previous_heading: float) -> float:
-        return float(abs(wrap_angle(self.robot[Robot.HEADING] - previous_heading)))
