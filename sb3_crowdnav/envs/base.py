@@ -175,6 +175,7 @@ class CrowdEnvBase(gym.Env):
         return self._get_obs(), {"num_humans": self.sim.num_humans, **self._reset_info()}
 
     def step(self, action):
+        """One step of Δt: simulate, reward, end (success or collision terminates, the time limit truncates), info."""
         if not (type(action) in _INT_TYPES and 0 <= action < N_ACTIONS) and not self.action_space.contains(action):
             raise ValueError(f"action must be an int in [0, {N_ACTIONS}), got {action!r}")
         sim = self.sim
