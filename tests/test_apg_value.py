@@ -422,6 +422,7 @@ def _state(model):
             th.cat([optimizer[i]["exp_avg_sq"].flatten() for i in sorted(optimizer)]))
 
 
+@pytest.mark.slow  # a training run or a full CLI run: make slow
 def test_overlap_training_in_a_process_is_the_thread_run(monkeypatch):
     """The learner process runs the same arithmetic on the same batches: V, V_target (updated twice here) and Adam's
     state end bit-identical to the learner thread's run, and a second learn() continues it the same way; also when
@@ -541,6 +542,7 @@ def test_overlap_training_process_errors_and_death_reach_the_caller(monkeypatch)
     assert model.learner.acting_net() is model.policy.value_net
 
 
+@pytest.mark.slow  # a training run or a full CLI run: make slow
 def test_imitation_reports_progress_and_fps_counts_rl_only(tmp_path, capsys):
     """verbose=1 prints the imitation's progress as it goes; SB3's fps is not diluted by the imitation's minutes."""
     import csv

@@ -48,6 +48,7 @@ def test_evaluate_prints_table_and_writes_files(tmp_path, capsys):
     assert json.loads((tmp_path / "meta.json").read_text())["env_kwargs"]["num_humans"] == 3
 
 
+@pytest.mark.slow  # a training run or a full CLI run: make slow
 def test_benchmark_writes_table_and_figures(tmp_path, capsys):
     argv = ["benchmark", "--policy", "orca", "--policy", "random", "--episodes", "2", "--out", str(tmp_path),
             "--sweep", "1", "2", *FAST]

@@ -68,6 +68,7 @@ def test_record_matches_a_hand_played_episode():
     assert rec.outcome == info["outcome"]
 
 
+@pytest.mark.slow  # a training run or a full CLI run: make slow
 def test_one_process_equals_two(tmp_path):
     one = run_episodes("orca", 6, FAST, keep_trajectories=True)
     two = run_episodes("orca", 6, FAST, keep_trajectories=True, workers=2)
@@ -229,6 +230,7 @@ def test_model_with_other_capacity_is_refused(tmp_path):
         run_episodes(str(tmp_path / "m.zip"), 2, {**FAST, "max_humans": 5}, workers=2)
 
 
+@pytest.mark.slow  # a training run or a full CLI run: make slow
 @pytest.mark.parametrize("spec", ["pretrained:apg_rl", "pretrained:ppo_apg"])
 def test_stochastic_evaluation_is_the_same_with_one_or_two_workers(spec):
     """Each episode's sampled actions are seeded from its episode seed: the split across processes does not matter."""

@@ -92,6 +92,7 @@ def test_dqn_pretraining_fills_buffer_and_ranks_demonstrated_actions_first(demos
         pretrain_dqn(PPO(ApgActorCriticPolicy, make_vec_env("CrowdNav-v0", env_kwargs=ENV_KWARGS)), demos)
 
 
+@pytest.mark.slow  # a training run or a full CLI run: make slow
 def test_dqfd_keeps_the_demonstrated_actions_on_top_while_learning(demos, tmp_path):
     """With a learning rate large enough to wreck the ranking, DQfD's demonstration steps keep it; plain DQN loses it."""
     def run(cls, keep):

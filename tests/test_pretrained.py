@@ -52,6 +52,7 @@ def test_shipped_apg_rl_navigates():
     assert sum(r.outcome == "success" for r in records) >= 8
 
 
+@pytest.mark.slow  # a training run or a full CLI run: make slow
 def test_shipped_apg_warehouse_is_the_documented_cautious_value_ensemble_and_navigates():
     """The README's apg_warehouse: V the mean of two networks, the cautious lookahead; it drives test episodes home."""
     import torch as th

@@ -26,6 +26,7 @@ def _run(monkeypatch, *argv: str) -> None:
     assert main(["train", *variant, *argv]) == 0
 
 
+@pytest.mark.slow  # a training run or a full CLI run: make slow
 def test_checkpoints_validation_selection_and_resume(tmp_path, monkeypatch, capsys):
     out = tmp_path / "run"
     common = ["--variant", "apg_crl", "--out", str(out), "--il-episodes", "2", "--il-epochs", "1", "--num-humans", "2",
@@ -64,6 +65,7 @@ def test_bfloat16_lookahead_is_saved(tmp_path, monkeypatch):
     assert APGValue.load(out / "final.zip").policy.lookahead_dtype == "bfloat16"
 
 
+@pytest.mark.slow  # a training run or a full CLI run: make slow
 def test_sigterm_writes_a_checkpoint_and_the_run_resumes(tmp_path, monkeypatch, capsys):
     out = tmp_path / "run"
     common = ["--out", str(out), "--il-episodes", "2", "--il-epochs", "1", "--num-humans", "2",
@@ -94,6 +96,7 @@ def test_sigterm_writes_a_checkpoint_and_the_run_resumes(tmp_path, monkeypatch, 
     assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL  # handlers restored after training
 
 
+@pytest.mark.slow  # a training run or a full CLI run: make slow
 @pytest.mark.parametrize("refill", [0, 100_000])
 def test_resume_without_replay_buffer_refills_before_training(tmp_path, monkeypatch, capsys, refill):
     """A run carried to another machine without its replay buffer: no gradient step until the buffer is refilled."""
@@ -114,6 +117,7 @@ def test_resume_without_replay_buffer_refills_before_training(tmp_path, monkeypa
         assert after._n_updates > before._n_updates
 
 
+@pytest.mark.slow  # a training run or a full CLI run: make slow
 def test_fine_tuning_a_trained_model(tmp_path, monkeypatch):
     """--from-imitation with a trained model and no demonstrations beside it: ε from --epsilon-start, the lookahead
     with --pedestrian-model, and no gradient step before --refill-steps transitions (then training resumes)."""
@@ -148,6 +152,7 @@ def test_fine_tuning_a_trained_model(tmp_path, monkeypatch):
             ScheduleConfig(**bad)
 
 
+@pytest.mark.slow  # a training run or a full CLI run: make slow
 def test_a_resumed_run_keeps_its_own_settings_and_says_so(tmp_path, monkeypatch, capsys):
     out = tmp_path / "run"
     common = ["--out", str(out), "--il-episodes", "2", "--il-epochs", "1", "--num-humans", "2",
@@ -189,6 +194,7 @@ def test_train_refuses_flags_of_the_other_mode(tmp_path, capsys, argv, message):
     assert not out.exists()  # nothing written before the arguments are known to be good
 
 
+@pytest.mark.slow  # a training run or a full CLI run: make slow
 def test_python_api_and_example(tmp_path, monkeypatch, capsys):
     """train_schedule() is what the CLI runs; examples/train_paper.py calls it and resumes like the CLI."""
     from sb3_crowdnav.training import ScheduleConfig, train_schedule
@@ -217,6 +223,7 @@ def test_python_api_and_example(tmp_path, monkeypatch, capsys):
 TINY_RUN = ["--il-episodes", "2", "--il-epochs", "1", "--num-humans", "2", "--checkpoint-episodes", "2"]
 
 
+@pytest.mark.slow  # a training run or a full CLI run: make slow
 def test_one_run_per_folder_and_a_stale_lock_is_taken_over(tmp_path, capsys):
     import os
 
@@ -233,6 +240,7 @@ def test_one_run_per_folder_and_a_stale_lock_is_taken_over(tmp_path, capsys):
     assert not (out / "run.lock").exists()  # released
 
 
+@pytest.mark.slow  # a training run or a full CLI run: make slow
 def test_a_finished_run_run_again_changes_nothing(tmp_path, monkeypatch, capsys):
     out = tmp_path / "run"
     argv = ["--out", str(out), *TINY_RUN, "--eval-episodes", "1", "--rl-episodes", "2"]
@@ -244,6 +252,7 @@ def test_a_finished_run_run_again_changes_nothing(tmp_path, monkeypatch, capsys)
     assert {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()} == files
 
 
+@pytest.mark.slow  # a training run or a full CLI run: make slow
 def test_resume_validates_an_unvalidated_checkpoint_and_repairs_best(tmp_path, monkeypatch):
     out = tmp_path / "run"
     argv = ["--out", str(out), *TINY_RUN, "--eval-episodes", "2"]

@@ -82,6 +82,7 @@ def test_same_seed_same_episode_other_seeds_differ():
     assert len(starts) == 8
 
 
+@pytest.mark.slow  # a training run or a full CLI run: make slow
 def test_no_picker_ever_inside_a_rack_or_wall():
     """200 random-action episodes: every picker keeps its body out of the layout's polygons (1 cm tolerance)."""
     env = gym.make("CrowdNavWarehouse-v0", num_humans=8)
@@ -203,6 +204,7 @@ def test_evaluation_separates_human_and_obstacle_collisions(tmp_path):
     assert (out / "trajectories.png").stat().st_size > 10_000
 
 
+@pytest.mark.slow  # a training run or a full CLI run: make slow
 def test_cli_renders_a_warehouse_episode(tmp_path):
     from sb3_crowdnav.cli import main
 

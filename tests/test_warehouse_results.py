@@ -29,6 +29,7 @@ def _run_folder(path, start, validations):
     return path
 
 
+@pytest.mark.slow  # a training run or a full CLI run: make slow
 def test_the_script_writes_every_table(tmp_path):
     out = tmp_path / "out"
     out.mkdir()

@@ -74,6 +74,7 @@ def test_zoo_main_usage_error(capsys):
     assert "usage" in capsys.readouterr().err
 
 
+@pytest.mark.slow  # a training run or a full CLI run: make slow
 def test_rl_zoo3_trains_ppo_and_apg_value(tmp_path):
     """The documented commands through the package's zoo entry point: PPO from its file ("ApgPolicy"), APGValue
     (then enjoy); the PPO file loads with SB3's own class."""
