@@ -20,6 +20,8 @@ from sb3_crowdnav.sim.simulator import CrowdSimulator
 from sb3_crowdnav.sim.validation import check_choice
 
 ORCA_KEYS = ("orca_neighbor_dist", "orca_max_neighbors", "orca_time_horizon")  # what ORCA pedestrians read
+# what a recording decides (crowd="replay")
+REPLAY_DECIDES = ("num_humans", "robot_visible", "human_speed", "human_v_pref", "stop_probability", "stop_duration")
 
 
 class CrowdNavEnv(CrowdEnvBase):
@@ -138,6 +140,8 @@ class CrowdNavEnv(CrowdEnvBase):
         reward_config = RewardConfig(name=reward, **reward_kwargs)
         refuse_unused(kwargs, {**unused_options(scene), **unused_reward_weights(reward_config)}, name)
         half = max(scene.circle_radius + scene.start_noise, scene.square_width / 2)
+        if scene.crowd == "replay":  # the recording's frame
+            half = scene.crowd_kwargs.extent
         # no agent gets farther than its start plus v_pref x time_limit: the clip in _get_obs is only a guard
         pos_bound = half + max(scene.robot_v_pref, scene.max_human_speed) * scene.time_limit + 1.0
         super().__init__(scene, reward_config, CrowdSimulator(scene, reward_config),
@@ -164,6 +168,11 @@ def unused_options(scene: SceneConfig) -> dict[str, str]:
         unused["human_v_pref"] = "is the speed of human_speed='fixed'; 'measured' draws each person's speed"
     if scene.stop_probability == 0:
         unused["stop_duration"] = "is how long stopping people stand, and with stop_probability=0 no one stops"
+    if scene.crowd == "replay":
+        for key in (*ORCA_KEYS, *REPLAY_DECIDES):
+            unused[key] = "is decided by the recording with crowd='replay'"
+        for key in ("circle_radius", "start_noise", "square_width"):
+            unused[key] = "places the scenario's people, and crowd='replay' replaces them by the recording's"
     return unused
 
 
