@@ -111,8 +111,8 @@ class ReplayCrowdModel:
         present = np.zeros((steps + 1, n), dtype=bool)
         arrivals = np.zeros((steps + 1, n), dtype=bool)
         for (a, b, i), s in zip(people, slots, strict=True):
-            here = _positions_at(rec.times[i], rec.positions[i], times[a:b + 1])
-            before = _positions_at(rec.times[i], rec.positions[i], previous[a:b + 1])
+            both = _positions_at(rec.times[i], rec.positions[i], np.concatenate([times[a:b + 1], previous[a:b + 1]]))
+            here, before = both[: b + 1 - a], both[b + 1 - a:]
             pos[a:b + 1, s] = here
             vel[a:b + 1, s] = (here - before) / dt
             present[a:b + 1, s] = True
@@ -124,8 +124,10 @@ class ReplayCrowdModel:
         samples = self.positions[self.all_present]
         if not len(samples):
             return None
-        _, inverse, counts = np.unique(np.floor(samples / CELL), axis=0, return_inverse=True, return_counts=True)
-        centre = samples[inverse.ravel() == int(np.argmax(counts))].mean(axis=0)
+        cells = np.floor(samples / CELL).astype(np.int64)
+        cells -= cells.min(axis=0)
+        key = cells[:, 0] * (int(cells[:, 1].max()) + 1) + cells[:, 1]  # cells in (x, y) order
+        centre = samples[key == int(np.argmax(np.bincount(key)))].mean(axis=0)
         angle = rng.uniform(0.0, 2 * math.pi)
         half = self.settings.crossing_length / 2 * np.array([math.cos(angle), math.sin(angle)])
         start, goal = centre - half, centre + half
