@@ -95,7 +95,10 @@ class CrowdNavEnv(CrowdEnvBase):
       seeing no one; for tests). ``crowd_kwargs``: a dict of the model's settings, each checked, an unknown one
       refused: ``"orca"`` takes ``safety_space`` [m] (extra radius each person's ORCA keeps, default 0),
       ``"linear"`` none. ``human_policy`` is the old name of ``crowd``, kept for existing scripts (the same
-      values and effect); passing both is refused.
+      values and effect); passing both is refused. ``"replay"`` replays recorded people (``crowd_kwargs``:
+      ``path``, ``frame_rate`` for the ETH/UCY text format, ``robot_start``/``robot_goal``, ``start_time``,
+      ``time_window``, ``crossing_length``; see the docs' replay page); the recording then decides ``num_humans``
+      and the population, which are refused.
     * ``human_speed``: ``"fixed"`` (default: everyone at ``human_v_pref``, 1 m/s) or ``"measured"``: each person's
       preferred speed drawn at reset from Normal(1.34, 0.26) m/s clipped to [0.5, 2.0], the desired walking speeds
       of Helbing et al. (2001, after Henderson 1971 and Weidmann 1993); ``human_v_pref`` is then refused.
