@@ -9,6 +9,10 @@ places the pickers). The two envs' runs alternate, and the best of each is repor
 
     python benchmarks/env_speed.py [--steps 20000] [--repeats 3] [--reward crowdnav] [--breakdown] [--profile] [--cpu]
 
+A second table compares the crowd models of ``CrowdNav-v0`` in the same run: the ORCA crowd and ``crowd="replay"``
+of a synthetic recording of as many people (generated on the fly: each walks back and forth across a 10 m street at
+1.3 m/s, everyone present all the time, 0.4 s per sample), with the ratio replay / ORCA.
+
 ``--breakdown`` adds, per row and env, the steps per episode and the time of a reset and of a step without it.
 ``--cpu`` measures every rate and time in CPU seconds of this process (``time.process_time``) instead of wall-clock
 seconds: steadier on a machine that other jobs load.
@@ -17,13 +21,16 @@ seconds: steadier on a machine that other jobs load.
 from __future__ import annotations
 
 import argparse
+import tempfile
 import time
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
 
 import sb3_crowdnav  # noqa: F401  (registers the envs)
 from sb3_crowdnav import OrcaPolicy
+from sb3_crowdnav.sim.recording import write_recording
 
 FIXED_ACTION = 4 * 16  # full speed, straight on
 
@@ -70,6 +77,32 @@ def best(envs: list[gym.Env], steps: int, policies: list, repeats: int, cpu: boo
     return [max(column) for column in zip(*rates, strict=True)]
 
 
+def synthetic_recording(path: Path, people: int, seconds: float = 600.0) -> Path:
+    """A recording of ``people`` walking back and forth across a 10 m street at 1.3 m/s, 1 m apart, all the time."""
+    times = np.arange(0.0, seconds, 0.4)
+    phase = (1.3 * times[:, None] + 2.5 * np.arange(people)) % 20.0  # [m] along a 20 m round trip
+    x = np.where(phase < 10.0, phase, 20.0 - phase) - 5.0
+    y = np.broadcast_to(np.arange(people) - (people - 1) / 2, x.shape)
+    write_recording(path, times, np.stack([x, y], axis=-1))
+    return path
+
+
+def compare_crowds(args: argparse.Namespace, orca: gym.Env, directory: str) -> None:
+    """The ORCA crowd against a replay of a synthetic recording of as many people, same run, same robots."""
+    path = synthetic_recording(Path(directory) / "synthetic.csv", args.num_humans)
+    replay = gym.make("CrowdNav-v0", crowd="replay", crowd_kwargs={"path": str(path)}, reward=args.reward,
+                      max_humans=max(10, args.num_humans)).unwrapped
+    print(f"\n{'robot':<14}{'ORCA crowd':>16}{'replay':>16}{'ratio':>8}   (CrowdNav-v0, {args.num_humans} people)")
+    for label, steps, make in (("fixed action", args.steps, lambda e: None),
+                               ("random x 8", args.steps, lambda e: RANDOM),
+                               ("ORCA robot", args.steps // 4, lambda e: OrcaPolicy.from_env(e, mapping="constrained"))):
+        simulated, replayed = best([orca, replay], steps, [make(orca), make(replay)], args.repeats, args.cpu)
+        print(f"{label:<14}{simulated:>12,.0f} /s{replayed:>12,.0f} /s{replayed / simulated:>8.2f}")
+        if args.breakdown:
+            for name, e in (("ORCA crowd", orca), ("replay", replay)):
+                print(f"{'':<14}{name}: {breakdown(e, steps, make(e), args.cpu)}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=20_000)
@@ -102,6 +135,8 @@ def main() -> None:
         if args.breakdown:
             for name, e in (("CrowdNav-v0", env), ("CrowdNavWarehouse-v0", warehouse)):
                 print(f"{'':<14}{name}: {breakdown(e, steps, make(e), args.cpu)}")
+    with tempfile.TemporaryDirectory() as directory:
+        compare_crowds(args, env, directory)
 
 
 if __name__ == "__main__":

@@ -52,6 +52,8 @@ def test_same_seed_same_episodes_and_another_seed_others(kwargs):
 def test_every_crowd_model_has_its_settings_under_its_name():
     assert set(CROWD_MODELS) == set(CROWD_SETTINGS)
     for name in CROWD_MODELS:
+        if name == "replay":  # needs a recording: tests/test_replay.py
+            continue
         assert type(SceneConfig(crowd=name).crowd_kwargs) is CROWD_SETTINGS[name]
 
 

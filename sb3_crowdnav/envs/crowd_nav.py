@@ -20,6 +20,8 @@ from sb3_crowdnav.sim.simulator import CrowdSimulator
 from sb3_crowdnav.sim.validation import check_choice
 
 ORCA_KEYS = ("orca_neighbor_dist", "orca_max_neighbors", "orca_time_horizon")  # what ORCA pedestrians read
+# what a recording decides (crowd="replay")
+REPLAY_DECIDES = ("num_humans", "robot_visible", "human_speed", "human_v_pref", "stop_probability", "stop_duration")
 
 
 class CrowdNavEnv(CrowdEnvBase):
@@ -93,7 +95,10 @@ class CrowdNavEnv(CrowdEnvBase):
       seeing no one; for tests). ``crowd_kwargs``: a dict of the model's settings, each checked, an unknown one
       refused: ``"orca"`` takes ``safety_space`` [m] (extra radius each person's ORCA keeps, default 0),
       ``"linear"`` none. ``human_policy`` is the old name of ``crowd``, kept for existing scripts (the same
-      values and effect); passing both is refused.
+      values and effect); passing both is refused. ``"replay"`` replays recorded people (``crowd_kwargs``:
+      ``path``, ``frame_rate`` for the ETH/UCY text format, ``robot_start``/``robot_goal``, ``start_time``,
+      ``time_window``, ``crossing_length``; see the docs' replay page); the recording then decides ``num_humans``
+      and the population, which are refused.
     * ``human_speed``: ``"fixed"`` (default: everyone at ``human_v_pref``, 1 m/s) or ``"measured"``: each person's
       preferred speed drawn at reset from Normal(1.34, 0.26) m/s clipped to [0.5, 2.0], the desired walking speeds
       of Helbing et al. (2001, after Henderson 1971 and Weidmann 1993); ``human_v_pref`` is then refused.
@@ -138,6 +143,8 @@ class CrowdNavEnv(CrowdEnvBase):
         reward_config = RewardConfig(name=reward, **reward_kwargs)
         refuse_unused(kwargs, {**unused_options(scene), **unused_reward_weights(reward_config)}, name)
         half = max(scene.circle_radius + scene.start_noise, scene.square_width / 2)
+        if scene.crowd == "replay":  # the recording's frame
+            half = scene.crowd_kwargs.extent
         # no agent gets farther than its start plus v_pref x time_limit: the clip in _get_obs is only a guard
         pos_bound = half + max(scene.robot_v_pref, scene.max_human_speed) * scene.time_limit + 1.0
         super().__init__(scene, reward_config, CrowdSimulator(scene, reward_config),
@@ -164,6 +171,11 @@ def unused_options(scene: SceneConfig) -> dict[str, str]:
         unused["human_v_pref"] = "is the speed of human_speed='fixed'; 'measured' draws each person's speed"
     if scene.stop_probability == 0:
         unused["stop_duration"] = "is how long stopping people stand, and with stop_probability=0 no one stops"
+    if scene.crowd == "replay":
+        for key in (*ORCA_KEYS, *REPLAY_DECIDES):
+            unused[key] = "is decided by the recording with crowd='replay'"
+        for key in ("circle_radius", "start_noise", "square_width"):
+            unused[key] = "places the scenario's people, and crowd='replay' replaces them by the recording's"
     return unused
 
 

@@ -132,6 +132,9 @@ class CrowdNavWarehouseEnv(CrowdEnvBase):
         scene_kwargs, reward_kwargs = base.split_env_kwargs(kwargs, name, WAREHOUSE_KEYS)
         if scene_kwargs.setdefault("scenario", "warehouse") != "warehouse":
             raise ValueError(f"scenario must be 'warehouse' in CrowdNavWarehouse-v0, got {scene_kwargs['scenario']!r}")
+        if scene_kwargs.get("crowd") == "replay":
+            raise ValueError("crowd='replay' replays recorded people on the open floor (CrowdNav-v0 and its variants); "
+                             "the warehouse's pickers are its own ORCA crowd")
         for key in ("human_policy", "crowd"):
             if scene_kwargs.get(key, "orca") != "orca":
                 raise ValueError(f"{key} must be 'orca' in CrowdNavWarehouse-v0 (pickers are ORCA agents that see the "

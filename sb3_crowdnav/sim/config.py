@@ -80,7 +80,8 @@ class SceneConfig:
     :param kinematics: ``"unicycle"`` (direction = rotation of the heading) or ``"holonomic"``
     :param rotation_range: width of the direction fan [rad]; 2π = all directions
     :param crowd: the crowd model that moves the people (``sb3_crowdnav.sim.crowd.CROWD_MODELS``): ``"orca"``
-        (pyrvo) or ``"linear"`` (constant velocity towards the goal; for tests)
+        (pyrvo), ``"linear"`` (constant velocity towards the goal; for tests) or ``"replay"`` (recorded people; the
+        population settings and ``num_humans`` then stay at their defaults)
     :param crowd_kwargs: the model's settings, a dict (``sb3_crowdnav.sim.crowd_settings``); stored as its frozen
         settings object
     :param human_policy: the old name of ``crowd`` (``"orca"`` or ``"linear"``), kept for existing scripts; folded
@@ -181,10 +182,31 @@ class SceneConfig:
         if self.stop_duration[1] < self.stop_duration[0]:
             raise ValueError(f"stop_duration must satisfy min <= max, got {self.stop_duration!r}")
         object.__setattr__(self, "stop_duration", tuple(float(v) for v in self.stop_duration))
+        if self.crowd == "replay":
+            self._check_replay()
+
+    def _check_replay(self) -> None:
+        """``crowd="replay"``: the recording decides who walks, how fast and how many; its most people present at
+        once must fit ``max_humans``."""
+        population = (("num_humans", 6, "the recording decides how many people walk"),
+                      ("robot_visible", False, "recorded people cannot see the robot"),
+                      ("human_speed", "fixed", "the recording decides how fast people walk"),
+                      ("stop_probability", 0.0, "the recording decides who stops"))
+        for name, default, why in population:
+            value = getattr(self, name)
+            if value != default:
+                raise ValueError(f"{name} must stay {default!r} with crowd='replay' ({why}), got {value!r}")
+        settings = self.crowd_kwargs
+        most = settings.recording.max_present(settings.window)
+        if most > self.max_humans:
+            raise ValueError(f"max_humans: the recording {settings.path} has up to {most} people present at once, "
+                             f"more than max_humans = {self.max_humans}; raise max_humans or choose a time_window")
 
     @property
     def max_human_speed(self) -> float:
         """The fastest preferred speed a person can have [m/s] (the observation's bounds)."""
+        if self.crowd == "replay":  # (the recording's fastest)
+            return max(self.crowd_kwargs.max_speed, self.human_v_pref)
         return MEASURED_SPEED[3] if self.human_speed == "measured" else self.human_v_pref
 
     def _check_placement(self) -> None:

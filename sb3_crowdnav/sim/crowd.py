@@ -7,12 +7,13 @@ robot's state; it returns the people's new positions and velocities. Who sees th
 nothing above the simulator sees it: the observation is the same whatever moves the people.
 
 A new model is a class with this constructor and these two methods, its settings (``crowd_kwargs``) a frozen
-dataclass in :mod:`sb3_crowdnav.sim.crowd_settings`, and a line in :data:`CROWD_MODELS`.
+dataclass in :mod:`sb3_crowdnav.sim.crowd_settings`, and a line in :data:`CROWD_MODELS`. A model that brings its own
+episodes, whose people come and go (``"replay"``, :mod:`sb3_crowdnav.sim.replay`), is a :class:`RecordedCrowd`.
 """
 
 from __future__ import annotations
 
-from typing import NamedTuple, Protocol
+from typing import NamedTuple, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -20,6 +21,8 @@ from sb3_crowdnav.sim.config import SceneConfig
 from sb3_crowdnav.sim.crowd_settings import LinearCrowdSettings, OrcaCrowdSettings
 from sb3_crowdnav.sim.orca import OrcaCrowd
 from sb3_crowdnav.sim.population import People
+from sb3_crowdnav.sim.replay import ReplayCrowdModel
+from sb3_crowdnav.sim.scenarios import Scenario
 
 
 class RobotAgent(NamedTuple):
@@ -42,6 +45,22 @@ class CrowdModel(Protocol):
         :param preferred: each person's preferred velocity for this step
         :param robot: the robot's state at the start of the step
         """
+
+
+@runtime_checkable
+class RecordedCrowd(CrowdModel, Protocol):
+    """A crowd model that brings its own episodes (a recording): it places the robot and the people at reset, and its
+    people come and go. The simulator then takes the scenario from :meth:`draw_scenario` instead of drawing one, and
+    after the reset and each step reads who is present; its ``n`` slots are the episode's (at most ``max_humans``),
+    an absent person's slot padded (zeros, mask 0) and a slot a person arrives in starting its history anew (its
+    first state repeated, as at reset)."""
+
+    present: np.ndarray  # (n,) bool: who is present after the reset or the last step
+    arrivals: np.ndarray  # (n,) bool: the slots a person took at the reset or the last step
+    velocities: np.ndarray  # (n, 2) [m/s] the people's velocities at the episode's first step
+
+    def draw_scenario(self, rng: np.random.Generator) -> Scenario:
+        """The episode's places (``human_starts`` (n, 2), zeros in an empty slot); ``rng`` for its draws."""
 
 
 class OrcaCrowdModel:
@@ -101,7 +120,11 @@ class LinearCrowdModel:
 
 
 # every crowd model by its name (the env's crowd=); CROWD_SETTINGS has their settings under the same names
-CROWD_MODELS: dict[str, type] = {"orca": OrcaCrowdModel, "linear": LinearCrowdModel}
+CROWD_MODELS: dict[str, type] = {
+    "orca": OrcaCrowdModel,
+    "linear": LinearCrowdModel,
+    "replay": ReplayCrowdModel,
+}
 
 
 def make_crowd(scene: SceneConfig) -> CrowdModel:
@@ -109,4 +132,5 @@ def make_crowd(scene: SceneConfig) -> CrowdModel:
     return CROWD_MODELS[scene.crowd](scene)
 
 
-__all__ = ["CROWD_MODELS", "CrowdModel", "LinearCrowdModel", "OrcaCrowdModel", "RobotAgent", "make_crowd"]
+__all__ = ["CROWD_MODELS", "CrowdModel", "LinearCrowdModel", "OrcaCrowdModel", "RecordedCrowd", "ReplayCrowdModel",
+           "RobotAgent", "make_crowd"]

@@ -1,13 +1,17 @@
-"""The settings of each crowd model (the env's ``crowd_kwargs``), frozen and validated; numpy-free, so that the scene's
-config can check them without importing the models (which import the config)."""
+"""The settings of each crowd model (the env's ``crowd_kwargs``), frozen and validated; free of the models (and of
+the config), so that the scene's config can check them without importing the models (which import the config). The
+replay's settings read their recording with :mod:`sb3_crowdnav.sim.recording` (numpy only)."""
 
 from __future__ import annotations
 
+import math
+import os
 from collections.abc import Mapping
 from dataclasses import dataclass, fields
 from typing import Any
 
-from sb3_crowdnav.sim.validation import check_at_most, check_choice, check_instance, check_number
+from sb3_crowdnav.sim.recording import MAX_COORDINATE, Recording, read_recording
+from sb3_crowdnav.sim.validation import check_at_most, check_choice, check_instance, check_number, check_positive
 
 MAX_SAFETY_SPACE = 2.0  # [m]
 
@@ -35,8 +39,136 @@ class LinearCrowdSettings:
     """``crowd_kwargs`` of ``crowd="linear"``: none (each person walks straight to its goal at its preferred speed)."""
 
 
+MAX_CROSSING = 100.0  # [m]
+
+
+def _point(name: str, value: Any) -> tuple[float, float] | None:
+    """``value`` as an (x, y) pair of floats [m], or None."""
+    if value is None:
+        return None
+    check_instance(name, value, (tuple, list), "an (x, y) pair [m] or None")
+    if len(value) != 2:
+        raise ValueError(f"{name} must be an (x, y) pair [m], got {value!r}")
+    for v in value:
+        check_number(name, v, positive=False)
+        check_at_most(f"|{name}|", abs(v), MAX_COORDINATE, " m")
+    return float(value[0]), float(value[1])
+
+
+@dataclass(frozen=True)
+class ReplayCrowdSettings:
+    """``crowd_kwargs`` of ``crowd="replay"``: people who walk as recorded (:mod:`sb3_crowdnav.sim.replay`).
+
+    The file is read and checked once, here (:func:`~sb3_crowdnav.sim.recording.read_recording`; a bad recording is a
+    ``ValueError`` naming ``file:line``); the result is :attr:`recording`.
+
+    :param path: the recording, a ``t,id,x,y`` CSV (t [s], x, y [m]) or an ETH/UCY text file (``frame ped_id x y``)
+    :param frame_rate: [frames/s] of the original video: required for the ETH/UCY text format (ETH 15, HOTEL and UCY
+        25), refused for a CSV
+    :param robot_start: (x, y) [m] the robot's start in the recording's frame; with ``robot_goal``, or neither (then
+        both are placed per episode across the busy part of the window, see :class:`~sb3_crowdnav.sim.replay.ReplayCrowdModel`)
+    :param robot_goal: (x, y) [m] the robot's goal
+    :param start_time: [s] recording time at which every episode starts; None: drawn per episode, uniformly over the
+        times that leave a whole episode (``time_limit``) in the recording (or in ``time_window``)
+    :param time_window: (start, end) [s]: the part of the recording the episodes are taken from; None: all of it
+    :param crossing_length: [m] the distance from the placed start to the placed goal (refused with a given start and
+        goal)
+    """
+
+    path: str | None = None
+    frame_rate: float | None = None
+    robot_start: tuple[float, float] | None = None
+    robot_goal: tuple[float, float] | None = None
+    start_time: float | None = None
+    time_window: tuple[float, float] | None = None
+    crossing_length: float = 8.0
+
+    def __post_init__(self) -> None:
+        if self.path is None:
+            raise ValueError("crowd_kwargs['path'] is required with crowd='replay': the recording to replay (a "
+                             "t,id,x,y CSV or an ETH/UCY text file)")
+        check_instance("crowd_kwargs['path']", self.path, (str, os.PathLike), "a str or a path")
+        object.__setattr__(self, "path", os.fspath(self.path))
+        if not os.path.isfile(self.path):
+            raise ValueError(f"crowd_kwargs['path']: no file at {self.path!r}")
+        if self.frame_rate is not None:
+            check_positive("crowd_kwargs['frame_rate']", self.frame_rate, " [frames/s]")
+            object.__setattr__(self, "frame_rate", float(self.frame_rate))
+        start, goal = _point("crowd_kwargs['robot_start']", self.robot_start), \
+            _point("crowd_kwargs['robot_goal']", self.robot_goal)
+        if (start is None) != (goal is None):
+            raise ValueError("crowd_kwargs: give robot_start and robot_goal together, or neither (then they are "
+                             f"placed per episode); got robot_start={start!r}, robot_goal={goal!r}")
+        if start is not None and math.dist(start, goal) == 0:
+            raise ValueError(f"crowd_kwargs: robot_start and robot_goal must differ, both are {start!r}")
+        object.__setattr__(self, "robot_start", start)
+        object.__setattr__(self, "robot_goal", goal)
+        check_number("crowd_kwargs['crossing_length']", self.crossing_length)
+        check_at_most("crowd_kwargs['crossing_length']", self.crossing_length, MAX_CROSSING, " m")
+        object.__setattr__(self, "crossing_length", float(self.crossing_length))
+        if start is not None and self.crossing_length != 8.0:
+            raise ValueError("crowd_kwargs['crossing_length'] sets the placed crossing; with robot_start and "
+                             "robot_goal given it has no effect")
+        try:
+            recording = read_recording(self.path, self.frame_rate)
+        except ValueError as error:
+            raise ValueError(f"crowd_kwargs: {error}") from None
+        object.__setattr__(self, "_recording", recording)
+        self._check_times(*recording.span)
+
+    def _check_times(self, first: float, last: float) -> None:
+        if self.time_window is not None:
+            name = "crowd_kwargs['time_window']"
+            check_instance(name, self.time_window, (tuple, list), "a (start, end) pair [s] or None")
+            if len(self.time_window) != 2:
+                raise ValueError(f"{name} must be a (start, end) pair [s], got {self.time_window!r}")
+            for v in self.time_window:
+                check_number(name, v, positive=False)
+            lo, hi = (float(v) for v in self.time_window)
+            if not (lo < hi and lo <= last and hi >= first):
+                raise ValueError(f"{name} must satisfy start < end and overlap the recording's times [{first!r}, "
+                                 f"{last!r}] s, got {self.time_window!r}")
+            object.__setattr__(self, "time_window", (lo, hi))
+        if self.start_time is not None:
+            check_number("crowd_kwargs['start_time']", self.start_time, positive=False)
+            object.__setattr__(self, "start_time", float(self.start_time))
+            lo, hi = self.window
+            if not lo <= self.start_time <= hi:
+                raise ValueError(f"crowd_kwargs['start_time'] must lie within the recording's times (and time_window) "
+                                 f"[{lo!r}, {hi!r}] s, got {self.start_time!r}")
+
+    @property
+    def recording(self) -> Recording:
+        """The recording, read and checked at construction."""
+        return self._recording  # type: ignore[attr-defined]
+
+    @property
+    def window(self) -> tuple[float, float]:
+        """The part of the recording the episodes are taken from [s]: ``time_window`` within the recording's span."""
+        first, last = self.recording.span
+        if self.time_window is None:
+            return first, last
+        return max(first, self.time_window[0]), min(last, self.time_window[1])
+
+    @property
+    def max_speed(self) -> float:
+        """[m/s] the fastest replayed speed (the observation's bound on the people's velocities)."""
+        return self.recording.max_speed
+
+    @property
+    def extent(self) -> float:
+        """[m] the largest absolute coordinate an episode can place a person or the robot's start or goal at."""
+        if self.robot_start is None:  # the placed crossing's centre lies among the samples
+            return self.recording.extent + self.crossing_length / 2
+        return max(self.recording.extent, *map(abs, (*self.robot_start, *self.robot_goal)))
+
+
 # the settings of every registered crowd model, by name (sim/crowd.py's CROWD_MODELS has the same names)
-CROWD_SETTINGS: dict[str, type] = {"orca": OrcaCrowdSettings, "linear": LinearCrowdSettings}
+CROWD_SETTINGS: dict[str, type] = {
+    "orca": OrcaCrowdSettings,
+    "linear": LinearCrowdSettings,
+    "replay": ReplayCrowdSettings,
+}
 
 
 def crowd_settings(crowd: str, value: Any) -> Any:
@@ -59,4 +191,4 @@ def crowd_settings(crowd: str, value: Any) -> Any:
     return cls(**value)
 
 
-__all__ = ["CROWD_SETTINGS", "LinearCrowdSettings", "OrcaCrowdSettings", "crowd_settings"]
+__all__ = ["CROWD_SETTINGS", "LinearCrowdSettings", "OrcaCrowdSettings", "ReplayCrowdSettings", "crowd_settings"]

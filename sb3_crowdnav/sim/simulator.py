@@ -8,7 +8,7 @@ import numpy as np
 
 from sb3_crowdnav.sim.actions import N_ACTIONS, action_table, move
 from sb3_crowdnav.sim.config import RewardConfig, SceneConfig
-from sb3_crowdnav.sim.crowd import CrowdModel, RobotAgent, make_crowd
+from sb3_crowdnav.sim.crowd import CrowdModel, RecordedCrowd, RobotAgent, make_crowd
 from sb3_crowdnav.sim.observation import HUMAN_DIM, ROBOT_DIM, Human, Robot
 from sb3_crowdnav.sim.population import People, PreferredVelocities, draw_people
 from sb3_crowdnav.sim.rewards import STILL_SPEED, RewardTerms, compute_reward
@@ -44,6 +44,7 @@ class CrowdSimulator:
         self.mask = np.zeros(scene.max_humans, dtype=bool)
         self.human_goals = np.zeros((0, 2))
         self.crowd: CrowdModel = make_crowd(scene)
+        self.recorded = isinstance(self.crowd, RecordedCrowd)  # its own episodes, people who come and go
         self.people: People | None = None  # the episode's population (set by reset)
         self._preferred: PreferredVelocities | None = None
         # walking direction of each pedestrian and the steps since it last walked (see _walking_directions)
@@ -57,9 +58,13 @@ class CrowdSimulator:
     def reset(self, rng: np.random.Generator) -> None:
         """Start a new episode drawn from ``rng``."""
         cfg = self.scene
-        lo, hi = cfg.humans_range
-        n = int(rng.integers(lo, hi + 1))
-        sc = generate_scenario(cfg, n, rng)
+        if self.recorded:
+            sc = self.crowd.draw_scenario(rng)
+            n = len(sc.human_starts)
+        else:
+            lo, hi = cfg.humans_range
+            n = int(rng.integers(lo, hi + 1))
+            sc = generate_scenario(cfg, n, rng)
         self.num_humans = n
         self.robot = np.zeros(ROBOT_DIM)
         self.robot[Robot.POS] = sc.robot_start
@@ -70,9 +75,13 @@ class CrowdSimulator:
         current = np.zeros((cfg.max_humans, HUMAN_DIM))
         current[:n, Human.POS] = sc.human_starts
         current[:n, Human.RADIUS] = cfg.human_radius
-        self.history = np.repeat(current[None], cfg.history_length, axis=0)
         self.mask = np.zeros(cfg.max_humans, dtype=bool)
         self.mask[:n] = True
+        if self.recorded:
+            self.mask[:n] = self.crowd.present
+            current[:n, Human.VEL] = self.crowd.velocities
+            current[:n][~self.crowd.present] = 0.0  # empty slots padded
+        self.history = np.repeat(current[None], cfg.history_length, axis=0)
         self.human_goals = sc.human_goals
         self._walk_dir = [(1.0, 0.0)] * n
         self._walk_age = [cfg.history_length] * n  # everyone still over the whole initial window
@@ -117,6 +126,27 @@ class CrowdSimulator:
                 out.append((fx / norm, fy / norm) if norm > 1e-9 else (1.0, 0.0))
         return np.array(out).reshape(n, 2)
 
+    def _update_presence(self, human_pos0: np.ndarray) -> None:
+        """Take who is present from a :class:`RecordedCrowd` after its step: a vanished person's slot padded over the
+        whole window (zeros, mask 0); a slot a person arrived in starts its history anew (its state repeated, as at
+        reset), its walking direction forgotten, and it appears where it is (``human_pos0``: no sweep from elsewhere
+        in this step's collision check)."""
+        present, arrivals, n = self.crowd.present, self.crowd.arrivals, self.num_humans
+        mask = self.mask[:n]
+        gone = mask & ~present
+        if not (gone.any() or arrivals.any()):
+            return
+        hist = self.history
+        hist[:, :n][:, gone] = 0.0
+        came = np.flatnonzero(arrivals)
+        hist[-1, came, Human.RADIUS] = self.scene.human_radius
+        hist[:-1, came] = hist[-1, came]
+        human_pos0[came] = hist[-1, came, Human.POS]
+        for i in came.tolist():
+            self._walk_dir[i] = (1.0, 0.0)
+            self._walk_age[i] = self.scene.history_length
+        mask[:] = present
+
     def step(self, action: int) -> RewardTerms:
         """Apply ``action`` (0..79) and advance the pedestrians; return the reward terms of the transition."""
         cfg, n = self.scene, self.num_humans
@@ -136,6 +166,8 @@ class CrowdSimulator:
         if n:
             hist[-1, :n, Human.POS] = new_hpos
             hist[-1, :n, Human.VEL] = new_hvel
+            if self.recorded:
+                self._update_presence(human_pos0)
         robot[Robot.POS] = x, y
         robot[Robot.VEL] = vx, vy
         robot[Robot.HEADING] = heading

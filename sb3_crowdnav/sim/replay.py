@@ -1,0 +1,180 @@
+"""``crowd="replay"``: people who walk as recorded (ETH/UCY or a ``t,id,x,y`` CSV), seeing no one.
+
+An episode is a window of the recording: ``time_limit`` seconds from a start time (``start_time``, or drawn per
+episode), sampled every Δt. At each step time t:
+
+* **who is present**: the people whose first sample is at or before t and whose last is at or after it (within
+  ``time_window``); people appear and vanish as recorded. A person who appears takes the lowest free slot of the
+  observation (free from the first step its previous person is absent; the first of equals in file order); a
+  vanished person's slot is padded (zeros, mask 0). The recording's most people present at once must fit
+  ``max_humans`` (checked at construction).
+* **positions**: the recording's samples interpolated linearly to t.
+* **velocities**: backward differences over one step, ``(p(t) - p(t - Δt)) / Δt``, so that ``p(t) = p(t - Δt) +
+  v(t) Δt`` as the ORCA crowd integrates. Before its first sample a person's position is extended back along its first
+  segment: a person who walks into view walks from its first step on. (A recording of ``CrowdNav-v0``'s people at
+  rest at reset therefore begins one Δt before the episode, at their starts: see the docs' replay page.)
+
+The robot's start and goal are ``crowd_kwargs``' ``robot_start`` and ``robot_goal``, or placed per episode across
+the window's busy part by this seeded rule: the people's positions at the window's steps are counted in cells of
+:data:`CELL` m; the crossing's centre is the mean of the positions in the fullest cell (the first of equals); a
+direction is drawn uniformly; start and goal lie ``crossing_length / 2`` (4 m) before and after the centre. A start
+closer than the two radii + 0.2 m to a person present at the first step is redrawn (direction and, when drawn, start
+time), up to :data:`MAX_TRIES` times. The robot faces its goal. Draws: the start time, then the direction.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from sb3_crowdnav.sim.config import SceneConfig
+from sb3_crowdnav.sim.crowd_settings import ReplayCrowdSettings
+from sb3_crowdnav.sim.population import People
+from sb3_crowdnav.sim.scenarios import MIN_GAP, Scenario
+
+CELL = 1.0  # [m] side of the cells in which the placement rule counts the people
+MAX_TRIES = 100
+
+
+def _positions_at(times: np.ndarray, positions: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """One person's positions (len(at), 2) at times ``at`` [s]: linear between its samples, and before its first one
+    extended along its first segment (``at`` never lies after its last sample here)."""
+    out = np.stack([np.interp(at, times, positions[:, 0]), np.interp(at, times, positions[:, 1])], axis=-1)
+    before = at < times[0]
+    if before.any():
+        slope = (positions[1] - positions[0]) / (times[1] - times[0])
+        out[before] = positions[0] + (at[before, None] - times[0]) * slope
+    return out
+
+
+class ReplayCrowdModel:
+    """People replayed from a recording (module docstring); a crowd that brings its own episodes.
+
+    After :meth:`draw_scenario` (at reset) and each :meth:`step`, ``present`` (n,) says who is present and
+    ``arrivals`` (n,) which slots a person took at that step; ``velocities`` (n, 2) are the people's velocities at the
+    episode's first step. The people ignore the robot and the preferred velocities.
+    """
+
+    def __init__(self, scene: SceneConfig) -> None:
+        self.scene = scene
+        self.settings: ReplayCrowdSettings = scene.crowd_kwargs
+        rec = self.settings.recording
+        self.first, self.last = rec.first, rec.last
+        self.window = self.settings.window
+        self.duration = scene.max_steps * scene.time_step  # [s] one episode
+        self.positions = np.zeros((0, 0, 2))  # (steps + 1, n, 2) of the episode
+        self.all_velocities = np.zeros((0, 0, 2))
+        self.all_present = np.zeros((0, 0), dtype=bool)
+        self.all_arrivals = np.zeros((0, 0), dtype=bool)
+        self.present = np.zeros(0, dtype=bool)
+        self.arrivals = np.zeros(0, dtype=bool)
+        self.velocities = np.zeros((0, 2))
+        self.k = 0
+        s = self.settings
+        if s.start_time is not None and s.robot_start is None and not self._overlapping(s.start_time).size:
+            raise ValueError(f"crowd_kwargs: no one is present from start_time {s.start_time!r} s for the episode's "
+                             f"{self.duration!r} s, so the robot cannot be placed across the busy part: give "
+                             "robot_start and robot_goal, or another start_time")
+
+    # ------------------------------------------------------------------ an episode's window
+    def _overlapping(self, t0: float) -> np.ndarray:
+        lo, hi = max(t0, self.window[0]), min(t0 + self.duration, self.window[1])
+        return np.flatnonzero((self.last >= lo) & (self.first <= hi))
+
+    def _window(self, t0: float) -> None:
+        """Every step's positions, velocities, presence and arrivals of the episode starting at ``t0`` [s]."""
+        dt, steps = self.scene.time_step, self.scene.max_steps
+        index = np.arange(steps + 1)
+        times = t0 + index * dt
+        previous = t0 + (index - 1) * dt  # (not times - dt: p(t - Δt) is then bit for bit p of the step before)
+        rec, (lo, hi) = self.settings.recording, self.window
+        people = []  # (first step, last step, person)
+        for i in self._overlapping(t0).tolist():
+            a = int(np.searchsorted(times, max(self.first[i], lo), side="left"))
+            b = int(np.searchsorted(times, min(self.last[i], hi), side="right")) - 1
+            if a <= b:
+                people.append((a, b, i))
+        people.sort()
+        slot_end: list[int] = []  # the last step of each slot's latest person
+        slots = []
+        for a, b, _ in people:
+            free = next((s for s, end in enumerate(slot_end) if end < a), len(slot_end))
+            if free == len(slot_end):
+                slot_end.append(b)
+            else:
+                slot_end[free] = b
+            slots.append(free)
+        n = len(slot_end)
+        pos = np.zeros((steps + 1, n, 2))
+        vel = np.zeros((steps + 1, n, 2))
+        present = np.zeros((steps + 1, n), dtype=bool)
+        arrivals = np.zeros((steps + 1, n), dtype=bool)
+        for (a, b, i), s in zip(people, slots, strict=True):
+            both = _positions_at(rec.times[i], rec.positions[i], np.concatenate([times[a:b + 1], previous[a:b + 1]]))
+            here, before = both[: b + 1 - a], both[b + 1 - a:]
+            pos[a:b + 1, s] = here
+            vel[a:b + 1, s] = (here - before) / dt
+            present[a:b + 1, s] = True
+            arrivals[a, s] = True
+        self.positions, self.all_velocities, self.all_present, self.all_arrivals = pos, vel, present, arrivals
+
+    def _crossing(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray] | None:
+        """The placed start and goal (2,) of the current window, or None when its start is taken or no one is there."""
+        samples = self.positions[self.all_present]
+        if not len(samples):
+            return None
+        cells = np.floor(samples / CELL).astype(np.int64)
+        cells -= cells.min(axis=0)
+        key = cells[:, 0] * (int(cells[:, 1].max()) + 1) + cells[:, 1]  # cells in (x, y) order
+        centre = samples[key == int(np.argmax(np.bincount(key)))].mean(axis=0)
+        angle = rng.uniform(0.0, 2 * math.pi)
+        half = self.settings.crossing_length / 2 * np.array([math.cos(angle), math.sin(angle)])
+        start, goal = centre - half, centre + half
+        clearance = self.scene.robot_radius + self.scene.human_radius + MIN_GAP
+        near = np.linalg.norm(self.positions[0][self.all_present[0]] - start, axis=-1) < clearance
+        return None if near.any() else (start, goal)
+
+    def _draw_start_time(self, rng: np.random.Generator) -> float:
+        if self.settings.start_time is not None:
+            return self.settings.start_time
+        lo, hi = self.window
+        return float(rng.uniform(lo, max(lo, hi - self.duration)))
+
+    def draw_scenario(self, rng: np.random.Generator) -> Scenario:
+        """The episode's window and the robot's start and goal (the people's starts: their positions at the first
+        step, zero in an empty slot; their goals: where each slot's first person is last seen in the window)."""
+        s = self.settings
+        for _ in range(MAX_TRIES):
+            self._window(self._draw_start_time(rng))
+            if s.robot_start is not None:
+                start, goal = np.array(s.robot_start), np.array(s.robot_goal)
+                break
+            crossing = self._crossing(rng)
+            if crossing is not None:
+                start, goal = crossing
+                break
+        else:
+            raise RuntimeError(f"could not place the robot across {s.path} in {MAX_TRIES} tries (no one there, or "
+                               "always someone on its start): give robot_start and robot_goal")
+        self.k = 0
+        self.present, self.arrivals = self.all_present[0], self.all_arrivals[0]
+        self.velocities = self.all_velocities[0]
+        n = self.positions.shape[1]
+        last_seen = self.all_present.shape[0] - 1 - np.argmax(self.all_present[::-1], axis=0)  # of each slot
+        goals = self.positions[last_seen, np.arange(n)] if n else np.zeros((0, 2))
+        (sx, sy), (gx, gy) = start.tolist(), goal.tolist()
+        return Scenario(start, goal, math.atan2(gy - sy, gx - sx), self.positions[0].copy(), goals)
+
+    # ------------------------------------------------------------------ the crowd-model seam
+    def reset(self, rng: np.random.Generator, people: People, robot: object) -> None:
+        """Nothing to draw: :meth:`draw_scenario` set the episode."""
+
+    def step(self, preferred: list[tuple[float, float]], robot: object) -> tuple[np.ndarray, np.ndarray]:
+        """The next step's recorded positions and velocities (n, 2); zeros in empty slots."""
+        self.k = k = min(self.k + 1, len(self.positions) - 1)
+        self.present, self.arrivals = self.all_present[k], self.all_arrivals[k]
+        return self.positions[k], self.all_velocities[k]
+
+
+__all__ = ["CELL", "MAX_TRIES", "ReplayCrowdModel"]
