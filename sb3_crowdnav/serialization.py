@@ -319,6 +319,22 @@ def _check_env_spaces(data: dict[str, Any], env: Any, path: Path) -> None:
                                        f"{env_shapes}; use the same max_humans and history_length as in training")
 
 
+def same_layout(saved: Any, current: Any) -> bool:
+    """Whether two spaces have the same kind, keys, shapes and dtypes, whatever their bounds.
+
+    A model loaded with an env whose observation space differs from the saved one only in its ``Box`` bounds takes
+    the env's space: the bounds declare the range an env's observations stay in (wider with a faster crowd, a
+    recording's frame), and no network here reads them (the features are robot-centric values). Another layout stays
+    the saved space, which the loaders then refuse, naming the shapes.
+    """
+    if isinstance(saved, spaces.Dict) and isinstance(current, spaces.Dict):
+        return saved.spaces.keys() == current.spaces.keys() and all(
+            same_layout(saved[k], current[k]) for k in saved.spaces)
+    if isinstance(saved, spaces.Box) and isinstance(current, spaces.Box):
+        return saved.shape == current.shape and saved.dtype == current.dtype
+    return saved == current
+
+
 def _check_value_model(data: dict[str, Any], path: Any) -> None:
     """``TypeError`` saying which loader to use when an APGValue loader is given another algorithm's file."""
     if "imitation_episodes" in data:
@@ -363,6 +379,8 @@ def safe_custom_objects(path: Any, env: Any = None, value_model: bool = False) -
         elif key in ("observation_space", "action_space"):
             if plain is not None:
                 objects[key] = space_from_dict(plain[key])
+                if env is not None and same_layout(objects[key], getattr(env, key)):
+                    objects[key] = getattr(env, key)  # the env's bounds: see same_layout
             elif env is not None:
                 _check_env_spaces(data, env, path)
                 objects[key] = getattr(env, key)

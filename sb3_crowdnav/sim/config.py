@@ -187,7 +187,7 @@ class SceneConfig:
 
     def _check_replay(self) -> None:
         """``crowd="replay"``: the recording decides who walks, how fast and how many; its most people present at
-        once must fit ``max_humans``."""
+        once must fit ``max_humans`` unless only the nearest are tracked."""
         population = (("num_humans", 6, "the recording decides how many people walk"),
                       ("robot_visible", False, "recorded people cannot see the robot"),
                       ("human_speed", "fixed", "the recording decides how fast people walk"),
@@ -198,9 +198,10 @@ class SceneConfig:
                 raise ValueError(f"{name} must stay {default!r} with crowd='replay' ({why}), got {value!r}")
         settings = self.crowd_kwargs
         most = settings.recording.max_present(settings.window)
-        if most > self.max_humans:
+        if most > self.max_humans and settings.tracked == "all":
             raise ValueError(f"max_humans: the recording {settings.path} has up to {most} people present at once, "
-                             f"more than max_humans = {self.max_humans}; raise max_humans or choose a time_window")
+                             f"more than max_humans = {self.max_humans}; raise max_humans, choose a time_window, or observe the "
+                             "nearest with crowd_kwargs['tracked']='nearest'")
 
     @property
     def max_human_speed(self) -> float:

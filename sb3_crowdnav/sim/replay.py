@@ -7,7 +7,9 @@ episode), sampled every Δt. At each step time t:
   ``time_window``); people appear and vanish as recorded. A person who appears takes the lowest free slot of the
   observation (free from the first step its previous person is absent; the first of equals in file order); a
   vanished person's slot is padded (zeros, mask 0). The recording's most people present at once must fit
-  ``max_humans`` (checked at construction).
+  ``max_humans`` (checked at construction), unless ``tracked="nearest"``: then, in a window with more people
+  present at once than ``max_humans``, the slots hold the ``max_humans`` present people nearest to the robot at the
+  start of each step (a tracker's N nearest tracks), each keeping its slot while it stays among them.
 * **positions**: the recording's samples interpolated linearly to t.
 * **velocities**: backward differences over one step, ``(p(t) - p(t - Δt)) / Δt``, so that ``p(t) = p(t - Δt) +
   v(t) Δt`` as the ORCA crowd integrates. Before its first sample a person's position is extended back along its first
@@ -71,6 +73,8 @@ class ReplayCrowdModel:
         self.arrivals = np.zeros(0, dtype=bool)
         self.velocities = np.zeros((0, 2))
         self.k = 0
+        self.tracks: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # tracked="nearest", too many people
+        self.slot_person = np.zeros(0, dtype=np.int64)  # (max_humans,) the person in each slot then, -1: none
         s = self.settings
         if s.start_time is not None and s.robot_start is None and not self._overlapping(s.start_time).size:
             raise ValueError(f"crowd_kwargs: no one is present from start_time {s.start_time!r} s for the episode's "
@@ -96,6 +100,13 @@ class ReplayCrowdModel:
             if a <= b:
                 people.append((a, b, i))
         people.sort()
+        if self.settings.tracked == "nearest":
+            tracks = self._tracks(people, times, previous)
+            if int(tracks[2].sum(axis=1).max(initial=0)) > self.scene.max_humans:
+                self.tracks = tracks
+                self.positions, self.all_velocities, self.all_present = tracks  # (for the placement rule)
+                return
+        self.tracks = None
         slot_end: list[int] = []  # the last step of each slot's latest person
         slots = []
         for a, b, _ in people:
@@ -118,6 +129,46 @@ class ReplayCrowdModel:
             present[a:b + 1, s] = True
             arrivals[a, s] = True
         self.positions, self.all_velocities, self.all_present, self.all_arrivals = pos, vel, present, arrivals
+
+    def _tracks(self, people: list[tuple[int, int, int]], times: np.ndarray, previous: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Every person's positions, velocities (steps + 1, P, 2) and presence (steps + 1, P) in the window, one
+        column per person (``tracked="nearest"``: the slots are chosen per step)."""
+        rec, dt, steps = self.settings.recording, self.scene.time_step, self.scene.max_steps
+        pos = np.zeros((steps + 1, len(people), 2))
+        vel = np.zeros_like(pos)
+        present = np.zeros((steps + 1, len(people)), dtype=bool)
+        for j, (a, b, i) in enumerate(people):
+            both = _positions_at(rec.times[i], rec.positions[i], np.concatenate([times[a:b + 1], previous[a:b + 1]]))
+            here, before = both[: b + 1 - a], both[b + 1 - a:]
+            pos[a:b + 1, j] = here
+            vel[a:b + 1, j] = (here - before) / dt
+            present[a:b + 1, j] = True
+        return pos, vel, present
+
+    def _track_nearest(self, k: int, robot: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+        """``tracked="nearest"``: the slots at step ``k`` hold the ``max_humans`` present people nearest to ``robot``
+        (ties in file order); a person still among them keeps its slot, one who enters takes the lowest free slot
+        (nearest first) and is an arrival. Sets ``present``/``arrivals``; returns the slots' positions and velocities."""
+        pos, vel, present = (a[k] for a in self.tracks)
+        n = len(self.slot_person)
+        here = np.flatnonzero(present)
+        order = np.argsort(np.linalg.norm(pos[here] - np.asarray(robot), axis=-1), kind="stable")
+        chosen = here[order[:n]].tolist()
+        keep = set(chosen)
+        slots = [p if p in keep else -1 for p in self.slot_person.tolist()]
+        held = set(slots)
+        arrivals = np.zeros(n, dtype=bool)
+        for person in chosen:
+            if person not in held:
+                s = slots.index(-1)
+                slots[s] = person
+                arrivals[s] = True
+        self.slot_person = np.array(slots)
+        taken = self.slot_person >= 0
+        who = np.where(taken, self.slot_person, 0)
+        self.present, self.arrivals = taken, arrivals
+        return np.where(taken[:, None], pos[who], 0.0), np.where(taken[:, None], vel[who], 0.0)
 
     def _crossing(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray] | None:
         """The placed start and goal (2,) of the current window, or None when its start is taken or no one is there."""
@@ -158,12 +209,18 @@ class ReplayCrowdModel:
             raise RuntimeError(f"could not place the robot across {s.path} in {MAX_TRIES} tries (no one there, or "
                                "always someone on its start): give robot_start and robot_goal")
         self.k = 0
+        (sx, sy), (gx, gy) = start.tolist(), goal.tolist()
+        if self.tracks is not None:  # tracked="nearest" with more people than slots
+            self.slot_person = np.full(self.scene.max_humans, -1)
+            starts, self.velocities = self._track_nearest(0, (sx, sy))
+            last_seen = self.tracks[2].shape[0] - 1 - np.argmax(self.tracks[2][::-1], axis=0)  # of each person
+            goals = np.where(self.present[:, None], self.tracks[0][last_seen[self.slot_person], self.slot_person], 0.0)
+            return Scenario(start, goal, math.atan2(gy - sy, gx - sx), starts, goals)
         self.present, self.arrivals = self.all_present[0], self.all_arrivals[0]
         self.velocities = self.all_velocities[0]
         n = self.positions.shape[1]
         last_seen = self.all_present.shape[0] - 1 - np.argmax(self.all_present[::-1], axis=0)  # of each slot
         goals = self.positions[last_seen, np.arange(n)] if n else np.zeros((0, 2))
-        (sx, sy), (gx, gy) = start.tolist(), goal.tolist()
         return Scenario(start, goal, math.atan2(gy - sy, gx - sx), self.positions[0].copy(), goals)
 
     # ------------------------------------------------------------------ the crowd-model seam
@@ -173,6 +230,8 @@ class ReplayCrowdModel:
     def step(self, preferred: list[tuple[float, float]], robot: object) -> tuple[np.ndarray, np.ndarray]:
         """The next step's recorded positions and velocities (n, 2); zeros in empty slots."""
         self.k = k = min(self.k + 1, len(self.positions) - 1)
+        if self.tracks is not None:
+            return self._track_nearest(k, robot.position)
         self.present, self.arrivals = self.all_present[k], self.all_arrivals[k]
         return self.positions[k], self.all_velocities[k]
 
