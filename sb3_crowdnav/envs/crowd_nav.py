@@ -160,6 +160,9 @@ def unused_options(scene: SceneConfig) -> dict[str, str]:
     if scene.crowd == "linear":
         for key in (*ORCA_KEYS, "robot_visible"):
             unused[key] = "concerns ORCA pedestrians; crowd='linear' walk straight to their goals"
+    elif scene.crowd == "social_force":
+        for key in ORCA_KEYS:
+            unused[key] = "concerns ORCA pedestrians; crowd='social_force' sets its forces in crowd_kwargs"
     if scene.human_speed == "measured":
         unused["human_v_pref"] = "is the speed of human_speed='fixed'; 'measured' draws each person's speed"
     if scene.stop_probability == 0:

@@ -8,33 +8,69 @@ nothing above the simulator sees it: the observation is the same whatever moves 
 
 A new model is a class with this constructor and these two methods, its settings (``crowd_kwargs``) a frozen
 dataclass in :mod:`sb3_crowdnav.sim.crowd_settings`, and a line in :data:`CROWD_MODELS`.
+
+The open floor has no walls; the warehouse passes its racks and hall as :class:`Walls` at reset, and a model that
+can put a person at a position (ORCA: ``move_person``) lets the warehouse push one pressed into a rack back out.
 """
 
 from __future__ import annotations
 
-from typing import NamedTuple, Protocol
+import functools
+import math
+from dataclasses import dataclass
+from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 
 from sb3_crowdnav.sim.config import SceneConfig
-from sb3_crowdnav.sim.crowd_settings import LinearCrowdSettings, OrcaCrowdSettings
+from sb3_crowdnav.sim.crowd_settings import LinearCrowdSettings, OrcaCrowdSettings, SocialForceCrowdSettings
 from sb3_crowdnav.sim.orca import OrcaCrowd
 from sb3_crowdnav.sim.population import People
 
 
 class RobotAgent(NamedTuple):
-    """The robot as the people see it [m, m/s]."""
+    """The robot as the people see it [m, m/s]: its state at the start of the step and, during a step, where its move
+    (computed before the people's) ends, for a model that integrates the robot's path through the step."""
 
     position: tuple[float, float]
     velocity: tuple[float, float]
     radius: float
+    end_position: tuple[float, float] | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class Walls:
+    """The static world the people walk in (world frame, [m]): a hall and the obstacles inside it.
+
+    :param hall: (k, 2) the hall's boundary, counter-clockwise
+    :param obstacles: the obstacles (racks) inside it, each a (k, 2) counter-clockwise vertex array
+    """
+
+    hall: np.ndarray
+    obstacles: tuple[np.ndarray, ...]
+
+    def rvo_polygons(self) -> list[np.ndarray]:
+        """For RVO2: the obstacles, then the hall as one clockwise boundary (RVO2's way of keeping agents inside)."""
+        return [*self.obstacles, self.hall[::-1].copy()]
+
+    @functools.cached_property
+    def area(self) -> Any:
+        """The walkable area, the hall minus the obstacles (a shapely polygon, prepared)."""
+        import shapely
+
+        area = shapely.Polygon(self.hall)
+        if self.obstacles:
+            area = area.difference(shapely.union_all([shapely.Polygon(o) for o in self.obstacles]))
+        shapely.prepare(area)
+        return area
 
 
 class CrowdModel(Protocol):
     """What moves the people: built once per env from the scene (its ``crowd_kwargs``), reset per episode."""
 
-    def reset(self, rng: np.random.Generator, people: People, robot: RobotAgent) -> None:
-        """Start an episode with ``people`` at their starts, at rest; ``rng`` for a model's own randomness."""
+    def reset(self, rng: np.random.Generator, people: People, robot: RobotAgent, walls: Walls | None = None) -> None:
+        """Start an episode with ``people`` at their starts, at rest; ``rng`` for a model's own randomness; ``walls``
+        the static obstacles (None: the open floor)."""
 
     def step(self, preferred: list[tuple[float, float]], robot: RobotAgent) -> tuple[np.ndarray, np.ndarray]:
         """Advance one time step; the people's new positions and velocities, each (n, 2).
@@ -60,13 +96,14 @@ class OrcaCrowdModel:
         self.crowds: list[OrcaCrowd] = []
         self.seeing = np.zeros(0, dtype=bool)
 
-    def reset(self, rng: np.random.Generator, people: People, robot: RobotAgent) -> None:
+    def reset(self, rng: np.random.Generator, people: People, robot: RobotAgent, walls: Walls | None = None) -> None:
         radii = people.radii + self.settings.safety_space
         robot_agent = (np.array(robot.position), np.array(robot.velocity), robot.radius)
         self.seeing = people.sees_robot.copy()
         sides = [bool(s) for s in np.unique(self.seeing)]  # [False], [True] or [False, True]
-        self.crowds = [OrcaCrowd(self.scene, people.starts, radii, people.v_prefs, robot_agent if side else None)
-                       for side in sides]
+        obstacles = walls.rvo_polygons() if walls is not None else None
+        self.crowds = [OrcaCrowd(self.scene, people.starts, radii, people.v_prefs, robot_agent if side else None,
+                                 obstacles) for side in sides]
 
     def step(self, preferred: list[tuple[float, float]], robot: RobotAgent) -> tuple[np.ndarray, np.ndarray]:
         robot_state = (robot.position, robot.velocity)
@@ -81,6 +118,11 @@ class OrcaCrowdModel:
             crowd.set_agents(positions, velocities)
         return positions, velocities
 
+    def move_person(self, i: int, position: np.ndarray) -> None:
+        """Put person ``i`` at ``position`` (2,) (the warehouse pushes a person pressed into a rack back out)."""
+        for crowd in self.crowds:
+            crowd.move_agent(i, position)
+
 
 class LinearCrowdModel:
     """People who walk at their preferred velocity, seeing no one (exact integration; for tests)."""
@@ -90,7 +132,7 @@ class LinearCrowdModel:
         self.settings: LinearCrowdSettings = scene.crowd_kwargs
         self.positions: list[list[float]] = []
 
-    def reset(self, rng: np.random.Generator, people: People, robot: RobotAgent) -> None:
+    def reset(self, rng: np.random.Generator, people: People, robot: RobotAgent, walls: Walls | None = None) -> None:
         self.positions = people.starts.tolist()
 
     def step(self, preferred: list[tuple[float, float]], robot: RobotAgent) -> tuple[np.ndarray, np.ndarray]:
@@ -100,8 +142,234 @@ class LinearCrowdModel:
         return np.array(self.positions).reshape(n, 2), np.array(preferred, dtype=np.float64).reshape(n, 2)
 
 
+JUPEDSIM_INSTALL = 'pip install --no-deps "jupedsim==1.4.2" deprecated wrapt'
+PERSON_MASS = 80.0  # [kg] JuPedSim's default, Helbing et al. (2000)'s
+# the robot's agent follows the robot's path (its velocity set each sub-step): so heavy and slow to react that neither
+# the people's forces nor a driving force move it off that path
+ROBOT_MASS = 1e9  # [kg]
+ROBOT_RELAXATION = 1e9  # [s]
+TARGET_AHEAD = 1.0  # [m] a person heads for a point this far along its preferred velocity (inside the walkable area)
+OPEN_FLOOR_MARGIN = 10.0  # [m] the open floor's walkable area: a square this much beyond the starts and goals
+# explicit (symplectic Euler) integration of a repulsion of stiffness k = A / (m B) is stable while h * sqrt(k) < 2
+STABILITY_BOUND = 2.0
+
+
+def import_jupedsim() -> Any:
+    """JuPedSim, or an ``ImportError`` saying how to install it (without the Qt/VTK of its viewer)."""
+    try:
+        import jupedsim
+    except ImportError as error:
+        raise ImportError(f"crowd='social_force' needs JuPedSim, installed without the Qt/VTK of its trajectory viewer: "
+                          f"{JUPEDSIM_INSTALL} (see docs/installation.md)") from error
+    return jupedsim
+
+
+def min_sub_steps(settings: SocialForceCrowdSettings, time_step: float) -> int:
+    """The fewest sub-steps that integrate ``settings``' repulsions stably at ``time_step`` [s]."""
+    stiffness = max(settings.person_strength, settings.wall_strength) / (PERSON_MASS * settings.force_range)  # [1/s²]
+    return math.floor(time_step * math.sqrt(stiffness) / STABILITY_BOUND) + 1
+
+
+class SocialForceCrowdModel:
+    """People driven by Helbing's social force model, JuPedSim's ``SocialForceModel`` (C++), with walls.
+
+    Each env step sets every person's target (:data:`TARGET_AHEAD` along its preferred velocity, kept inside the
+    walkable area) and desired speed (the preferred velocity's length) and runs ``sub_steps`` JuPedSim iterations.
+    The walkable area is the warehouse's hall minus its racks, or on the open floor a square
+    :data:`OPEN_FLOOR_MARGIN` beyond the scene; one JuPedSim simulation is built per area and kept, a reset removing
+    and adding the agents.
+
+    A robot the people see (``robot_visible=True``) is one more agent, so heavy that nobody moves it, whose velocity is
+    set before each sub-step so that it follows the robot's straight path through the step: the people feel it where
+    it is at each sub-step. JuPedSim's forces act on every agent in range, so a share of people seeing the robot is
+    refused. The robot's agent leaves the model while the robot is outside the walkable area and comes back when it
+    is inside again.
+
+    A person pushed out of the walkable area (with ``wall_strength=0``, or squeezed through a wall) leaves the model:
+    it stands, at rest, where it was at the start of that step for the rest of the episode, and the others no longer
+    feel it.
+    """
+
+    def __init__(self, scene: SceneConfig) -> None:
+        self.scene = scene
+        self.settings: SocialForceCrowdSettings = scene.crowd_kwargs
+        if not isinstance(scene.robot_visible, bool):
+            raise ValueError(f"robot_visible must be True or False with crowd='social_force', got the share "
+                             f"{scene.robot_visible!r}: its forces act on everyone in range, so nobody can ignore the "
+                             f"robot while others feel it")
+        need = min_sub_steps(self.settings, scene.time_step)
+        if self.settings.sub_steps < need:
+            raise ValueError(f"crowd_kwargs['sub_steps'] must be >= {need} for these strengths and force_range at "
+                             f"time_step={scene.time_step} s (the integration would blow up), got "
+                             f"{self.settings.sub_steps}")
+        self.jps = import_jupedsim()
+        self.h = scene.time_step / self.settings.sub_steps  # [s]
+        self._sim: Any = None
+        self._walls: Walls | None = None
+        self._area: Any = None
+        self._route = (0, 0)  # the journey and its one direct-steering stage
+        self._ids: list[int] = []
+        self._agents: list[Any] = []  # their JuPedSim handles, fetched again when the agents change
+        self._robot: int | None = None  # the robot's agent id while it is in the model
+        self._changed = False  # an agent was marked for removal: handles fetched again after the next iteration
+        self.positions = np.zeros((0, 2))
+        self.frozen = np.zeros(0, dtype=bool)  # people who left the walkable area
+
+    def _open_floor(self) -> Any:
+        import shapely
+
+        s = self.scene
+        half = max(s.circle_radius, s.square_width / 2) + s.start_noise + OPEN_FLOOR_MARGIN
+        return shapely.box(-half, -half, half, half)
+
+    def _simulation(self, walls: Walls | None) -> Any:
+        """The JuPedSim simulation of ``walls``' area (of the open floor for None), emptied: built once per area."""
+        jps = self.jps
+        if self._sim is None or walls is not self._walls:
+            import shapely
+
+            self._area = walls.area if walls is not None else self._open_floor()
+            shapely.prepare(self._area)
+            self._sim = jps.Simulation(model=jps.SocialForceModel(), geometry=self._area, dt=self.h)
+            stage = self._sim.add_direct_steering_stage()
+            self._route = (self._sim.add_journey(jps.JourneyDescription([stage])), stage)
+            self._walls = walls
+        elif self._sim.agent_count():
+            for agent in list(self._sim.agents()):
+                self._sim.mark_agent_for_removal(agent.id)
+            self._sim.iterate()  # removes them (and empties the neighbour grid, which add_agent checks)
+        return self._sim
+
+    def reset(self, rng: np.random.Generator, people: People, robot: RobotAgent, walls: Walls | None = None) -> None:
+        sim, s = self._simulation(walls), self.settings
+        journey, stage = self._route
+        self._ids = []
+        for (x, y), radius, speed in zip(people.starts.tolist(), people.radii.tolist(), people.v_prefs.tolist(),
+                                         strict=True):
+            self._ids.append(sim.add_agent(self.jps.SocialForceModelAgentParameters(
+                position=(x, y), orientation=(1.0, 0.0), journey_id=journey, stage_id=stage, desired_speed=speed,
+                mass=PERSON_MASS, reaction_time=s.relaxation_time, agent_scale=s.person_strength,
+                obstacle_scale=s.wall_strength, force_distance=s.force_range, radius=radius)))
+        self._robot = None
+        if self.scene.robot_visible:
+            self._add_robot(robot.position, robot.radius)
+        self._fetch()
+        self.positions = np.array(people.starts, dtype=np.float64).reshape(-1, 2)
+        self.frozen = np.zeros(people.n, dtype=bool)
+
+    def _add_robot(self, position: tuple[float, float], radius: float) -> None:
+        """The robot's agent at ``position`` when the robot is inside the walkable area and can be placed there."""
+        import shapely
+
+        if not shapely.contains_xy(self._area, *position):
+            return
+        journey, stage = self._route
+        try:
+            self._robot = self._sim.add_agent(self.jps.SocialForceModelAgentParameters(
+                position=tuple(position), orientation=(1.0, 0.0), journey_id=journey, stage_id=stage, desired_speed=0.0,
+                mass=ROBOT_MASS, reaction_time=ROBOT_RELAXATION, agent_scale=0.0, obstacle_scale=0.0,
+                force_distance=self.settings.force_range, radius=radius))
+        except RuntimeError:  # JuPedSim refuses it within half its radius of a wall (the robot collided): next step
+            self._robot = None
+
+    def _fetch(self) -> None:
+        self._agents = [None if frozen else self._sim.agent(i) for i, frozen in
+                        zip(self._ids, self.frozen.tolist() if len(self.frozen) == len(self._ids) else
+                            [False] * len(self._ids), strict=True)]
+
+    def _targets(self, preferred: np.ndarray, speeds: np.ndarray) -> np.ndarray:
+        """Each person's target, (n, 2): :data:`TARGET_AHEAD` along its preferred velocity, or as far as one step
+        of it, or where it stands, whichever first is inside the walkable area."""
+        import shapely
+
+        ahead = preferred / np.maximum(speeds, 1e-12)[:, None] * TARGET_AHEAD
+        targets = self.positions + ahead
+        outside = ~shapely.contains_xy(self._area, targets[:, 0], targets[:, 1])
+        if outside.any():
+            near = self.positions + preferred * self.scene.time_step
+            targets[outside] = near[outside]
+            outside &= ~shapely.contains_xy(self._area, near[:, 0], near[:, 1])
+            targets[outside] = self.positions[outside]
+        return targets
+
+    def _iterate(self) -> None:
+        """One JuPedSim iteration; a person outside the walkable area (where JuPedSim cannot route it) leaves first."""
+        try:
+            self._sim.iterate()
+        except RuntimeError:
+            if not self._leave_area():
+                raise
+            self._sim.iterate()
+        if self._changed:
+            self._fetch()
+            self._changed = False
+
+    def _leave_area(self) -> bool:
+        """Take the people outside the walkable area out of the model (standing at their step's start); any?"""
+        import shapely
+
+        now = np.array([a.position if a is not None else (0.0, 0.0) for a in self._agents]).reshape(-1, 2)
+        out = ~shapely.contains_xy(self._area, now[:, 0], now[:, 1]) & ~self.frozen
+        for i in np.flatnonzero(out).tolist():
+            self._sim.mark_agent_for_removal(self._ids[i])
+        self.frozen |= out
+        self._changed = bool(out.any())
+        return self._changed
+
+    def step(self, preferred: list[tuple[float, float]], robot: RobotAgent) -> tuple[np.ndarray, np.ndarray]:
+        pref = np.array(preferred, dtype=np.float64).reshape(-1, 2)
+        speeds = np.hypot(pref[:, 0], pref[:, 1])
+        for agent, target, speed, frozen in zip(self._agents, self._targets(pref, speeds).tolist(), speeds.tolist(),
+                                                self.frozen.tolist(), strict=True):
+            if not frozen:
+                agent.target = (target[0], target[1])
+                agent.model.desired_speed = speed
+        path = self._robot_path(robot)
+        k = self.settings.sub_steps
+        for j in range(k):
+            if path is not None and self._robot is not None:
+                (x0, y0), (x1, y1) = path
+                ax, ay = self._sim.agent(self._robot).position
+                f = (j + 1) / k
+                self._sim.agent(self._robot).model.velocity = ((x0 + f * (x1 - x0) - ax) / self.h,
+                                                               (y0 + f * (y1 - y0) - ay) / self.h)
+            self._iterate()
+        self._leave_area()  # pushed out in the last sub-step: marked, removed as the next step's first iteration starts
+        return self._state()
+
+    def _robot_path(self, robot: RobotAgent) -> tuple[tuple[float, float], tuple[float, float]] | None:
+        """The robot's straight path through the step, its agent added or removed as it is inside the area or not."""
+        if not self.scene.robot_visible:
+            return None
+        import shapely
+
+        start = robot.position
+        end = robot.end_position
+        if end is None:
+            end = (start[0] + robot.velocity[0] * self.scene.time_step, start[1] + robot.velocity[1] * self.scene.time_step)
+        inside = bool(shapely.contains_xy(self._area, *end)) and bool(shapely.contains_xy(self._area, *start))
+        if not inside and self._robot is not None:
+            self._sim.mark_agent_for_removal(self._robot)
+            self._robot = None
+            self._changed = True
+        elif inside and self._robot is None:
+            self._add_robot(start, robot.radius)
+            self._fetch()
+        return start, end
+
+    def _state(self) -> tuple[np.ndarray, np.ndarray]:
+        rows = [(*a.position, *a.model.velocity) if a is not None else (0.0, 0.0, 0.0, 0.0) for a in self._agents]
+        state = np.array(rows, dtype=np.float64).reshape(-1, 4)
+        frozen = self.frozen
+        state[frozen, :2] = self.positions[frozen]
+        state[frozen, 2:] = 0.0
+        self.positions = state[:, :2].copy()
+        return state[:, :2], state[:, 2:]
+
+
 # every crowd model by its name (the env's crowd=); CROWD_SETTINGS has their settings under the same names
-CROWD_MODELS: dict[str, type] = {"orca": OrcaCrowdModel, "linear": LinearCrowdModel}
+CROWD_MODELS: dict[str, type] = {"orca": OrcaCrowdModel, "linear": LinearCrowdModel,
+                                 "social_force": SocialForceCrowdModel}
 
 
 def make_crowd(scene: SceneConfig) -> CrowdModel:
@@ -109,4 +377,5 @@ def make_crowd(scene: SceneConfig) -> CrowdModel:
     return CROWD_MODELS[scene.crowd](scene)
 
 
-__all__ = ["CROWD_MODELS", "CrowdModel", "LinearCrowdModel", "OrcaCrowdModel", "RobotAgent", "make_crowd"]
+__all__ = ["CROWD_MODELS", "CrowdModel", "LinearCrowdModel", "OrcaCrowdModel", "RobotAgent", "SocialForceCrowdModel",
+           "Walls", "import_jupedsim", "make_crowd", "min_sub_steps"]
