@@ -150,8 +150,12 @@ ROBOT_MASS = 1e9  # [kg]
 ROBOT_RELAXATION = 1e9  # [s]
 TARGET_AHEAD = 1.0  # [m] a person heads for a point this far along its preferred velocity (inside the walkable area)
 OPEN_FLOOR_MARGIN = 10.0  # [m] the open floor's walkable area: a square this much beyond the starts and goals
-# explicit (symplectic Euler) integration of a repulsion of stiffness k = A / (m B) is stable while h * sqrt(k) < 2
-STABILITY_BOUND = 2.0
+# explicit (symplectic Euler) integration of a force of stiffness k [N/m] on a mass m is stable while h sqrt(k/m) < 2;
+# the repulsions' stiffness at contact is A / B, the contact (body) force's JuPedSim's 120000 kg/s², which bodies meet
+# when squeezed. Kept below 1.5: at 0.25 s, 5 sub-steps (h sqrt(k/m) = 1.9) still blew a few pickers out of the
+# warehouse in 1500 steps, 7 (1.4) none in 3000 (docs/decisions.md)
+STABILITY_BOUND = 1.5
+BODY_FORCE = 120000.0  # [kg/s²] JuPedSim's SocialForceModel default, Helbing et al. (2000)'s k
 
 
 def import_jupedsim() -> Any:
@@ -165,8 +169,9 @@ def import_jupedsim() -> Any:
 
 
 def min_sub_steps(settings: SocialForceCrowdSettings, time_step: float) -> int:
-    """The fewest sub-steps that integrate ``settings``' repulsions stably at ``time_step`` [s]."""
-    stiffness = max(settings.person_strength, settings.wall_strength) / (PERSON_MASS * settings.force_range)  # [1/s²]
+    """The fewest sub-steps that integrate ``settings``' repulsions and the contact force stably at ``time_step`` [s]."""
+    stiffness = max(settings.person_strength / settings.force_range, settings.wall_strength / settings.force_range,
+                    BODY_FORCE) / PERSON_MASS  # [1/s²]
     return math.floor(time_step * math.sqrt(stiffness) / STABILITY_BOUND) + 1
 
 
@@ -198,18 +203,21 @@ class SocialForceCrowdModel:
                              f"{scene.robot_visible!r}: its forces act on everyone in range, so nobody can ignore the "
                              f"robot while others feel it")
         need = min_sub_steps(self.settings, scene.time_step)
-        if self.settings.sub_steps < need:
+        if self.settings.sub_steps is not None and self.settings.sub_steps < need:
             raise ValueError(f"crowd_kwargs['sub_steps'] must be >= {need} for these strengths and force_range at "
                              f"time_step={scene.time_step} s (the integration would blow up), got "
                              f"{self.settings.sub_steps}")
         self.jps = import_jupedsim()
-        self.h = scene.time_step / self.settings.sub_steps  # [s]
+        self.sub_steps = need if self.settings.sub_steps is None else self.settings.sub_steps
+        self.h = scene.time_step / self.sub_steps  # [s]
+        self._box: tuple[float, float, float, float] | None = None  # the open floor's area, tested by its bounds
         self._sim: Any = None
         self._walls: Walls | None = None
         self._area: Any = None
         self._route = (0, 0)  # the journey and its one direct-steering stage
         self._ids: list[int] = []
         self._agents: list[Any] = []  # their JuPedSim handles, fetched again when the agents change
+        self._robot_handle: Any = None
         self._robot: int | None = None  # the robot's agent id while it is in the model
         self._changed = False  # an agent was marked for removal: handles fetched again after the next iteration
         self.positions = np.zeros((0, 2))
@@ -220,7 +228,17 @@ class SocialForceCrowdModel:
 
         s = self.scene
         half = max(s.circle_radius, s.square_width / 2) + s.start_noise + OPEN_FLOOR_MARGIN
+        self._box = (-half, -half, half, half)
         return shapely.box(-half, -half, half, half)
+
+    def _inside(self, points: np.ndarray) -> np.ndarray:
+        """(n,) bool: ``points`` (n, 2) in the walkable area (the open floor's square by its bounds: cheaper)."""
+        if self._box is not None:
+            x0, y0, x1, y1 = self._box
+            return (points[:, 0] > x0) & (points[:, 0] < x1) & (points[:, 1] > y0) & (points[:, 1] < y1)
+        import shapely
+
+        return shapely.contains_xy(self._area, points[:, 0], points[:, 1])
 
     def _simulation(self, walls: Walls | None) -> Any:
         """The JuPedSim simulation of ``walls``' area (of the open floor for None), emptied: built once per area."""
@@ -228,6 +246,7 @@ class SocialForceCrowdModel:
         if self._sim is None or walls is not self._walls:
             import shapely
 
+            self._box = None
             self._area = walls.area if walls is not None else self._open_floor()
             shapely.prepare(self._area)
             self._sim = jps.Simulation(model=jps.SocialForceModel(), geometry=self._area, dt=self.h)
@@ -253,15 +272,13 @@ class SocialForceCrowdModel:
         self._robot = None
         if self.scene.robot_visible:
             self._add_robot(robot.position, robot.radius)
-        self._fetch()
         self.positions = np.array(people.starts, dtype=np.float64).reshape(-1, 2)
         self.frozen = np.zeros(people.n, dtype=bool)
+        self._fetch()
 
     def _add_robot(self, position: tuple[float, float], radius: float) -> None:
         """The robot's agent at ``position`` when the robot is inside the walkable area and can be placed there."""
-        import shapely
-
-        if not shapely.contains_xy(self._area, *position):
+        if not self._inside(np.array([position]))[0]:
             return
         journey, stage = self._route
         try:
@@ -273,98 +290,102 @@ class SocialForceCrowdModel:
             self._robot = None
 
     def _fetch(self) -> None:
-        self._agents = [None if frozen else self._sim.agent(i) for i, frozen in
-                        zip(self._ids, self.frozen.tolist() if len(self.frozen) == len(self._ids) else
-                            [False] * len(self._ids), strict=True)]
+        """The JuPedSim handles (agent, model state) of the people (None for one out of the model) and of the robot's
+        agent: pointers into JuPedSim's agents, fetched again whenever an agent is added or removed. The native
+        objects (``Simulation._obj``): the Python wrappers cost more than the step itself on a few agents."""
+        native = self._sim._obj
+        self._agents = [None if frozen else (native.agent(i), native.agent(i).model)
+                        for i, frozen in zip(self._ids, self.frozen.tolist(), strict=True)]
+        self._robot_handle = None if self._robot is None else (native.agent(self._robot), native.agent(self._robot).model)
 
     def _targets(self, preferred: np.ndarray, speeds: np.ndarray) -> np.ndarray:
         """Each person's target, (n, 2): :data:`TARGET_AHEAD` along its preferred velocity, or as far as one step
         of it, or where it stands, whichever first is inside the walkable area."""
-        import shapely
-
         ahead = preferred / np.maximum(speeds, 1e-12)[:, None] * TARGET_AHEAD
         targets = self.positions + ahead
-        outside = ~shapely.contains_xy(self._area, targets[:, 0], targets[:, 1])
+        outside = ~self._inside(targets)
         if outside.any():
             near = self.positions + preferred * self.scene.time_step
             targets[outside] = near[outside]
-            outside &= ~shapely.contains_xy(self._area, near[:, 0], near[:, 1])
+            outside &= ~self._inside(near)
             targets[outside] = self.positions[outside]
         return targets
 
     def _iterate(self) -> None:
         """One JuPedSim iteration; a person outside the walkable area (where JuPedSim cannot route it) leaves first."""
         try:
-            self._sim.iterate()
+            self._sim._obj.iterate()
         except RuntimeError:
-            if not self._leave_area():
+            if not self._leave_area(self._rows()[:, :2]):
                 raise
-            self._sim.iterate()
+            self._sim._obj.iterate()
         if self._changed:
             self._fetch()
             self._changed = False
 
-    def _leave_area(self) -> bool:
-        """Take the people outside the walkable area out of the model (standing at their step's start); any?"""
-        import shapely
-
-        now = np.array([a.position if a is not None else (0.0, 0.0) for a in self._agents]).reshape(-1, 2)
-        out = ~shapely.contains_xy(self._area, now[:, 0], now[:, 1]) & ~self.frozen
+    def _leave_area(self, positions: np.ndarray) -> bool:
+        """Take the people at ``positions`` (n, 2) outside the walkable area out of the model; any?"""
+        out = ~self._inside(positions) & ~self.frozen
+        if not out.any():
+            return False
         for i in np.flatnonzero(out).tolist():
             self._sim.mark_agent_for_removal(self._ids[i])
         self.frozen |= out
-        self._changed = bool(out.any())
-        return self._changed
+        self._changed = True
+        return True
 
     def step(self, preferred: list[tuple[float, float]], robot: RobotAgent) -> tuple[np.ndarray, np.ndarray]:
         pref = np.array(preferred, dtype=np.float64).reshape(-1, 2)
         speeds = np.hypot(pref[:, 0], pref[:, 1])
-        for agent, target, speed, frozen in zip(self._agents, self._targets(pref, speeds).tolist(), speeds.tolist(),
-                                                self.frozen.tolist(), strict=True):
-            if not frozen:
+        for handle, target, speed in zip(self._agents, self._targets(pref, speeds).tolist(), speeds.tolist(),
+                                         strict=True):
+            if handle is not None:
+                agent, model = handle
                 agent.target = (target[0], target[1])
-                agent.model.desired_speed = speed
+                model.desired_speed = speed
         path = self._robot_path(robot)
-        k = self.settings.sub_steps
+        k, h = self.sub_steps, self.h
         for j in range(k):
-            if path is not None and self._robot is not None:
+            if path is not None and self._robot_handle is not None:
                 (x0, y0), (x1, y1) = path
-                ax, ay = self._sim.agent(self._robot).position
+                agent, model = self._robot_handle
+                ax, ay = agent.position
                 f = (j + 1) / k
-                self._sim.agent(self._robot).model.velocity = ((x0 + f * (x1 - x0) - ax) / self.h,
-                                                               (y0 + f * (y1 - y0) - ay) / self.h)
+                model.velocity = ((x0 + f * (x1 - x0) - ax) / h, (y0 + f * (y1 - y0) - ay) / h)
             self._iterate()
-        self._leave_area()  # pushed out in the last sub-step: marked, removed as the next step's first iteration starts
-        return self._state()
+        state = self._rows()
+        # pushed out in the last sub-step: marked now, removed as the next step's first iteration starts
+        self._leave_area(state[:, :2])
+        frozen = self.frozen
+        state[frozen, :2] = self.positions[frozen]  # where they were at the start of the step they left in
+        state[frozen, 2:] = 0.0
+        self.positions = state[:, :2].copy()
+        return state[:, :2], state[:, 2:]
+
+    def _rows(self) -> np.ndarray:
+        """The people's (x, y, vx, vy) in the model, (n, 4) (zeros for one out of it)."""
+        rows = [(*h[0].position, *h[1].velocity) if h is not None else (0.0, 0.0, 0.0, 0.0) for h in self._agents]
+        return np.array(rows, dtype=np.float64).reshape(-1, 4)
 
     def _robot_path(self, robot: RobotAgent) -> tuple[tuple[float, float], tuple[float, float]] | None:
         """The robot's straight path through the step, its agent added or removed as it is inside the area or not."""
         if not self.scene.robot_visible:
             return None
-        import shapely
-
         start = robot.position
         end = robot.end_position
         if end is None:
-            end = (start[0] + robot.velocity[0] * self.scene.time_step, start[1] + robot.velocity[1] * self.scene.time_step)
-        inside = bool(shapely.contains_xy(self._area, *end)) and bool(shapely.contains_xy(self._area, *start))
+            dt = self.scene.time_step
+            end = (start[0] + robot.velocity[0] * dt, start[1] + robot.velocity[1] * dt)
+        inside = bool(self._inside(np.array([start, end])).all())
         if not inside and self._robot is not None:
             self._sim.mark_agent_for_removal(self._robot)
             self._robot = None
+            self._robot_handle = None
             self._changed = True
         elif inside and self._robot is None:
             self._add_robot(start, robot.radius)
             self._fetch()
         return start, end
-
-    def _state(self) -> tuple[np.ndarray, np.ndarray]:
-        rows = [(*a.position, *a.model.velocity) if a is not None else (0.0, 0.0, 0.0, 0.0) for a in self._agents]
-        state = np.array(rows, dtype=np.float64).reshape(-1, 4)
-        frozen = self.frozen
-        state[frozen, :2] = self.positions[frozen]
-        state[frozen, 2:] = 0.0
-        self.positions = state[:, :2].copy()
-        return state[:, :2], state[:, 2:]
 
 
 # every crowd model by its name (the env's crowd=); CROWD_SETTINGS has their settings under the same names
