@@ -89,10 +89,13 @@ class CrowdNavEnv(CrowdEnvBase):
 
     The crowd (:mod:`sb3_crowdnav.sim.crowd`, :mod:`sb3_crowdnav.sim.population`); the defaults are the paper's:
 
-    * ``crowd``: the model that moves the people, ``"orca"`` (default; RVO2) or ``"linear"`` (straight to the goal,
+    * ``crowd``: the model that moves the people, ``"orca"`` (default; RVO2), ``"social_force"`` (Helbing's social
+      force model, JuPedSim's; installed apart, see the installation docs) or ``"linear"`` (straight to the goal,
       seeing no one; for tests). ``crowd_kwargs``: a dict of the model's settings, each checked, an unknown one
       refused: ``"orca"`` takes ``safety_space`` [m] (extra radius each person's ORCA keeps, default 0),
-      ``"linear"`` none. ``human_policy`` is the old name of ``crowd``, kept for existing scripts (the same
+      ``"social_force"`` the fields of :class:`~sb3_crowdnav.sim.crowd_settings.SocialForceCrowdSettings`
+      (``person_strength``, ``wall_strength``, ``force_range``, ``relaxation_time``, ``sub_steps``; with it the ORCA
+      fields and a share for ``robot_visible`` are refused), ``"linear"`` none. ``human_policy`` is the old name of ``crowd``, kept for existing scripts (the same
       values and effect); passing both is refused.
     * ``human_speed``: ``"fixed"`` (default: everyone at ``human_v_pref``, 1 m/s) or ``"measured"``: each person's
       preferred speed drawn at reset from Normal(1.34, 0.26) m/s clipped to [0.5, 2.0], the desired walking speeds

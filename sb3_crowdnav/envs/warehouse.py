@@ -111,13 +111,17 @@ class CrowdNavWarehouseEnv(CrowdEnvBase):
 
     Every argument changes the episodes or is refused at construction (``ValueError`` naming it):
 
-    * ``robot_visible=True`` puts the robot into the pickers' ORCA, moved each step to its actual position and
-      velocity, so the pickers avoid it (default False: they do not yield, as on the open floor);
+    * ``crowd``: the pickers' model, ``"orca"`` (default) or ``"social_force"`` (JuPedSim's, the racks and walls its
+      walkable area's boundary), with ``crowd_kwargs`` as on the open floor (``"orca"``'s ``safety_space`` too);
+    * ``robot_visible=True`` puts the robot into the pickers' model (ORCA: moved each step to its actual position and
+      velocity; social force: an agent following its path), so the pickers avoid it (default False: they do not
+      yield, as on the open floor);
     * ``time_limit`` [s] replaces the route-based limit, so it excludes ``time_limit_factor`` and
       ``time_limit_slack``;
     * ``circle_radius``, ``square_width`` and ``start_noise`` (the open floor's) are refused, as are
-      ``human_policy`` or ``crowd`` other than ``"orca"``, a share for ``robot_visible``, the open floor's
-      population (``crowd_kwargs``, ``human_speed``, ``stop_probability``, ``stop_duration``), ``scenario`` other
+      ``human_policy`` other than ``"orca"``, ``crowd="linear"``, a share for ``robot_visible``, the ORCA fields with
+      ``crowd="social_force"``, the open floor's population (``human_speed``, ``stop_probability``,
+      ``stop_duration``), ``scenario`` other
       than ``"warehouse"`` and a reward weight of another reward (as in ``CrowdNav-v0``).
 
     ## Version History

@@ -80,7 +80,7 @@ class SceneConfig:
     :param kinematics: ``"unicycle"`` (direction = rotation of the heading) or ``"holonomic"``
     :param rotation_range: width of the direction fan [rad]; 2π = all directions
     :param crowd: the crowd model that moves the people (``sb3_crowdnav.sim.crowd.CROWD_MODELS``): ``"orca"``
-        (pyrvo) or ``"linear"`` (constant velocity towards the goal; for tests)
+        (pyrvo), ``"social_force"`` (JuPedSim) or ``"linear"`` (constant velocity towards the goal; for tests)
     :param crowd_kwargs: the model's settings, a dict (``sb3_crowdnav.sim.crowd_settings``); stored as its frozen
         settings object
     :param human_policy: the old name of ``crowd`` (``"orca"`` or ``"linear"``), kept for existing scripts; folded
