@@ -95,8 +95,8 @@ class CrowdNavEnv(CrowdEnvBase):
       refused: ``"orca"`` takes ``safety_space`` [m] (extra radius each person's ORCA keeps, default 0),
       ``"social_force"`` the fields of :class:`~sb3_crowdnav.sim.crowd_settings.SocialForceCrowdSettings`
       (``person_strength``, ``wall_strength``, ``force_range``, ``relaxation_time``, ``sub_steps``; with it the ORCA
-      fields and a share for ``robot_visible`` are refused), ``"linear"`` none. ``human_policy`` is the old name of ``crowd``, kept for existing scripts (the same
-      values and effect); passing both is refused.
+      fields and a share for ``robot_visible`` are refused), ``"linear"`` none. ``human_policy`` is the old name
+      of ``crowd``, kept for existing scripts (the same values and effect); passing both is refused.
     * ``human_speed``: ``"fixed"`` (default: everyone at ``human_v_pref``, 1 m/s) or ``"measured"``: each person's
       preferred speed drawn at reset from Normal(1.34, 0.26) m/s clipped to [0.5, 2.0], the desired walking speeds
       of Helbing et al. (2001, after Henderson 1971 and Weidmann 1993); ``human_v_pref`` is then refused.

@@ -291,12 +291,12 @@ class SocialForceCrowdModel:
 
     def _fetch(self) -> None:
         """The JuPedSim handles (agent, model state) of the people (None for one out of the model) and of the robot's
-        agent: pointers into JuPedSim's agents, fetched again whenever an agent is added or removed. The native
-        objects (``Simulation._obj``): the Python wrappers cost more than the step itself on a few agents."""
-        native = self._sim._obj
-        self._agents = [None if frozen else (native.agent(i), native.agent(i).model)
+        agent: pointers into JuPedSim's agents, fetched again whenever an agent is added or removed (kept between:
+        finding an agent and its model state costs more than setting them)."""
+        sim = self._sim
+        self._agents = [None if frozen else (sim.agent(i), sim.agent(i).model)
                         for i, frozen in zip(self._ids, self.frozen.tolist(), strict=True)]
-        self._robot_handle = None if self._robot is None else (native.agent(self._robot), native.agent(self._robot).model)
+        self._robot_handle = None if self._robot is None else (sim.agent(self._robot), sim.agent(self._robot).model)
 
     def _targets(self, preferred: np.ndarray, speeds: np.ndarray) -> np.ndarray:
         """Each person's target, (n, 2): :data:`TARGET_AHEAD` along its preferred velocity, or as far as one step
@@ -314,11 +314,11 @@ class SocialForceCrowdModel:
     def _iterate(self) -> None:
         """One JuPedSim iteration; a person outside the walkable area (where JuPedSim cannot route it) leaves first."""
         try:
-            self._sim._obj.iterate()
+            self._sim.iterate()
         except RuntimeError:
             if not self._leave_area(self._rows()[:, :2]):
                 raise
-            self._sim._obj.iterate()
+            self._sim.iterate()
         if self._changed:
             self._fetch()
             self._changed = False
