@@ -3,6 +3,9 @@ PY ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 TORCH ?= torch==2.13.0
+# crowd="social_force": JuPedSim without its viewer's dependencies (PySide6 and VTK, ~1.3 GB); deprecated and wrapt are
+# what its Python layer imports
+JUPEDSIM ?= jupedsim==1.4.2 deprecated==1.3.1 wrapt==2.5.2
 STAMP := $(VENV)/.installed
 
 .PHONY: demo test slow lint docs benchmark reproduce clean
@@ -13,6 +16,7 @@ $(STAMP): setup.cfg pyproject.toml
 	# torch first and pinned: an unpinned torch pulls several GB of CUDA wheels
 	$(BIN)/pip install -q "$(TORCH)"
 	$(BIN)/pip install -q -e ".[tests,zoo,gif]"
+	$(BIN)/pip install -q --no-deps $(JUPEDSIM)
 	touch $(STAMP)
 
 demo: $(STAMP)

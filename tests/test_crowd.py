@@ -58,7 +58,7 @@ def test_every_crowd_model_has_its_settings_under_its_name():
 
 
 BAD = [  # (kwargs, exception, the name the message gives)
-    ({"crowd": "social_force"}, ValueError, "crowd"),
+    ({"crowd": "social_forces"}, ValueError, "crowd"),
     ({"crowd": 3}, ValueError, "crowd"),  # not one of the choices, whatever its type
     ({"crowd_kwargs": [("safety_space", 0.1)]}, TypeError, "crowd_kwargs"),
     ({"crowd_kwargs": {"neighbour_dist": 3.0}}, ValueError, "crowd_kwargs"),
@@ -97,7 +97,7 @@ def test_bad_values_are_refused_at_construction_by_name(kwargs, exception, name)
 
 
 def test_the_warehouse_refuses_the_open_floors_crowd_settings():
-    for kwargs in ({"crowd": "linear"}, {"crowd_kwargs": {"safety_space": 0.1}}, {"human_speed": "measured"},
+    for kwargs in ({"crowd": "linear"}, {"human_speed": "measured"},
                    {"stop_probability": 0.5}, {"stop_duration": (1.0, 2.0)}):
         with pytest.raises(ValueError, match=next(iter(kwargs))):
             gym.make("CrowdNavWarehouse-v0", **kwargs)

@@ -8,6 +8,7 @@ import pytest
 
 import sb3_crowdnav  # noqa: F401  (registers the envs)
 from sb3_crowdnav.sim.config import SceneConfig
+from sb3_crowdnav.sim.crowd import RobotAgent
 from sb3_crowdnav.sim.warehouse.layout import layout_from_sizes
 from sb3_crowdnav.sim.warehouse.pickers import PickerCrowd, PickSlots
 
@@ -33,7 +34,8 @@ def _head_on(robot_visible: bool, robot_start_x: float = 5.0) -> tuple[np.ndarra
     picker, robot = [slots.points[west]], [np.array([robot_start_x, y])]
     for _ in range(40):
         position, velocity = robot[-1], np.array([-SPEED, 0.0])
-        positions, _ = crowd.step(picker[-1][None], (position.tolist(), velocity.tolist()))
+        positions, _ = crowd.step(picker[-1][None], RobotAgent(tuple(position.tolist()), tuple(velocity.tolist()),
+                                                                 scene.robot_radius))
         picker.append(positions[0])
         robot.append(position + velocity * scene.time_step)
     return np.array(picker), np.array(robot)
@@ -62,7 +64,7 @@ def test_robot_visible_puts_the_robot_into_the_pickers_orca_and_changes_their_pa
     for visible in (False, True):
         env = gym.make("CrowdNavWarehouse-v0", robot_visible=visible)
         obs, _ = env.reset(seed=3)
-        assert (env.unwrapped.sim.pickers.orca.robot_id is not None) == visible
+        assert (env.unwrapped.sim.pickers.crowd.crowds[0].robot_id is not None) == visible
         humans = [obs["humans"]]
         for _ in range(60):
             obs, _, terminated, truncated, _ = env.step(72)  # slowly straight on (never ends the episode sooner)

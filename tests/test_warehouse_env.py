@@ -243,20 +243,21 @@ def test_a_picker_pressed_during_a_step_is_moved_out_and_the_dwells_still_count_
     sim = env.unwrapped.sim
     pickers, rack = sim.pickers, Polygon(sim.layout.racks[0])
     inside = np.asarray(rack.exterior.coords[0]) + 0.05
-    advance = pickers.orca.advance
+    orca = pickers.crowd.crowds[0]
+    advance = orca.step
 
-    def pressed_advance():
-        rows = advance()
-        rows[0] = (float(inside[0]), float(inside[1]), *rows[0][2:])
-        return rows
+    def pressed_step(*args):
+        positions, velocities = advance(*args)
+        positions[0] = inside
+        return positions, velocities
 
-    pickers.orca.advance = pressed_advance
+    orca.step = pressed_step
     dwell = pickers.dwell.copy()
     env.step(0)
     position = sim.history[-1, 0, :2]
     assert not rack.contains(Point(position))
     assert rack.exterior.distance(Point(position)) == pytest.approx(0.3 + 1e-3, abs=1e-6)
-    np.testing.assert_allclose(pickers.orca.sim.get_agent_position(0).to_tuple(), position, atol=1e-6)  # (RVO2: float)
+    np.testing.assert_allclose(orca.sim.get_agent_position(0).to_tuple(), position, atol=1e-6)  # (RVO2: float)
     standing = dwell > 0
     assert standing.any()
     np.testing.assert_array_equal(pickers.dwell[standing], np.maximum(0.0, dwell[standing] - 0.25))

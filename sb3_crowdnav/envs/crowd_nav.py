@@ -91,14 +91,17 @@ class CrowdNavEnv(CrowdEnvBase):
 
     The crowd (:mod:`sb3_crowdnav.sim.crowd`, :mod:`sb3_crowdnav.sim.population`); the defaults are the paper's:
 
-    * ``crowd``: the model that moves the people, ``"orca"`` (default; RVO2) or ``"linear"`` (straight to the goal,
+    * ``crowd``: the model that moves the people, ``"orca"`` (default; RVO2), ``"social_force"`` (Helbing's social
+      force model, JuPedSim's; installed apart, see the installation docs) or ``"linear"`` (straight to the goal,
       seeing no one; for tests). ``crowd_kwargs``: a dict of the model's settings, each checked, an unknown one
       refused: ``"orca"`` takes ``safety_space`` [m] (extra radius each person's ORCA keeps, default 0),
-      ``"linear"`` none. ``human_policy`` is the old name of ``crowd``, kept for existing scripts (the same
-      values and effect); passing both is refused. ``"replay"`` replays recorded people (``crowd_kwargs``:
-      ``path``, ``frame_rate`` for the ETH/UCY text format, ``robot_start``/``robot_goal``, ``start_time``,
-      ``time_window``, ``crossing_length``; see the docs' replay page); the recording then decides ``num_humans``
-      and the population, which are refused.
+      ``"social_force"`` the fields of :class:`~sb3_crowdnav.sim.crowd_settings.SocialForceCrowdSettings`
+      (``person_strength``, ``wall_strength``, ``force_range``, ``relaxation_time``, ``sub_steps``; with it the ORCA
+      fields and a share for ``robot_visible`` are refused), ``"linear"`` none. ``human_policy`` is the old name
+      of ``crowd``, kept for existing scripts (the same values and effect); passing both is refused. ``"replay"``
+      replays recorded people (``crowd_kwargs``: ``path``, ``frame_rate`` for the ETH/UCY text format,
+      ``robot_start``/``robot_goal``, ``start_time``, ``time_window``, ``crossing_length``, ``tracked``; see the docs'
+      replay page); the recording then decides ``num_humans`` and the population, which are refused.
     * ``human_speed``: ``"fixed"`` (default: everyone at ``human_v_pref``, 1 m/s) or ``"measured"``: each person's
       preferred speed drawn at reset from Normal(1.34, 0.26) m/s clipped to [0.5, 2.0], the desired walking speeds
       of Helbing et al. (2001, after Henderson 1971 and Weidmann 1993); ``human_v_pref`` is then refused.
@@ -167,6 +170,9 @@ def unused_options(scene: SceneConfig) -> dict[str, str]:
     if scene.crowd == "linear":
         for key in (*ORCA_KEYS, "robot_visible"):
             unused[key] = "concerns ORCA pedestrians; crowd='linear' walk straight to their goals"
+    elif scene.crowd == "social_force":
+        for key in ORCA_KEYS:
+            unused[key] = "concerns ORCA pedestrians; crowd='social_force' sets its forces in crowd_kwargs"
     if scene.human_speed == "measured":
         unused["human_v_pref"] = "is the speed of human_speed='fixed'; 'measured' draws each person's speed"
     if scene.stop_probability == 0:

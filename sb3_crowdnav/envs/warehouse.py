@@ -12,9 +12,9 @@ from sb3_crowdnav.envs import base
 from sb3_crowdnav.envs.base import CrowdEnvBase
 from sb3_crowdnav.sim.config import RewardConfig, SceneConfig
 from sb3_crowdnav.sim.observation import ObservationSchema
-from sb3_crowdnav.sim.validation import check_bool
+from sb3_crowdnav.sim.validation import check_bool, check_choice
 from sb3_crowdnav.sim.warehouse import LayoutRanges, WarehouseLayout
-from sb3_crowdnav.sim.warehouse.config import WarehouseConfig
+from sb3_crowdnav.sim.warehouse.config import PICKER_CROWDS, WarehouseConfig
 from sb3_crowdnav.sim.warehouse.simulator import WarehouseSimulator
 from sb3_crowdnav.sim.world import World
 
@@ -24,13 +24,14 @@ UNUSED_SCENE = {
     "circle_radius": "sets the open floor's circle; the warehouse's hall comes from its layout",
     "square_width": "sets the open floor's square; the warehouse's hall comes from its layout",
     "start_noise": "sets the open floor's starts; the warehouse draws its stations from its layout",
-    # the open floor's crowd seam and population (the pickers stay the warehouse's own ORCA crowd for now)
-    "crowd_kwargs": "sets the open floor's crowd model; the pickers are the warehouse's own ORCA crowd",
+    # the open floor's population (the pickers walk their jobs at human_v_pref)
     "human_speed": "draws the open floor's walking speeds; pickers walk at human_v_pref",
     "stop_probability": "makes people on the open floor stop; pickers stand at pick faces for dwell_time",
     "stop_duration": "is how long people on the open floor stand; pickers stand at pick faces for dwell_time",
 }
 ROUTE_TIME_KEYS = ("time_limit_factor", "time_limit_slack")
+# what ORCA pickers read, unused with crowd="social_force"
+ORCA_KEYS = ("orca_neighbor_dist", "orca_max_neighbors", "orca_time_horizon", "orca_time_horizon_obst")
 
 
 class CrowdNavWarehouseEnv(CrowdEnvBase):
@@ -110,13 +111,17 @@ class CrowdNavWarehouseEnv(CrowdEnvBase):
 
     Every argument changes the episodes or is refused at construction (``ValueError`` naming it):
 
-    * ``robot_visible=True`` puts the robot into the pickers' ORCA, moved each step to its actual position and
-      velocity, so the pickers avoid it (default False: they do not yield, as on the open floor);
+    * ``crowd``: the pickers' model, ``"orca"`` (default) or ``"social_force"`` (JuPedSim's, the racks and walls its
+      walkable area's boundary), with ``crowd_kwargs`` as on the open floor (``"orca"``'s ``safety_space`` too);
+    * ``robot_visible=True`` puts the robot into the pickers' model (ORCA: moved each step to its actual position and
+      velocity; social force: an agent following its path), so the pickers avoid it (default False: they do not
+      yield, as on the open floor);
     * ``time_limit`` [s] replaces the route-based limit, so it excludes ``time_limit_factor`` and
       ``time_limit_slack``;
     * ``circle_radius``, ``square_width`` and ``start_noise`` (the open floor's) are refused, as are
-      ``human_policy`` or ``crowd`` other than ``"orca"``, a share for ``robot_visible``, the open floor's
-      population (``crowd_kwargs``, ``human_speed``, ``stop_probability``, ``stop_duration``), ``scenario`` other
+      ``human_policy`` other than ``"orca"``, ``crowd="linear"``, a share for ``robot_visible``, the ORCA fields with
+      ``crowd="social_force"``, the open floor's population (``human_speed``, ``stop_probability``,
+      ``stop_duration``), ``scenario`` other
       than ``"warehouse"`` and a reward weight of another reward (as in ``CrowdNav-v0``).
 
     ## Version History
@@ -132,13 +137,13 @@ class CrowdNavWarehouseEnv(CrowdEnvBase):
         scene_kwargs, reward_kwargs = base.split_env_kwargs(kwargs, name, WAREHOUSE_KEYS)
         if scene_kwargs.setdefault("scenario", "warehouse") != "warehouse":
             raise ValueError(f"scenario must be 'warehouse' in CrowdNavWarehouse-v0, got {scene_kwargs['scenario']!r}")
+        if scene_kwargs.get("human_policy", "orca") != "orca":
+            raise ValueError(f"human_policy must be 'orca' in CrowdNavWarehouse-v0 (pickers see the racks; choose "
+                             f"their model with crowd), got {scene_kwargs['human_policy']!r}")
         if scene_kwargs.get("crowd") == "replay":
             raise ValueError("crowd='replay' replays recorded people on the open floor (CrowdNav-v0 and its variants); "
-                             "the warehouse's pickers are its own ORCA crowd")
-        for key in ("human_policy", "crowd"):
-            if scene_kwargs.get(key, "orca") != "orca":
-                raise ValueError(f"{key} must be 'orca' in CrowdNavWarehouse-v0 (pickers are ORCA agents that see the "
-                                 f"racks), got {scene_kwargs[key]!r}")
+                             f"the warehouse's pickers are moved by one of {PICKER_CROWDS}")
+        check_choice("crowd", scene_kwargs.get("crowd", "orca"), PICKER_CROWDS)
         fixed_time_limit = "time_limit" in kwargs
         both = [key for key in ROUTE_TIME_KEYS if key in kwargs]
         if fixed_time_limit and both:
@@ -147,7 +152,9 @@ class CrowdNavWarehouseEnv(CrowdEnvBase):
         scene = SceneConfig(**scene_kwargs)
         check_bool("robot_visible", scene.robot_visible)  # all pickers or none: a share is the open floor's for now
         reward_config = RewardConfig(name=reward, **reward_kwargs)
-        base.refuse_unused(kwargs, {**UNUSED_SCENE, **base.unused_reward_weights(reward_config)}, name)
+        unused_crowd = {key: "concerns ORCA pickers; crowd='social_force' sets its forces in crowd_kwargs"
+                        for key in ORCA_KEYS if scene.crowd == "social_force"}
+        base.refuse_unused(kwargs, {**UNUSED_SCENE, **unused_crowd, **base.unused_reward_weights(reward_config)}, name)
         self.warehouse = WarehouseConfig(**_layout_objects(warehouse))
         sim = WarehouseSimulator(scene, reward_config, self.warehouse, fixed_time_limit)
         largest = max(math.hypot(layout.width, layout.height) / 2 for layout in self._largest_layouts())

@@ -80,8 +80,8 @@ class SceneConfig:
     :param kinematics: ``"unicycle"`` (direction = rotation of the heading) or ``"holonomic"``
     :param rotation_range: width of the direction fan [rad]; 2π = all directions
     :param crowd: the crowd model that moves the people (``sb3_crowdnav.sim.crowd.CROWD_MODELS``): ``"orca"``
-        (pyrvo), ``"linear"`` (constant velocity towards the goal; for tests) or ``"replay"`` (recorded people; the
-        population settings and ``num_humans`` then stay at their defaults)
+        (pyrvo), ``"social_force"`` (JuPedSim), ``"linear"`` (constant velocity towards the goal; for tests) or
+        ``"replay"`` (recorded people; the population settings and ``num_humans`` then stay at their defaults)
     :param crowd_kwargs: the model's settings, a dict (``sb3_crowdnav.sim.crowd_settings``); stored as its frozen
         settings object
     :param human_policy: the old name of ``crowd`` (``"orca"`` or ``"linear"``), kept for existing scripts; folded

@@ -9,16 +9,22 @@ nothing above the simulator sees it: the observation is the same whatever moves 
 A new model is a class with this constructor and these two methods, its settings (``crowd_kwargs``) a frozen
 dataclass in :mod:`sb3_crowdnav.sim.crowd_settings`, and a line in :data:`CROWD_MODELS`. A model that brings its own
 episodes, whose people come and go (``"replay"``, :mod:`sb3_crowdnav.sim.replay`), is a :class:`RecordedCrowd`.
+
+The open floor has no walls; the warehouse passes its racks and hall as :class:`Walls` at reset, and a model that
+can put a person at a position (ORCA: ``move_person``) lets the warehouse push one pressed into a rack back out.
 """
 
 from __future__ import annotations
 
-from typing import NamedTuple, Protocol, runtime_checkable
+import functools
+import math
+from dataclasses import dataclass
+from typing import Any, NamedTuple, Protocol, runtime_checkable
 
 import numpy as np
 
 from sb3_crowdnav.sim.config import SceneConfig
-from sb3_crowdnav.sim.crowd_settings import LinearCrowdSettings, OrcaCrowdSettings
+from sb3_crowdnav.sim.crowd_settings import LinearCrowdSettings, OrcaCrowdSettings, SocialForceCrowdSettings
 from sb3_crowdnav.sim.orca import OrcaCrowd
 from sb3_crowdnav.sim.population import People
 from sb3_crowdnav.sim.replay import ReplayCrowdModel
@@ -26,18 +32,48 @@ from sb3_crowdnav.sim.scenarios import Scenario
 
 
 class RobotAgent(NamedTuple):
-    """The robot as the people see it [m, m/s]."""
+    """The robot as the people see it [m, m/s]: its state at the start of the step and, during a step, where its move
+    (computed before the people's) ends, for a model that integrates the robot's path through the step."""
 
     position: tuple[float, float]
     velocity: tuple[float, float]
     radius: float
+    end_position: tuple[float, float] | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class Walls:
+    """The static world the people walk in (world frame, [m]): a hall and the obstacles inside it.
+
+    :param hall: (k, 2) the hall's boundary, counter-clockwise
+    :param obstacles: the obstacles (racks) inside it, each a (k, 2) counter-clockwise vertex array
+    """
+
+    hall: np.ndarray
+    obstacles: tuple[np.ndarray, ...]
+
+    def rvo_polygons(self) -> list[np.ndarray]:
+        """For RVO2: the obstacles, then the hall as one clockwise boundary (RVO2's way of keeping agents inside)."""
+        return [*self.obstacles, self.hall[::-1].copy()]
+
+    @functools.cached_property
+    def area(self) -> Any:
+        """The walkable area, the hall minus the obstacles (a shapely polygon, prepared)."""
+        import shapely
+
+        area = shapely.Polygon(self.hall)
+        if self.obstacles:
+            area = area.difference(shapely.union_all([shapely.Polygon(o) for o in self.obstacles]))
+        shapely.prepare(area)
+        return area
 
 
 class CrowdModel(Protocol):
     """What moves the people: built once per env from the scene (its ``crowd_kwargs``), reset per episode."""
 
-    def reset(self, rng: np.random.Generator, people: People, robot: RobotAgent) -> None:
-        """Start an episode with ``people`` at their starts, at rest; ``rng`` for a model's own randomness."""
+    def reset(self, rng: np.random.Generator, people: People, robot: RobotAgent, walls: Walls | None = None) -> None:
+        """Start an episode with ``people`` at their starts, at rest; ``rng`` for a model's own randomness; ``walls``
+        the static obstacles (None: the open floor)."""
 
     def step(self, preferred: list[tuple[float, float]], robot: RobotAgent) -> tuple[np.ndarray, np.ndarray]:
         """Advance one time step; the people's new positions and velocities, each (n, 2).
@@ -79,13 +115,14 @@ class OrcaCrowdModel:
         self.crowds: list[OrcaCrowd] = []
         self.seeing = np.zeros(0, dtype=bool)
 
-    def reset(self, rng: np.random.Generator, people: People, robot: RobotAgent) -> None:
+    def reset(self, rng: np.random.Generator, people: People, robot: RobotAgent, walls: Walls | None = None) -> None:
         radii = people.radii + self.settings.safety_space
         robot_agent = (np.array(robot.position), np.array(robot.velocity), robot.radius)
         self.seeing = people.sees_robot.copy()
         sides = [bool(s) for s in np.unique(self.seeing)]  # [False], [True] or [False, True]
-        self.crowds = [OrcaCrowd(self.scene, people.starts, radii, people.v_prefs, robot_agent if side else None)
-                       for side in sides]
+        obstacles = walls.rvo_polygons() if walls is not None else None
+        self.crowds = [OrcaCrowd(self.scene, people.starts, radii, people.v_prefs, robot_agent if side else None,
+                                 obstacles) for side in sides]
 
     def step(self, preferred: list[tuple[float, float]], robot: RobotAgent) -> tuple[np.ndarray, np.ndarray]:
         robot_state = (robot.position, robot.velocity)
@@ -100,6 +137,11 @@ class OrcaCrowdModel:
             crowd.set_agents(positions, velocities)
         return positions, velocities
 
+    def move_person(self, i: int, position: np.ndarray) -> None:
+        """Put person ``i`` at ``position`` (2,) (the warehouse pushes a person pressed into a rack back out)."""
+        for crowd in self.crowds:
+            crowd.move_agent(i, position)
+
 
 class LinearCrowdModel:
     """People who walk at their preferred velocity, seeing no one (exact integration; for tests)."""
@@ -109,7 +151,7 @@ class LinearCrowdModel:
         self.settings: LinearCrowdSettings = scene.crowd_kwargs
         self.positions: list[list[float]] = []
 
-    def reset(self, rng: np.random.Generator, people: People, robot: RobotAgent) -> None:
+    def reset(self, rng: np.random.Generator, people: People, robot: RobotAgent, walls: Walls | None = None) -> None:
         self.positions = people.starts.tolist()
 
     def step(self, preferred: list[tuple[float, float]], robot: RobotAgent) -> tuple[np.ndarray, np.ndarray]:
@@ -119,10 +161,257 @@ class LinearCrowdModel:
         return np.array(self.positions).reshape(n, 2), np.array(preferred, dtype=np.float64).reshape(n, 2)
 
 
+JUPEDSIM_INSTALL = 'pip install --no-deps "jupedsim==1.4.2" deprecated wrapt'
+PERSON_MASS = 80.0  # [kg] JuPedSim's default, Helbing et al. (2000)'s
+# the robot's agent follows the robot's path (its velocity set each sub-step): so heavy and slow to react that neither
+# the people's forces nor a driving force move it off that path
+ROBOT_MASS = 1e9  # [kg]
+ROBOT_RELAXATION = 1e9  # [s]
+TARGET_AHEAD = 1.0  # [m] a person heads for a point this far along its preferred velocity (inside the walkable area)
+OPEN_FLOOR_MARGIN = 10.0  # [m] the open floor's walkable area: a square this much beyond the starts and goals
+# explicit (symplectic Euler) integration of a force of stiffness k [N/m] on a mass m is stable while h sqrt(k/m) < 2;
+# the repulsions' stiffness at contact is A / B, the contact (body) force's JuPedSim's 120000 kg/s², which bodies meet
+# when squeezed. Kept below 1.5: at 0.25 s, 5 sub-steps (h sqrt(k/m) = 1.9) still blew a few pickers out of the
+# warehouse in 1500 steps, 7 (1.4) none in 3000 (docs/decisions.md)
+STABILITY_BOUND = 1.5
+BODY_FORCE = 120000.0  # [kg/s²] JuPedSim's SocialForceModel default, Helbing et al. (2000)'s k
+
+
+def import_jupedsim() -> Any:
+    """JuPedSim, or an ``ImportError`` saying how to install it (without the Qt/VTK of its viewer)."""
+    try:
+        import jupedsim
+    except ImportError as error:
+        raise ImportError(f"crowd='social_force' needs JuPedSim, installed without the Qt/VTK of its trajectory viewer: "
+                          f"{JUPEDSIM_INSTALL} (see docs/installation.md)") from error
+    return jupedsim
+
+
+def min_sub_steps(settings: SocialForceCrowdSettings, time_step: float) -> int:
+    """The fewest sub-steps that integrate ``settings``' repulsions and the contact force stably at ``time_step`` [s]."""
+    stiffness = max(settings.person_strength / settings.force_range, settings.wall_strength / settings.force_range,
+                    BODY_FORCE) / PERSON_MASS  # [1/s²]
+    return math.floor(time_step * math.sqrt(stiffness) / STABILITY_BOUND) + 1
+
+
+class SocialForceCrowdModel:
+    """People driven by Helbing's social force model, JuPedSim's ``SocialForceModel`` (C++), with walls.
+
+    Each env step sets every person's target (:data:`TARGET_AHEAD` along its preferred velocity, kept inside the
+    walkable area) and desired speed (the preferred velocity's length) and runs ``sub_steps`` JuPedSim iterations.
+    The walkable area is the warehouse's hall minus its racks, or on the open floor a square
+    :data:`OPEN_FLOOR_MARGIN` beyond the scene; one JuPedSim simulation is built per area and kept, a reset removing
+    and adding the agents.
+
+    A robot the people see (``robot_visible=True``) is one more agent, so heavy that nobody moves it, whose velocity is
+    set before each sub-step so that it follows the robot's straight path through the step: the people feel it where
+    it is at each sub-step. JuPedSim's forces act on every agent in range, so a share of people seeing the robot is
+    refused. The robot's agent leaves the model while the robot is outside the walkable area and comes back when it
+    is inside again.
+
+    A person pushed out of the walkable area (with ``wall_strength=0``, or squeezed through a wall) leaves the model:
+    it stands, at rest, where it was at the start of that step for the rest of the episode, and the others no longer
+    feel it.
+    """
+
+    def __init__(self, scene: SceneConfig) -> None:
+        self.scene = scene
+        self.settings: SocialForceCrowdSettings = scene.crowd_kwargs
+        if not isinstance(scene.robot_visible, bool):
+            raise ValueError(f"robot_visible must be True or False with crowd='social_force', got the share "
+                             f"{scene.robot_visible!r}: its forces act on everyone in range, so nobody can ignore the "
+                             f"robot while others feel it")
+        need = min_sub_steps(self.settings, scene.time_step)
+        if self.settings.sub_steps is not None and self.settings.sub_steps < need:
+            raise ValueError(f"crowd_kwargs['sub_steps'] must be >= {need} for these strengths and force_range at "
+                             f"time_step={scene.time_step} s (the integration would blow up), got "
+                             f"{self.settings.sub_steps}")
+        self.jps = import_jupedsim()
+        self.sub_steps = need if self.settings.sub_steps is None else self.settings.sub_steps
+        self.h = scene.time_step / self.sub_steps  # [s]
+        self._box: tuple[float, float, float, float] | None = None  # the open floor's area, tested by its bounds
+        self._sim: Any = None
+        self._walls: Walls | None = None
+        self._area: Any = None
+        self._route = (0, 0)  # the journey and its one direct-steering stage
+        self._ids: list[int] = []
+        self._agents: list[Any] = []  # their JuPedSim handles, fetched again when the agents change
+        self._robot_handle: Any = None
+        self._robot: int | None = None  # the robot's agent id while it is in the model
+        self._changed = False  # an agent was marked for removal: handles fetched again after the next iteration
+        self.positions = np.zeros((0, 2))
+        self.frozen = np.zeros(0, dtype=bool)  # people who left the walkable area
+
+    def _open_floor(self) -> Any:
+        import shapely
+
+        s = self.scene
+        half = max(s.circle_radius, s.square_width / 2) + s.start_noise + OPEN_FLOOR_MARGIN
+        self._box = (-half, -half, half, half)
+        return shapely.box(-half, -half, half, half)
+
+    def _inside(self, points: np.ndarray) -> np.ndarray:
+        """(n,) bool: ``points`` (n, 2) in the walkable area (the open floor's square by its bounds: cheaper)."""
+        if self._box is not None:
+            x0, y0, x1, y1 = self._box
+            return (points[:, 0] > x0) & (points[:, 0] < x1) & (points[:, 1] > y0) & (points[:, 1] < y1)
+        import shapely
+
+        return shapely.contains_xy(self._area, points[:, 0], points[:, 1])
+
+    def _simulation(self, walls: Walls | None) -> Any:
+        """The JuPedSim simulation of ``walls``' area (of the open floor for None), emptied: built once per area."""
+        jps = self.jps
+        if self._sim is None or walls is not self._walls:
+            import shapely
+
+            self._box = None
+            self._area = walls.area if walls is not None else self._open_floor()
+            shapely.prepare(self._area)
+            self._sim = jps.Simulation(model=jps.SocialForceModel(), geometry=self._area, dt=self.h)
+            stage = self._sim.add_direct_steering_stage()
+            self._route = (self._sim.add_journey(jps.JourneyDescription([stage])), stage)
+            self._walls = walls
+        elif self._sim.agent_count():
+            for agent in list(self._sim.agents()):
+                self._sim.mark_agent_for_removal(agent.id)
+            self._sim.iterate()  # removes them (and empties the neighbour grid, which add_agent checks)
+        return self._sim
+
+    def reset(self, rng: np.random.Generator, people: People, robot: RobotAgent, walls: Walls | None = None) -> None:
+        sim, s = self._simulation(walls), self.settings
+        journey, stage = self._route
+        self._ids = []
+        for (x, y), radius, speed in zip(people.starts.tolist(), people.radii.tolist(), people.v_prefs.tolist(),
+                                         strict=True):
+            self._ids.append(sim.add_agent(self.jps.SocialForceModelAgentParameters(
+                position=(x, y), orientation=(1.0, 0.0), journey_id=journey, stage_id=stage, desired_speed=speed,
+                mass=PERSON_MASS, reaction_time=s.relaxation_time, agent_scale=s.person_strength,
+                obstacle_scale=s.wall_strength, force_distance=s.force_range, radius=radius)))
+        self._robot = None
+        if self.scene.robot_visible:
+            self._add_robot(robot.position, robot.radius)
+        self.positions = np.array(people.starts, dtype=np.float64).reshape(-1, 2)
+        self.frozen = np.zeros(people.n, dtype=bool)
+        self._fetch()
+
+    def _add_robot(self, position: tuple[float, float], radius: float) -> None:
+        """The robot's agent at ``position`` when the robot is inside the walkable area and can be placed there."""
+        if not self._inside(np.array([position]))[0]:
+            return
+        journey, stage = self._route
+        try:
+            self._robot = self._sim.add_agent(self.jps.SocialForceModelAgentParameters(
+                position=tuple(position), orientation=(1.0, 0.0), journey_id=journey, stage_id=stage, desired_speed=0.0,
+                mass=ROBOT_MASS, reaction_time=ROBOT_RELAXATION, agent_scale=0.0, obstacle_scale=0.0,
+                force_distance=self.settings.force_range, radius=radius))
+        except RuntimeError:  # JuPedSim refuses it within half its radius of a wall (the robot collided): next step
+            self._robot = None
+
+    def _fetch(self) -> None:
+        """The JuPedSim handles (agent, model state) of the people (None for one out of the model) and of the robot's
+        agent: pointers into JuPedSim's agents, fetched again whenever an agent is added or removed (kept between:
+        finding an agent and its model state costs more than setting them)."""
+        sim = self._sim
+        self._agents = [None if frozen else (sim.agent(i), sim.agent(i).model)
+                        for i, frozen in zip(self._ids, self.frozen.tolist(), strict=True)]
+        self._robot_handle = None if self._robot is None else (sim.agent(self._robot), sim.agent(self._robot).model)
+
+    def _targets(self, preferred: np.ndarray, speeds: np.ndarray) -> np.ndarray:
+        """Each person's target, (n, 2): :data:`TARGET_AHEAD` along its preferred velocity, or as far as one step
+        of it, or where it stands, whichever first is inside the walkable area."""
+        ahead = preferred / np.maximum(speeds, 1e-12)[:, None] * TARGET_AHEAD
+        targets = self.positions + ahead
+        outside = ~self._inside(targets)
+        if outside.any():
+            near = self.positions + preferred * self.scene.time_step
+            targets[outside] = near[outside]
+            outside &= ~self._inside(near)
+            targets[outside] = self.positions[outside]
+        return targets
+
+    def _iterate(self) -> None:
+        """One JuPedSim iteration; a person outside the walkable area (where JuPedSim cannot route it) leaves first."""
+        try:
+            self._sim.iterate()
+        except RuntimeError:
+            if not self._leave_area(self._rows()[:, :2]):
+                raise
+            self._sim.iterate()
+        if self._changed:
+            self._fetch()
+            self._changed = False
+
+    def _leave_area(self, positions: np.ndarray) -> bool:
+        """Take the people at ``positions`` (n, 2) outside the walkable area out of the model; any?"""
+        out = ~self._inside(positions) & ~self.frozen
+        if not out.any():
+            return False
+        for i in np.flatnonzero(out).tolist():
+            self._sim.mark_agent_for_removal(self._ids[i])
+        self.frozen |= out
+        self._changed = True
+        return True
+
+    def step(self, preferred: list[tuple[float, float]], robot: RobotAgent) -> tuple[np.ndarray, np.ndarray]:
+        pref = np.array(preferred, dtype=np.float64).reshape(-1, 2)
+        speeds = np.hypot(pref[:, 0], pref[:, 1])
+        for handle, target, speed in zip(self._agents, self._targets(pref, speeds).tolist(), speeds.tolist(),
+                                         strict=True):
+            if handle is not None:
+                agent, model = handle
+                agent.target = (target[0], target[1])
+                model.desired_speed = speed
+        path = self._robot_path(robot)
+        k, h = self.sub_steps, self.h
+        for j in range(k):
+            if path is not None and self._robot_handle is not None:
+                (x0, y0), (x1, y1) = path
+                agent, model = self._robot_handle
+                ax, ay = agent.position
+                f = (j + 1) / k
+                model.velocity = ((x0 + f * (x1 - x0) - ax) / h, (y0 + f * (y1 - y0) - ay) / h)
+            self._iterate()
+        state = self._rows()
+        # pushed out in the last sub-step: marked now, removed as the next step's first iteration starts
+        self._leave_area(state[:, :2])
+        frozen = self.frozen
+        state[frozen, :2] = self.positions[frozen]  # where they were at the start of the step they left in
+        state[frozen, 2:] = 0.0
+        self.positions = state[:, :2].copy()
+        return state[:, :2], state[:, 2:]
+
+    def _rows(self) -> np.ndarray:
+        """The people's (x, y, vx, vy) in the model, (n, 4) (zeros for one out of it)."""
+        rows = [(*h[0].position, *h[1].velocity) if h is not None else (0.0, 0.0, 0.0, 0.0) for h in self._agents]
+        return np.array(rows, dtype=np.float64).reshape(-1, 4)
+
+    def _robot_path(self, robot: RobotAgent) -> tuple[tuple[float, float], tuple[float, float]] | None:
+        """The robot's straight path through the step, its agent added or removed as it is inside the area or not."""
+        if not self.scene.robot_visible:
+            return None
+        start = robot.position
+        end = robot.end_position
+        if end is None:
+            dt = self.scene.time_step
+            end = (start[0] + robot.velocity[0] * dt, start[1] + robot.velocity[1] * dt)
+        inside = bool(self._inside(np.array([start, end])).all())
+        if not inside and self._robot is not None:
+            self._sim.mark_agent_for_removal(self._robot)
+            self._robot = None
+            self._robot_handle = None
+            self._changed = True
+        elif inside and self._robot is None:
+            self._add_robot(start, robot.radius)
+            self._fetch()
+        return start, end
+
+
 # every crowd model by its name (the env's crowd=); CROWD_SETTINGS has their settings under the same names
 CROWD_MODELS: dict[str, type] = {
     "orca": OrcaCrowdModel,
     "linear": LinearCrowdModel,
+    "social_force": SocialForceCrowdModel,
     "replay": ReplayCrowdModel,
 }
 
@@ -133,4 +422,4 @@ def make_crowd(scene: SceneConfig) -> CrowdModel:
 
 
 __all__ = ["CROWD_MODELS", "CrowdModel", "LinearCrowdModel", "OrcaCrowdModel", "RecordedCrowd", "ReplayCrowdModel",
-           "RobotAgent", "make_crowd"]
+           "RobotAgent", "SocialForceCrowdModel", "Walls", "import_jupedsim", "make_crowd", "min_sub_steps"]

@@ -224,7 +224,7 @@ class ReplayCrowdModel:
         return Scenario(start, goal, math.atan2(gy - sy, gx - sx), self.positions[0].copy(), goals)
 
     # ------------------------------------------------------------------ the crowd-model seam
-    def reset(self, rng: np.random.Generator, people: People, robot: object) -> None:
+    def reset(self, rng: np.random.Generator, people: People, robot: object, walls: object = None) -> None:
         """Nothing to draw: :meth:`draw_scenario` set the episode."""
 
     def step(self, preferred: list[tuple[float, float]], robot: object) -> tuple[np.ndarray, np.ndarray]:

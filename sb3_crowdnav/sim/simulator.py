@@ -92,14 +92,15 @@ class CrowdSimulator:
             self.crowd.reset(rng, self.people, self._robot_agent())
 
     # ------------------------------------------------------------------ step
-    def _robot_agent(self) -> RobotAgent:
+    def _robot_agent(self, end: tuple[float, float] | None = None) -> RobotAgent:
+        """The robot at the start of the step; ``end``: where its move through the step ends."""
         r = self.robot.tolist()
-        return RobotAgent(tuple(r[Robot.POS]), tuple(r[Robot.VEL]), r[Robot.RADIUS])
+        return RobotAgent(tuple(r[Robot.POS]), tuple(r[Robot.VEL]), r[Robot.RADIUS], end)
 
-    def _move_humans(self) -> tuple[np.ndarray, np.ndarray]:
-        """New positions and velocities (n, 2) of the present pedestrians."""
+    def _move_humans(self, robot_end: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+        """New positions and velocities (n, 2) of the present pedestrians; the robot's move ends at ``robot_end``."""
         pos = self.history[-1, : self.num_humans, Human.POS].tolist()
-        return self.crowd.step(self._preferred.at(pos, self.time), self._robot_agent())
+        return self.crowd.step(self._preferred.at(pos, self.time), self._robot_agent(robot_end))
 
     def _walking_directions(self, robot_x: float, robot_y: float) -> np.ndarray:
         """:func:`walking_direction` of the present pedestrians (n, 2) from the newest history row.
@@ -161,7 +162,7 @@ class CrowdSimulator:
         )
         human_pos0 = hist[-1, :n, Human.POS].copy()
         if n:
-            new_hpos, new_hvel = self._move_humans()  # reads the robot's state at the start of the step
+            new_hpos, new_hvel = self._move_humans((x, y))  # reads the robot's state at the start of the step
         hist[:-1] = hist[1:]  # shift the window in place; the newest row keeps radii and padding
         if n:
             hist[-1, :n, Human.POS] = new_hpos

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from sb3_crowdnav.sim.config import SceneConfig
-from sb3_crowdnav.sim.validation import check_at_most, check_instance, check_int, check_number, check_range
+from sb3_crowdnav.sim.validation import check_at_most, check_choice, check_instance, check_int, check_number, check_range
 from sb3_crowdnav.sim.warehouse.layout import LayoutRanges, WarehouseLayout, layout_from_sizes
 
 MAX_PROGRESS_REWARD = 10.0  # [1/m] beyond this the shaping swamps the success reward (1) within centimetres
@@ -111,12 +111,14 @@ def _packing(points: np.ndarray, spacing: float) -> int:
     return len(kept)
 
 
-OPEN_FLOOR_ONLY = ("crowd", "crowd_kwargs", "human_speed", "stop_probability", "stop_duration")
+OPEN_FLOOR_ONLY = ("human_speed", "stop_probability", "stop_duration")
+PICKER_CROWDS = ("orca", "social_force")  # the crowd models that see walls
 
 
 def check_pickers(scene: SceneConfig) -> None:
-    """``ValueError`` naming a crowd setting the pickers do not have (yet): another crowd model than ORCA, its
-    settings, the open floor's population, a share of people seeing the robot (all pickers or none)."""
+    """``ValueError`` naming a crowd setting the pickers do not have (yet): a crowd model that does not see walls,
+    the open floor's population, a share of people seeing the robot (all pickers or none)."""
+    check_choice("crowd", scene.crowd, PICKER_CROWDS)
     default = SceneConfig()
     for name in OPEN_FLOOR_ONLY:
         if getattr(scene, name) != getattr(default, name):

@@ -1,14 +1,16 @@
-"""Pickers: ORCA pedestrians that see the racks, walk routes between pick faces and stand there for a while.
+"""Pickers: pedestrians that see the racks, walk routes between pick faces and stand there for a while.
 
 Each picker's job is endless: walk to a pick slot along a roadmap route, stand for a dwell time drawn from
 ``dwell_time``, draw the next slot, walk on. A route goes from the slot the picker stood at to the next one (the
 picker sets off from where it stands, within reach of its slot), so it depends on the two slots alone and is
 planned once per layout (:class:`PickSlots`). At the start of an episode about half of the pickers are
 standing at a slot (with a part of their dwell left), the others walking to their first one, so some
-pickers stand still at any moment. Obstacle avoidance is RVO2's own (``pyrvo``'s ``add_obstacle``: the racks, and
-the walls as the hall's boundary, :func:`rvo_obstacles`);
-because ORCA at a large time step can still press an agent into a thin obstacle, every step ends by
-pushing any picker that overlaps a rack or a wall back out to its radius (:meth:`PickerCrowd.step`).
+pickers stand still at any moment. The scene's crowd model moves them (:mod:`sb3_crowdnav.sim.crowd`), the racks and
+the hall's walls its :class:`~sb3_crowdnav.sim.crowd.Walls`: with ORCA, obstacle avoidance is RVO2's own (``pyrvo``'s
+``add_obstacle``: the racks, and the walls as the hall's boundary, :func:`rvo_obstacles`), and because ORCA at a large
+time step can still press an agent into a thin obstacle, every step ends by pushing any picker that overlaps a rack or
+a wall back out to its radius (:meth:`PickerCrowd.step`); with social force the walls push the pickers away, and the
+model has its own rule for one pushed out of the walkable area.
 
 With a fixed layout, the slots, the roadmap and the routes between slots serve every episode (the simulator keeps
 its :class:`PickSlots`).
@@ -22,7 +24,8 @@ from shapely.geometry import Point
 from shapely.ops import nearest_points
 
 from sb3_crowdnav.sim.config import SceneConfig
-from sb3_crowdnav.sim.orca import OrcaCrowd
+from sb3_crowdnav.sim.crowd import CrowdModel, RobotAgent, Walls, make_crowd
+from sb3_crowdnav.sim.population import People
 from sb3_crowdnav.sim.warehouse import kernels
 from sb3_crowdnav.sim.warehouse.boxes import in_free_space
 from sb3_crowdnav.sim.warehouse.layout import WarehouseLayout
@@ -60,6 +63,7 @@ class PickSlots:
 
     def __init__(self, layout: WarehouseLayout, scene: SceneConfig, clearance: float) -> None:
         self.layout = layout
+        self.walls = Walls(layout.hall_vertices, tuple(layout.rack_vertices))  # (rvo_polygons(): rvo_obstacles(layout))
         self.points = pick_slots(layout, scene)
         self.roadmap = Roadmap(layout, clearance)
         self._point_list = self.points.tolist()
@@ -78,21 +82,23 @@ class PickSlots:
 
 
 class PickerCrowd:
-    """The pickers of one episode: their ORCA simulator, routes and dwell times.
+    """The pickers of one episode: their crowd model, routes and dwell times.
 
-    :param scene: radii, speeds, time step and ORCA parameters
-    :param slots: the layout's slots and routes (its obstacles are given to ORCA)
+    :param scene: radii, speeds, time step, the crowd model and its parameters
+    :param slots: the layout's slots and routes (its walls are given to the crowd model)
     :param usable: the indices of the slots pickers may use this episode (n,)
     :param starts: start slot of each picker, an index into ``usable``
     :param rng: the episode's generator (dwell times, next slots)
     :param dwell_time: (min, max) [s]
-    :param robot: ``(position (2,), velocity (2,), radius)`` of the robot at the start when the pickers see it (it is
-        then one more ORCA agent, moved each step to the robot's actual state); None: the robot is invisible to them
+    :param robot: ``(position (2,), velocity (2,), radius)`` of the robot at the start when the pickers see it (with
+        ORCA it is then one more agent, moved each step to the robot's actual state); None: the robot is invisible
+    :param crowd: the crowd model that moves them (kept by the simulator across episodes); None: a new one of
+        ``scene.crowd``
     """
 
     def __init__(self, scene: SceneConfig, slots: PickSlots, usable: np.ndarray, starts: np.ndarray,
                  rng: np.random.Generator, dwell_time: tuple[float, float],
-                 robot: tuple[np.ndarray, np.ndarray, float] | None = None) -> None:
+                 robot: tuple[np.ndarray, np.ndarray, float] | None = None, crowd: CrowdModel | None = None) -> None:
         self.scene, self.rng, self.dwell_time = scene, rng, dwell_time
         self.slots = slots.points[usable]  # (u, 2): the usable slots
         self._map, self._ids = slots, np.asarray(usable).tolist()
@@ -103,8 +109,17 @@ class PickerCrowd:
         self._room, self._hall = np.array([-w + c, -h + c, w - c, h - c]), (w, h)  # inside it, outside the grown boxes:
         self._grown = None if layout.boxes is None else layout.boxes + np.array([-c, -c, c, c])  # clear of every rack
         self._preferences = np.zeros((n, 2))  # filled by kernels.picker_preferences
-        self.orca = OrcaCrowd(scene, self.slots[starts], np.full(n, scene.human_radius), np.full(n, scene.human_v_pref),
-                              robot, obstacles=rvo_obstacles(layout))
+        self.crowd = crowd if crowd is not None else make_crowd(scene)
+        # a model that can put a person at a position (ORCA) gets the overlap guard of step; social force's walls
+        # push the pickers off the racks and it has its own rule for one pushed out of the walkable area
+        self._place = getattr(self.crowd, "move_person", None)
+        here = self.slots[starts]
+        people = People(here, here, np.full(n, scene.human_radius), np.full(n, scene.human_v_pref),
+                        np.full(n, robot is not None), np.full(n, np.inf), np.full(n, np.inf))
+        seen = robot if robot is not None else (np.zeros(2), np.zeros(2), scene.robot_radius)
+        self.crowd.reset(rng, people, RobotAgent(tuple(np.asarray(seen[0], dtype=np.float64).tolist()),
+                                                 tuple(np.asarray(seen[1], dtype=np.float64).tolist()), float(seen[2])),
+                         slots.walls)
         self.slot = np.array(starts, dtype=np.int64)  # a copy: the caller keeps the start slots
         self.routes: list[list[list[float]]] = [[p] for p in self.slots[starts].tolist()]  # waypoints, in floats
         # the same waypoints for the kernels: row i holds the first _route_lengths[i] of (n, K, 2)
@@ -146,20 +161,13 @@ class PickerCrowd:
                                    self.scene.human_v_pref, ARRIVAL, self._preferences)
         return self._preferences.tolist()
 
-    def step(self, positions: np.ndarray, robot_state: tuple[list[float], list[float]] | None = None
-             ) -> tuple[np.ndarray, np.ndarray]:
-        """One ORCA step from ``positions`` (n, 2); new positions and velocities, each (n, 2).
+    def step(self, positions: np.ndarray, robot: RobotAgent) -> tuple[np.ndarray, np.ndarray]:
+        """One crowd step from ``positions`` (n, 2); new positions and velocities, each (n, 2).
 
-        :param robot_state: the robot's ``(position, velocity)`` at the start of the step; read only when the pickers
-            see the robot (its ORCA agent is put there, with that velocity as its preferred one, as on the open floor)
+        :param robot: the robot at the start of the step (and where its move ends); read only when the pickers see it
         """
         dt = self.scene.time_step
-        if self.orca.robot_id is None:
-            self.orca.set_preferred_velocities(self.preferred_velocities(positions))
-            rows = self.orca.advance()  # [(x, y, vx, vy)] per picker
-            state = np.array(rows, dtype=np.float64).reshape(self.n, 4)
-        else:
-            state = np.concatenate(self.orca.step(self.preferred_velocities(positions), robot_state), axis=1)
+        state = np.concatenate(self.crowd.step(self.preferred_velocities(positions), robot), axis=1)
         # the overlap guard, then the dwells count down; a picker whose dwell is over gets its next job, one at the
         # last waypoint of its route stands for a dwell drawn now (in the pickers' order: the same draws)
         progress = (self.dwell, self.waypoint, self._route_array, self._route_lengths, dt, ARRIVAL)
@@ -170,10 +178,12 @@ class PickerCrowd:
             events = [v for pair in zip(after.which.tolist(), after.what.tolist(), strict=True) for v in pair]
         else:
             pressed, events = self._pressed_indices(state), None
+        if self._place is None:
+            pressed = []
         for i in pressed:  # never seen at Δt <= 0.5 s; a guard
             p = self._outside(state[i, :2].copy())
             if p is not None:
-                self.orca.move_agent(i, p)
+                self._place(i, p)
                 state[i, :2] = p
         if events is None or pressed:
             which, what = kernels.picker_progress(state, *progress)

@@ -122,7 +122,7 @@ class WarehouseSimulator(CrowdSimulator):
         starts = self._spread(rng, slots[usable], n, 2 * s.human_radius + 0.2)
         self.num_humans = len(starts)
         robot = (start, np.zeros(2), s.robot_radius) if s.robot_visible else None  # at rest, as on the open floor
-        self.pickers = PickerCrowd(s, picks, usable, starts, rng, cfg.dwell_time, robot) if n else None
+        self.pickers = PickerCrowd(s, picks, usable, starts, rng, cfg.dwell_time, robot, self.crowd) if n else None
         current = np.zeros((s.max_humans, HUMAN_DIM))
         current[: self.num_humans, Human.POS] = slots[usable[starts]] if n else np.zeros((0, 2))
         current[: self.num_humans, Human.RADIUS] = s.human_radius
@@ -220,13 +220,10 @@ class WarehouseSimulator(CrowdSimulator):
             except ValueError:  # the robot is cornered: keep the old route
                 pass
 
-    def _move_humans(self) -> tuple[np.ndarray, np.ndarray]:
-        """The pickers' step; the robot's state at the start of the step is what a picker who sees it avoids."""
-        robot_state = None
-        if self.scene.robot_visible:
-            r = self.robot.tolist()
-            robot_state = (r[Robot.POS], r[Robot.VEL])
-        return self.pickers.step(self.history[-1, : self.num_humans, Human.POS], robot_state)
+    def _move_humans(self, robot_end: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+        """The pickers' step; the robot (its state at the start of the step, where its move ends) is what a picker who
+        sees it avoids."""
+        return self.pickers.step(self.history[-1, : self.num_humans, Human.POS], self._robot_agent(robot_end))
 
     def step(self, action: int) -> RewardTerms:  # type: ignore[override]
         """Apply ``action`` (0..79), move the pickers; the reward terms (a rack or wall hit is a collision).
