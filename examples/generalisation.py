@@ -115,7 +115,8 @@ def combine(out: Path, planned: dict[str, tuple[str, CrowdSpec, dict[str, Any]]]
     rows = []
     for key in planned:
         rows += [{**row, "crowd": key} for row in CrowdTable.read_csv(out / "cells" / key / "crowds.csv").rows]
-    return CrowdTable(rows)
+    policies = list(dict.fromkeys(row["method"] for row in rows))
+    return CrowdTable(sorted(rows, key=lambda row: policies.index(row["method"])))  # stable: columns stay in order
 
 
 def markdown_block(table: CrowdTable, planned, episodes: int) -> str:
