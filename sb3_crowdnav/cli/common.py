@@ -160,7 +160,7 @@ def check_env(env_id: str, kwargs: dict[str, Any], crowd: CrowdSpec | None = Non
     if crowd is not None:
         base = {k: v for k, v in kwargs.items() if k not in ("crowd", "crowd_kwargs")}
         check_env(env_id, base)
-        check_crowd(env_id, base, crowd)
+        check_crowd(env_id, kwargs, crowd)
         return
 
     import sb3_crowdnav  # noqa: F401  (registers the envs)
