@@ -335,6 +335,12 @@ def same_layout(saved: Any, current: Any) -> bool:
     return saved == current
 
 
+def _saved_or_env_space(saved: Any, env: Any, key: str) -> Any:
+    """The env's space ``key`` when it has the saved one's layout (:func:`same_layout`), else the saved one."""
+    current = getattr(env, key, None) if env is not None else None
+    return current if current is not None and same_layout(saved, current) else saved
+
+
 def _check_value_model(data: dict[str, Any], path: Any) -> None:
     """``TypeError`` saying which loader to use when an APGValue loader is given another algorithm's file."""
     if "imitation_episodes" in data:
@@ -378,9 +384,7 @@ def safe_custom_objects(path: Any, env: Any = None, value_model: bool = False) -
             objects[key] = None
         elif key in ("observation_space", "action_space"):
             if plain is not None:
-                objects[key] = space_from_dict(plain[key])
-                if env is not None and same_layout(objects[key], getattr(env, key)):
-                    objects[key] = getattr(env, key)  # the env's bounds: see same_layout
+                objects[key] = _saved_or_env_space(space_from_dict(plain[key]), env, key)
             elif env is not None:
                 _check_env_spaces(data, env, path)
                 objects[key] = getattr(env, key)

@@ -9,6 +9,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, NoReturn
 
+from sb3_crowdnav.evaluation.crowd_spec import GRAMMAR as CROWD_GRAMMAR
+from sb3_crowdnav.evaluation.crowd_spec import CrowdSpec
 from sb3_crowdnav.evaluation.runner import DEFAULT_ENV_ID
 from sb3_crowdnav.sim.validation import check_int, check_positive, check_probability
 
@@ -55,7 +57,10 @@ def env_options() -> argparse.ArgumentParser:
                    help="reward function (env default: crowdnav)")
     g.add_argument("--visible", action="store_true", help="pedestrians see and avoid the robot")
     g.add_argument("--kinematics", choices=("unicycle", "holonomic"), help="robot kinematics (env default: unicycle)")
-    g.add_argument("--human-policy", choices=("orca", "linear"), help="pedestrian motion (env default: orca)")
+    g.add_argument("--crowd", nargs="+", metavar="SPEC",
+                   help=f"the crowd model that moves the people: {CROWD_GRAMMAR} (env default: orca); benchmark takes "
+                        "several and prints one table policy x crowd")
+    g.add_argument("--human-policy", choices=("orca", "linear"), help="the old name of --crowd orca / linear")
     g.add_argument("--env-kwargs", metavar="DICT",
                    help="more env keyword arguments as a Python literal, e.g. \"dict(time_limit=30)\"")
     return p
@@ -80,7 +85,41 @@ class UsageError(Exception):
     """Bad user input found after parsing; reported in one line with exit status 2."""
 
 
-def env_kwargs_from_args(args: argparse.Namespace) -> dict[str, Any]:
+def crowd_specs(args: argparse.Namespace) -> list[CrowdSpec]:
+    """The parsed ``--crowd`` specs (none without ``--crowd``); the syntax only: :func:`check_crowd` makes the env."""
+    specs = []
+    for text in getattr(args, "crowd", None) or ():
+        try:
+            specs.append(CrowdSpec.parse(text, name="--crowd"))
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
+    return specs
+
+
+def check_crowd(env_id: str, kwargs: dict[str, Any], spec: CrowdSpec) -> dict[str, Any]:
+    """The env's keyword arguments ``kwargs`` in crowd ``spec``, the env made once with them: a model that is not
+    registered, or a bad setting, is a usage error naming ``--crowd`` and what the env allows."""
+    import gymnasium as gym
+
+    import sb3_crowdnav  # noqa: F401  (registers the envs)
+
+    crowd_kwargs = {**kwargs, **spec.env_kwargs()}
+    try:
+        gym.make(env_id, **crowd_kwargs).close()
+    except (TypeError, ValueError) as exc:
+        raise UsageError(f"--crowd {str(spec)!r}: {exc}") from None
+    return crowd_kwargs
+
+
+def single_crowd(args: argparse.Namespace) -> CrowdSpec | None:
+    """The one ``--crowd`` of a command that runs in one crowd (None without ``--crowd``), for :func:`check_env`."""
+    specs = crowd_specs(args)
+    return specs[0] if len(specs) == 1 else None
+
+
+def env_kwargs_from_args(args: argparse.Namespace, crowd: bool = True) -> dict[str, Any]:
+    """The env's keyword arguments of the env options; with ``crowd``, also the one ``--crowd`` (more are refused:
+    only ``benchmark`` compares crowds, and it reads them with :func:`crowd_specs`)."""
     from sb3_crowdnav.training.hyperparams import safe_eval
 
     kwargs: dict[str, Any] = {}
@@ -99,12 +138,30 @@ def env_kwargs_from_args(args: argparse.Namespace) -> dict[str, Any]:
             kwargs[key] = getattr(args, name)
     if args.visible:
         kwargs["robot_visible"] = True
+    specs = crowd_specs(args)
+    if specs:
+        given = [name for name in ("crowd", "crowd_kwargs", "human_policy") if name in kwargs]
+        if given:
+            option = "--human-policy" if args.human_policy is not None else f"--env-kwargs {given[0]}"
+            raise UsageError(f"--crowd and {option} both set the crowd; give it once, with --crowd")
+    if specs and crowd:
+        if len(specs) > 1:
+            raise UsageError(f"--crowd takes one crowd model here, got {len(specs)}; "
+                             "'sb3-crowdnav benchmark --crowd A B ...' compares several")
+        kwargs.update(specs[0].env_kwargs())
     return kwargs
 
 
-def check_env(env_id: str, kwargs: dict[str, Any]) -> None:
-    """The env can be made with these options, and it is one of this package's crowd envs."""
+def check_env(env_id: str, kwargs: dict[str, Any], crowd: CrowdSpec | None = None) -> None:
+    """The env can be made with these options, and it is one of this package's crowd envs; with ``crowd`` (the
+    ``--crowd`` among ``kwargs``), the other options are checked first and an error of the crowd's names ``--crowd``."""
     import gymnasium as gym
+
+    if crowd is not None:
+        base = {k: v for k, v in kwargs.items() if k not in ("crowd", "crowd_kwargs")}
+        check_env(env_id, base)
+        check_crowd(env_id, kwargs, crowd)
+        return
 
     import sb3_crowdnav  # noqa: F401  (registers the envs)
 

@@ -11,12 +11,15 @@ from typing import Any
 
 from sb3_crowdnav.cli.common import (
     UsageError,
+    check_crowd,
     check_env,
     check_out,
+    crowd_specs,
     env_kwargs_from_args,
     nonneg_int,
     positive_int,
     progress_enabled,
+    single_crowd,
 )
 from sb3_crowdnav.evaluation.policy_spec import GRAMMAR, PolicySpec
 from sb3_crowdnav.evaluation.runner import TEST_SEED_OFFSET
@@ -49,7 +52,9 @@ def add_parsers(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
                        description="Evaluate every --policy on the same test episodes; write results.md/.csv, "
                                    "one episodes CSV per policy, trajectories.png (same seed for every policy), "
                                    "one GIF per policy, a value map for value-based models, and with --sweep "
-                                   "the Table-4 sweep over the number of pedestrians.")
+                                   "the Table-4 sweep over the number of pedestrians. With --crowd A B ...: every "
+                                   "policy in every crowd on the same seeds, one table policy x crowd "
+                                   "(crowds.md/.csv) and one episodes CSV per policy and crowd, no figures.")
     p.add_argument("--policy", action="append", required=True,
                    help=f"{GRAMMAR}; repeat for several policies")
     _run_options(p)
@@ -57,7 +62,8 @@ def add_parsers(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
     p.add_argument("--sweep", type=nonneg_int, nargs="+", metavar="N",
                    help="also evaluate the first model policy (or the first policy) with N pedestrians each (Table 4)")
     p.add_argument("--figure-seed", type=nonneg_int, help="episode seed of the figures (default: --seed-offset)")
-    p.add_argument("--gif", action=argparse.BooleanOptionalAction, default=True, help="write GIFs (default: yes)")
+    p.add_argument("--gif", action=argparse.BooleanOptionalAction, default=None,
+                   help="write GIFs (default: yes; not with --crowd)")
     p.set_defaults(func=_cmd_benchmark)
 
     p = sub.add_parser("render", parents=parents, help="draw one episode as GIF, MP4 or PNG",
@@ -151,8 +157,8 @@ def _check_world(path: Path, env_id: str, env_kwargs: dict[str, Any] | None, all
         raise UsageError(f"--policy {path.name}: {mismatch}; pass --allow-env-mismatch to evaluate it there anyway")
 
 
-def _labels(specs: list[PolicySpec]) -> list[str]:
-    """One distinct table label per policy: ``APG_RL``, ``APG_RL_2``, ..."""
+def _labels(specs: list[Any]) -> list[str]:
+    """One distinct table label per policy (or crowd): ``APG_RL``, ``APG_RL_2``, ..."""
     labels: list[str] = []
     for spec in specs:
         label, k = spec.label, 2
@@ -190,7 +196,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     from sb3_crowdnav.evaluation.tables import results_table, write_records_csv
 
     env_kwargs = env_kwargs_from_args(args)
-    check_env(args.env, env_kwargs)
+    check_env(args.env, env_kwargs, single_crowd(args))
     spec = _check_policy(args.policy, args.env, env_kwargs, args.allow_env_mismatch)
     if args.out is not None:
         check_out(args.out)
@@ -250,6 +256,8 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
     from sb3_crowdnav.evaluation.runner import run_sweep
     from sb3_crowdnav.evaluation.tables import results_table, sweep_table, write_records_csv
 
+    if args.crowd:
+        return _crowd_benchmark(args)
     env_kwargs = env_kwargs_from_args(args)
     check_env(args.env, env_kwargs)
     specs = [_check_policy(p, args.env, env_kwargs, args.allow_env_mismatch) for p in args.policy]
@@ -280,7 +288,7 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
     seed = args.seed_offset if args.figure_seed is None else args.figure_seed
     episodes = _figure_episodes(args, specs, labels, env_kwargs, seed)
     written.append(plot_trajectories(episodes, out / "trajectories.png", title=f"test episode seed {seed}"))
-    if args.gif:
+    if args.gif is not False:
         for label, record in episodes.items():
             written.append(save_animation(record, out / f"episode_{_slug(label)}.gif"))
     for spec, label in zip(specs, labels, strict=True):
@@ -306,6 +314,46 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
     return 0
 
 
+def _crowd_benchmark(args: argparse.Namespace) -> int:
+    """``benchmark --crowd A B ...``: every policy in every crowd on the same seeds, one table policy x crowd."""
+    from sb3_crowdnav.evaluation.metrics import summarize
+    from sb3_crowdnav.evaluation.tables import crowd_table, write_records_csv
+
+    # a sweep and figures are of one crowd: the table across crowds would not say which
+    for option, given in (("--sweep", args.sweep), ("--figure-seed", args.figure_seed is not None),
+                          ("--gif" if args.gif else "--no-gif", args.gif is not None)):
+        if given:
+            raise UsageError(f"{option} does not go with --crowd, which writes the policy x crowd table only (no figures, "
+                             "no sweep); for those in one crowd run benchmark without --crowd and with --env-kwargs "
+                             "\"dict(crowd='NAME')\"")
+    env_kwargs = env_kwargs_from_args(args, crowd=False)
+    check_env(args.env, env_kwargs)
+    crowds = crowd_specs(args)
+    crowd_kwargs = {label: check_crowd(args.env, env_kwargs, crowd)
+                    for crowd, label in zip(crowds, _labels(crowds), strict=True)}
+    specs = [_check_policy(p, args.env, env_kwargs, args.allow_env_mismatch) for p in args.policy]
+    check_out(args.out)
+    labels = _labels(specs)
+    out: Path = args.out
+    start = time.perf_counter()
+    summaries = {}
+    written = []
+    for spec, label in zip(specs, labels, strict=True):
+        for crowd, kwargs in crowd_kwargs.items():
+            records = _run(args, spec, kwargs, desc=f"{label} in {crowd}")
+            summaries[(label, crowd)] = summarize(records)
+            written.append(write_records_csv(records, out / f"episodes_{_slug(label)}_{_slug(crowd)}.csv"))
+    table = crowd_table(summaries)
+    written[:0] = table.save(out / "crowds")
+    print(table.to_markdown(), end="")
+    print(f"\n{args.episodes} episodes per policy and crowd (seeds {args.seed_offset}-"
+          f"{args.seed_offset + args.episodes - 1}) in {time.perf_counter() - start:.1f} s")
+    _write_meta(out, args, env_kwargs, policies=dict(zip(labels, map(str, specs), strict=True)),
+                crowds={label: str(crowd) for label, crowd in zip(crowd_kwargs, crowds, strict=True)})
+    print(f"\nwrote {', '.join(p.name for p in written)} and meta.json in {out}")
+    return 0
+
+
 def _cmd_render(args: argparse.Namespace) -> int:
     from sb3_crowdnav.evaluation.plots import ffmpeg_available, plot_trajectories, save_animation
     from sb3_crowdnav.evaluation.runner import run_episodes
@@ -318,7 +366,7 @@ def _cmd_render(args: argparse.Namespace) -> int:
     if args.fps is not None and not 0.1 <= args.fps <= 60:
         raise UsageError(f"--fps must be in [0.1, 60] frames per second, got {args.fps}")
     env_kwargs = env_kwargs_from_args(args)
-    check_env(args.env, env_kwargs)
+    check_env(args.env, env_kwargs, single_crowd(args))
     spec = _check_policy(args.policy, args.env, env_kwargs, args.allow_env_mismatch)
     check_out(args.out, is_file=True)
     label = _labels([spec])[0]

@@ -145,7 +145,7 @@ def _train_variant(args: argparse.Namespace) -> int:
         config = ScheduleConfig(variant=args.variant, env_kwargs=env_kwargs, **given)
     except (TypeError, ValueError) as exc:
         raise UsageError(str(exc)) from None
-    common.check_env(variant.env_id, config.training_env_kwargs)
+    common.check_env(variant.env_id, config.training_env_kwargs, common.single_crowd(args))
     if args.from_imitation is not None and not args.from_imitation.is_file():
         raise UsageError(f"--from-imitation: no saved model at {str(args.from_imitation)!r}")
     common.check_out(args.out)
@@ -190,7 +190,7 @@ def _train_hyperparams(args: argparse.Namespace) -> int:
     except (FileNotFoundError, TypeError, ValueError) as exc:
         raise UsageError(f"--hyperparams: {exc}") from None
     env_kwargs = {**cfg["env_kwargs"], **common.env_kwargs_from_args(args)}
-    common.check_env(args.env, env_kwargs)
+    common.check_env(args.env, env_kwargs, common.single_crowd(args))
     imitation_episodes = args.imitation_episodes or 0
     imitation_epochs = 10 if args.imitation_epochs is None else args.imitation_epochs
     if args.timesteps is None and cfg["n_timesteps"] is None:

@@ -6,7 +6,9 @@ time (s), return — then timeout, gap (m), discomfort, comfort-zone time (s), h
 in discomfort (< 0.2 m) and inside comfort zones (see :mod:`sb3_crowdnav.evaluation.metrics`).
 Table 4 layout (one row per number of pedestrians N) has ``humans`` in place of ``method``. In
 Markdown a rate is printed with its Wilson 95 % interval, ``0.990 [0.977, 0.996]``; the CSV has separate ``*_ci_low`` /
-``*_ci_high`` columns and full precision.
+``*_ci_high`` columns and full precision. The policy x crowd table (:class:`CrowdTable`, ``benchmark --crowd``) has one
+Markdown row per policy and one column per crowd, each cell the success rate with its interval, the collision rate and
+the time; its CSV has one row per (policy, crowd) with every column of Table 3.
 """
 
 from __future__ import annotations
@@ -137,6 +139,101 @@ def sweep_table(summaries: Mapping[int, Summary]) -> ResultsTable:
     return ResultsTable(dict(sorted(summaries.items())), "humans")
 
 
+CROWD_CELL = "success [95 % interval] / collision / time (s)"
+
+
+def _float(text: Any) -> float:
+    return math.nan if text in ("", None) else float(text)
+
+
+class CrowdTable:
+    """Policy x crowd: ``summaries[(policy, crowd)]`` as CSV rows, or rows of ``(policy, crowd)`` read back from
+    :meth:`to_csv`'s file with :meth:`read_csv`; the order of the policies and of the crowds is their first mention.
+
+    :param rows: one dict per (policy, crowd) pair with ``method``, ``crowd`` and the columns of :data:`CSV_COLUMNS`
+    """
+
+    def __init__(self, rows: list[dict[str, Any]]) -> None:
+        if not rows:
+            raise ValueError("a policy x crowd table needs at least one row")
+        pairs = [(row["method"], row["crowd"]) for row in rows]
+        if len(set(pairs)) != len(pairs):
+            raise ValueError(f"a policy x crowd table has one row per (policy, crowd), got {pairs}")
+        self.rows = rows
+
+    @classmethod
+    def from_summaries(cls, summaries: Mapping[tuple[str, str], Summary]) -> CrowdTable:
+        """The table of ``summaries[(policy, crowd)]``."""
+        return cls([{"method": policy, "crowd": crowd, **summary_row(s)} for (policy, crowd), s in summaries.items()])
+
+    @classmethod
+    def read_csv(cls, path: str | Path) -> CrowdTable:
+        """A table written by :meth:`to_csv` (numbers as floats again, ``episodes`` as an int)."""
+        with Path(path).open(newline="") as f:
+            rows = [{"method": row["method"], "crowd": row["crowd"],
+                     **{k: int(row[k]) if k == "episodes" else _float(row[k]) for k in CSV_COLUMNS}}
+                    for row in csv.DictReader(f)]
+        return cls(rows)
+
+    @property
+    def policies(self) -> list[str]:
+        return list(dict.fromkeys(row["method"] for row in self.rows))
+
+    @property
+    def crowds(self) -> list[str]:
+        return list(dict.fromkeys(row["crowd"] for row in self.rows))
+
+    def to_markdown(self, headers: Mapping[str, str] | None = None) -> str:
+        """One row per policy, one column per crowd (titled ``headers[crowd]`` where given); a pair not run is "–".
+
+        Each cell is :data:`CROWD_CELL`, e.g. ``0.992 [0.980, 0.997] / 0.008 / 10.78``.
+        """
+        headers = dict(headers or {})
+        cells = {(row["method"], row["crowd"]): row for row in self.rows}
+        crowds = self.crowds
+        lines = ["| method | " + " | ".join(headers.get(c, c) for c in crowds) + " |",
+                 "|" + "|".join("---" for _ in range(len(crowds) + 1)) + "|"]
+        for policy in self.policies:
+            row = [_crowd_cell(cells.get((policy, crowd))) for crowd in crowds]
+            lines.append(f"| {policy} | " + " | ".join(row) + " |")
+        return "\n".join(lines) + f"\n\nEach cell: {CROWD_CELL}.\n"
+
+    def to_csv(self, path: str | Path | None = None) -> str:
+        """The CSV text (one row per pair); also written to ``path`` when given."""
+        buf = io.StringIO()
+        writer = csv.DictWriter(buf, fieldnames=["method", "crowd", *CSV_COLUMNS], lineterminator="\n")
+        writer.writeheader()
+        writer.writerows(self.rows)
+        text = buf.getvalue()
+        if path is not None:
+            Path(path).write_text(text)
+        return text
+
+    def save(self, stem: str | Path, headers: Mapping[str, str] | None = None) -> tuple[Path, Path]:
+        """Write ``stem.md`` and ``stem.csv``; return both paths."""
+        stem = Path(stem)
+        stem.parent.mkdir(parents=True, exist_ok=True)
+        md, csv_path = stem.with_suffix(".md"), stem.with_suffix(".csv")
+        md.write_text(self.to_markdown(headers))
+        self.to_csv(csv_path)
+        return md, csv_path
+
+    def __str__(self) -> str:
+        return self.to_markdown()
+
+
+def _crowd_cell(row: Mapping[str, Any] | None) -> str:
+    if row is None:
+        return "–"
+    success = _rate(row["success"], (row["success_ci_low"], row["success_ci_high"]))
+    return f"{success} / {_num(row['collision'], 3)} / {_num(row['time'], 2)}"
+
+
+def crowd_table(summaries: Mapping[tuple[str, str], Summary]) -> CrowdTable:
+    """The policy x crowd table of ``summaries[(policy, crowd)]``."""
+    return CrowdTable.from_summaries(summaries)
+
+
 def write_records_csv(records, path: str | Path) -> Path:
     """One row per episode with the scalar fields of :class:`~sb3_crowdnav.evaluation.runner.EpisodeRecord`."""
     from sb3_crowdnav.evaluation.runner import RECORD_FIELDS
@@ -150,4 +247,5 @@ def write_records_csv(records, path: str | Path) -> Path:
     return path
 
 
-__all__ = ["CSV_COLUMNS", "ResultsTable", "results_table", "summary_row", "sweep_table", "write_records_csv"]
+__all__ = ["CROWD_CELL", "CSV_COLUMNS", "CrowdTable", "ResultsTable", "crowd_table", "results_table", "summary_row",
+           "sweep_table", "write_records_csv"]

@@ -200,8 +200,8 @@ class SceneConfig:
         most = settings.recording.max_present(settings.window)
         if most > self.max_humans and settings.tracked == "all":
             raise ValueError(f"max_humans: the recording {settings.path} has up to {most} people present at once, "
-                             f"more than max_humans = {self.max_humans}; raise max_humans, choose a time_window, or observe the "
-                             "nearest with crowd_kwargs['tracked']='nearest'")
+                             f"more than max_humans = {self.max_humans}; raise max_humans, choose a time_window, or "
+                             "observe the nearest with crowd_kwargs['tracked']='nearest'")
 
     @property
     def max_human_speed(self) -> float:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from types import MappingProxyType
 
 import numpy as np
 
@@ -88,4 +89,16 @@ class PreferredVelocities:
         return out
 
 
-__all__ = ["People", "PreferredVelocities", "draw_people"]
+MEASURED_POPULATION = MappingProxyType({
+    "human_speed": "measured",
+    "stop_probability": 0.2,
+    "stop_duration": (2.0, 8.0),
+    "robot_visible": 0.5,
+})
+"""The measured-speed population, the env keyword arguments of one preset (``gym.make("CrowdNav-v0",
+**MEASURED_POPULATION)``): preferred speeds drawn per person from :data:`~sb3_crowdnav.sim.config.MEASURED_SPEED`
+(Normal(1.34, 0.26) m/s clipped to [0.5, 2.0]), one person in five stopping once for 2-8 s [s], and each person
+seeing the robot with probability 0.5. The speeds are measured; the stops and the share who see the robot are a
+stated choice, not a measurement (``docs/decisions.md``). The generalisation table's "measured-speed population"."""
+
+__all__ = ["MEASURED_POPULATION", "People", "PreferredVelocities", "draw_people"]

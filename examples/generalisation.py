@@ -1,0 +1,191 @@
+"""Regenerate the generalisation table of docs/results.md: every shipped open-floor model and the ORCA robot in other
+crowds than the one they were trained in.
+
+    python examples/generalisation.py [--episodes 500] [--workers 2] [--out paper_results/generalisation] \\
+        [--scene eth=DIR/biwi_eth.txt,frame_rate=15 --scene hotel=DIR/biwi_hotel.txt ...] \\
+        [--markdown-into docs/results.md]
+
+Rows: ``pretrained:NAME`` for each shipped open-floor model and the ORCA robot (``orca-constrained``: ORCA's velocity
+mapped onto the robot's 80 actions), or the ``--policy`` given. Columns (``--columns``, default all five), each one
+``sb3-crowdnav benchmark --crowd SPEC`` run in ``CrowdNav-v0`` on the same test seeds (1,000,000 + i):
+
+* ``orca6``: ORCA, 6 people (``CrowdNav-v0`` as it is, the crowd every model was trained in);
+* ``orca10``: ORCA, 10 people;
+* ``social_force``: the social force crowd (``crowd="social_force"``);
+* ``measured``: the measured-speed population (:data:`sb3_crowdnav.sim.population.MEASURED_POPULATION`: speeds drawn
+  from walking speeds, one in five people stopping for a while, half of them seeing the robot) in ORCA;
+* ``empty``: the empty floor (no one);
+
+and one column per ``--scene NAME=PATH[,frame_rate=F]``: a recorded scene replayed (``crowd="replay"``; no recording
+ships with the package, see the envs page for where the public ones are). Scenes named ``eth`` and ``hotel`` are held
+out (never used for training or model selection) and flagged so in the table.
+
+Every column is checked before the first episode: a crowd model that is not registered in this installation is
+refused with a message, never skipped. ``OUT/generalisation.md`` / ``.csv`` hold the table (the CSV one row per
+policy and column, with every metric and interval), ``OUT/headline.md`` the README's rows (``apg_rl`` and the ORCA
+robot), ``OUT/columns.json`` what each column is, and ``OUT/cells/COLUMN/`` each benchmark's own table, its episode
+CSVs (one per policy) and its ``meta.json``. ``--markdown-into FILE`` also replaces the block between
+``<!-- generalisation:begin -->`` and ``<!-- generalisation:end -->`` in FILE (docs/results.md) with the table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+from pathlib import Path
+from typing import Any
+
+from sb3_crowdnav.cli import main as cli
+from sb3_crowdnav.cli.common import Parser, UsageError, check_env, check_out, positive_int
+from sb3_crowdnav.evaluation.crowd_spec import CrowdSpec
+from sb3_crowdnav.evaluation.tables import CrowdTable
+from sb3_crowdnav.sim.crowd import CROWD_MODELS
+from sb3_crowdnav.sim.population import MEASURED_POPULATION
+
+ENV = "CrowdNav-v0"
+MODELS = ("apg_rl", "lm_rl", "sf_rl", "cadrl", "ppo_apg", "dqn_apg", "apg_crl", "apg_carl")
+POLICIES = (*(f"pretrained:{name}" for name in MODELS), "orca-constrained")
+HEADLINE = ("APG_RL", "ORCA-constrained")  # the README's rows (table labels)
+HELD_OUT = ("eth", "hotel")  # scenes never used for training or model selection
+# key -> (title, crowd spec, env keyword arguments beside the crowd)
+COLUMNS: dict[str, tuple[str, str, dict[str, Any]]] = {
+    "orca6": ("ORCA, 6 people", "orca", {}),
+    "orca10": ("ORCA, 10 people", "orca", {"num_humans": 10}),
+    "social_force": ("social force", "social_force", {}),
+    "measured": ("measured-speed population", "orca", dict(MEASURED_POPULATION)),
+    "empty": ("empty floor", "orca", {"num_humans": 0}),
+}
+BEGIN, END = "<!-- generalisation:begin -->", "<!-- generalisation:end -->"
+_SCENE_NAME = re.compile(r"[a-z][a-z0-9_]*\Z")
+
+
+def parse_scene(text: str) -> tuple[str, str, CrowdSpec]:
+    """``NAME=PATH[,frame_rate=F]`` of ``--scene``: the column's key, its title and its replay crowd."""
+    name, equals, rest = text.partition("=")
+    name = name.strip().lower()
+    if not (equals and _SCENE_NAME.match(name) and rest.strip()):
+        raise UsageError(f"--scene: expected NAME=PATH[,frame_rate=F] with NAME lower-case letters, digits and '_', "
+                         f"got {text!r}")
+    try:
+        spec = CrowdSpec.parse(f"replay:{rest.strip()}", name="--scene")
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    title = f"{name} (held out)" if name in HELD_OUT else name
+    return name, title, spec
+
+
+def plan(columns: list[str], scenes: list[str]) -> dict[str, tuple[str, CrowdSpec, dict[str, Any]]]:
+    """Every column's title, crowd and env keyword arguments, each checked by making its env once."""
+    planned = {key: (COLUMNS[key][0], CrowdSpec.parse(COLUMNS[key][1]), COLUMNS[key][2]) for key in columns}
+    for text in scenes:
+        key, title, spec = parse_scene(text)
+        if key in planned or key in COLUMNS:
+            raise UsageError(f"--scene {key}: the name is taken (by a column or another scene); give another")
+        planned[key] = (title, spec, {})
+    if not planned:
+        raise UsageError("no column: give --columns or --scene")
+    for key, (_, spec, kwargs) in planned.items():
+        if spec.model not in CROWD_MODELS:
+            raise UsageError(f"column {key!r} needs the crowd model {spec.model!r}, which is not registered in this "
+                             f"installation (registered: {', '.join(CROWD_MODELS)}); leave the column out (--columns, "
+                             "--scene) or install the version of sb3_crowdnav that has it")
+        try:
+            check_env(ENV, {**kwargs, **spec.env_kwargs()}, spec)
+        except UsageError as exc:
+            raise UsageError(f"column {key!r}: {exc}") from None
+    return planned
+
+
+def benchmark(out: Path, spec: CrowdSpec, env_kwargs: dict[str, Any], policies, episodes: int, workers: int) -> None:
+    """One ``sb3-crowdnav benchmark --crowd`` run: every policy in one column."""
+    args = ["benchmark", "--env", ENV, "--crowd", str(spec), "--episodes", str(episodes), "--workers", str(workers),
+            "--out", str(out), "--no-progress"]
+    if env_kwargs:
+        args += ["--env-kwargs", repr(env_kwargs)]
+    for policy in policies:
+        args += ["--policy", policy]
+    code = cli(args)
+    if code:
+        raise SystemExit(f"sb3-crowdnav {' '.join(args)} exited with {code}")
+
+
+def combine(out: Path, planned: dict[str, tuple[str, CrowdSpec, dict[str, Any]]]) -> CrowdTable:
+    """The columns' tables as one, each column's crowd named by its key."""
+    rows = []
+    for key in planned:
+        rows += [{**row, "crowd": key} for row in CrowdTable.read_csv(out / "cells" / key / "crowds.csv").rows]
+    policies = list(dict.fromkeys(row["method"] for row in rows))
+    return CrowdTable(sorted(rows, key=lambda row: policies.index(row["method"])))  # stable: columns stay in order
+
+
+def markdown_block(table: CrowdTable, planned, episodes: int) -> str:
+    """The docs' block: the table, then what each column is."""
+    titles = {key: title for key, (title, _, _) in planned.items()}
+    lines = [f"{episodes} test episodes per cell (seeds 1,000,000 + i, the same in every column), `{ENV}` otherwise; "
+             "written by `examples/generalisation.py`.", "", table.to_markdown(titles).rstrip(), "", "Columns:", ""]
+    for key, (title, spec, kwargs) in planned.items():
+        setting = ", ".join(f"`{k}={v!r}`" for k, v in kwargs.items())
+        lines.append(f"- {title} (`{key}`): `--crowd {spec}`" + (f" with {setting}" if setting else ""))
+    return "\n".join(lines) + "\n"
+
+
+def write_into(path: Path, block: str) -> None:
+    """Replace the text between the markers in ``path`` with ``block``."""
+    text = path.read_text()
+    head, _, rest = text.partition(BEGIN)
+    _, _, tail = rest.partition(END)
+    path.write_text(f"{head}{BEGIN}\n{block}{END}{tail}")
+
+
+def _check_markers(path: Path) -> None:
+    text = path.read_text() if path.is_file() else ""
+    if not (BEGIN in text and END in text.partition(BEGIN)[2]):
+        raise UsageError(f"--markdown-into {str(path)!r}: no block between {BEGIN} and {END} to replace")
+
+
+def main(argv: list[str] | None = None) -> None:
+    p = Parser(prog="generalisation.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--episodes", type=positive_int, default=500, help="test episodes per cell (default: 500)")
+    p.add_argument("--workers", type=positive_int, default=2, help="worker processes (default: 2)")
+    p.add_argument("--out", type=Path, default=Path("paper_results/generalisation"), help="output folder")
+    p.add_argument("--policy", action="append", metavar="SPEC",
+                   help="a row (repeat; default: every shipped open-floor model and orca-constrained)")
+    p.add_argument("--columns", nargs="*", choices=tuple(COLUMNS), default=list(COLUMNS), metavar="KEY",
+                   help=f"the built-in columns, of {', '.join(COLUMNS)} (default: all)")
+    p.add_argument("--scene", action="append", default=[], metavar="NAME=PATH[,frame_rate=F]",
+                   help="a column of a recorded scene (repeat); eth and hotel are flagged held out")
+    p.add_argument("--markdown-into", type=Path, metavar="FILE",
+                   help=f"replace the block between {BEGIN} and {END} in FILE with the table")
+    args = p.parse_args(argv)
+    try:  # every column, the output and the docs' block, before any episode
+        planned = plan(list(dict.fromkeys(args.columns)), args.scene)
+        check_out(args.out)
+        if args.markdown_into is not None:
+            _check_markers(args.markdown_into)
+    except UsageError as exc:
+        p.error(str(exc))
+    policies = args.policy or list(POLICIES)
+
+    for key, (_, spec, kwargs) in planned.items():
+        benchmark(args.out / "cells" / key, spec, kwargs, policies, args.episodes, args.workers)
+    table = combine(args.out, planned)
+    titles = {key: title for key, (title, _, _) in planned.items()}
+    table.save(args.out / "generalisation", titles)
+    (args.out / "columns.json").write_text(json.dumps(
+        {key: {"title": title, "crowd": str(spec), "env_kwargs": kwargs, "held_out": key in HELD_OUT}
+         for key, (title, spec, kwargs) in planned.items()}, indent=1, default=list) + "\n")
+    block = markdown_block(table, planned, args.episodes)
+    print(block)
+    headline = [row for row in table.rows if row["method"] in HEADLINE]
+    if headline:
+        text = CrowdTable(headline).to_markdown(titles)
+        (args.out / "headline.md").write_text(text)
+        print(f"README headline:\n\n{text}")
+    if args.markdown_into is not None:
+        write_into(args.markdown_into, block)
+        print(f"wrote the table into {args.markdown_into}")
+
+
+if __name__ == "__main__":
+    main()

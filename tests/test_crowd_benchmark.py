@@ -1,0 +1,256 @@
+"""The generalisation benchmark: the crowd grammar, ``--crowd`` on every command, ``benchmark --crowd`` (one table
+policy x crowd) and ``examples/generalisation.py``."""
+
+from __future__ import annotations
+
+import csv
+import importlib.util
+import json
+import math
+import warnings
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env as gym_check_env
+from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+import sb3_crowdnav  # noqa: F401  (registers the envs)
+from sb3_crowdnav.cli import main
+from sb3_crowdnav.evaluation.crowd_spec import CrowdSpec
+from sb3_crowdnav.evaluation.metrics import summarize
+from sb3_crowdnav.evaluation.runner import run_episodes
+from sb3_crowdnav.evaluation.tables import CSV_COLUMNS, CrowdTable, crowd_table
+from sb3_crowdnav.sim import CROWD_MODELS
+from sb3_crowdnav.sim.population import MEASURED_POPULATION
+
+SCRIPT = Path(__file__).resolve().parents[1] / "examples" / "generalisation.py"
+
+
+def _script():
+    spec = importlib.util.spec_from_file_location("generalisation", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _refused(capsys, argv: list[str], fragment: str, run=main) -> str:
+    with pytest.raises(SystemExit) as exc:
+        run(argv)
+    err = capsys.readouterr().err
+    assert exc.value.code == 2, err
+    assert fragment in err, err
+    assert len(err.strip().splitlines()) == 1, err
+    return err
+
+
+# ------------------------------------------------------------------ the grammar
+@pytest.mark.parametrize(("text", "model", "settings"), [
+    ("orca", "orca", {}),
+    (" ORCA ", "orca", {}),
+    ("orca:safety_space=0.2", "orca", {"safety_space": 0.2}),
+    ("social_force:a=1,b=true,c=null,d=text", "social_force", {"a": 1, "b": True, "c": None, "d": "text"}),
+    ("replay:data/eth.txt", "replay", {"path": "data/eth.txt"}),
+    ("replay:data/eth.txt,frame_rate=15", "replay", {"path": "data/eth.txt", "frame_rate": 15}),
+    ("replay:path=15,frame_rate=2.5", "replay", {"path": "15", "frame_rate": 2.5}),  # a path stays text
+])
+def test_a_spec_gives_the_envs_crowd_and_its_settings(text, model, settings):
+    spec = CrowdSpec.parse(text)
+    assert spec.crowd_kwargs == settings
+    assert spec.env_kwargs() == {"crowd": model, **({"crowd_kwargs": settings} if settings else {})}
+    assert CrowdSpec.parse(str(spec)) == spec
+    assert CrowdSpec.parse(spec) is spec
+
+
+def test_a_replayed_recording_is_labelled_by_its_file_name():
+    assert CrowdSpec.parse("replay:/some/where/biwi_eth.txt,frame_rate=15").label == "replay:biwi_eth.txt,frame_rate=15"
+    assert CrowdSpec.parse("orca:safety_space=0.2").label == "orca:safety_space=0.2"
+
+
+@pytest.mark.parametrize("text", ["", "1orca", "or ca", "orca;x", "orca:", "orca:x", "orca:=1", "orca:a=", "orca:a b=1",
+                                  "orca:a=1,a=2", "replay:", "replay:a.txt,b", "replay:a.txt,path=b.txt"])
+def test_a_bad_spec_is_refused_naming_the_option(text):
+    with pytest.raises(ValueError, match="--crowd"):
+        CrowdSpec.parse(text, name="--crowd")
+
+
+def test_a_spec_that_is_no_string_is_a_type_error():
+    with pytest.raises(TypeError, match="--crowd"):
+        CrowdSpec.parse(3, name="--crowd")
+
+
+# ------------------------------------------------------------------ the command line
+@pytest.mark.parametrize("command", ["evaluate", "benchmark", "render"])
+@pytest.mark.parametrize(("args", "fragment"), [
+    (["--crowd", "nobody"], "--crowd 'nobody': crowd must be one of"),
+    (["--crowd", "orca:x"], "--crowd: expected key=value"),
+    (["--crowd", "orca:nope=1"], "unknown setting(s) ['nope']"),
+    (["--crowd", "orca:safety_space=9"], "--crowd 'orca:safety_space=9': crowd_kwargs['safety_space']"),
+    (["--crowd", "orca", "--human-policy", "linear"], "--crowd and --human-policy"),
+    (["--crowd", "orca", "--env-kwargs", "dict(crowd_kwargs={})"], "--crowd and --env-kwargs crowd_kwargs"),
+])
+def test_a_bad_crowd_exits_2_with_one_line_before_any_work(tmp_path, capsys, command, args, fragment):
+    argv = {"evaluate": ["evaluate", "--policy", "orca", "--episodes", "1"],
+            "benchmark": ["benchmark", "--policy", "orca", "--episodes", "1", "--out", str(tmp_path / "b")],
+            "render": ["render", "--policy", "orca", "--out", str(tmp_path / "r" / "e.gif")]}[command]
+    _refused(capsys, [*argv, *args], fragment)
+    assert not [p for p in tmp_path.rglob("*") if p.is_file()]
+
+
+@pytest.mark.parametrize("command", ["evaluate", "render"])
+def test_one_crowd_only_where_a_command_runs_in_one(tmp_path, capsys, command):
+    argv = ["evaluate", "--episodes", "1"] if command == "evaluate" else ["render", "--out", str(tmp_path / "e.gif")]
+    _refused(capsys, [*argv, "--policy", "orca", "--crowd", "orca", "linear"], "benchmark --crowd A B")
+
+
+@pytest.mark.parametrize("extra", [["--sweep", "3"], ["--figure-seed", "5"], ["--gif"], ["--no-gif"]])
+def test_benchmark_refuses_figures_and_sweeps_with_crowds(tmp_path, capsys, extra):
+    err = _refused(capsys, ["benchmark", "--policy", "orca", "--crowd", "orca", "--episodes", "1",
+                            "--out", str(tmp_path), *extra], "does not go with --crowd")
+    assert extra[0] in err
+
+
+def test_evaluate_in_another_crowd_is_the_runner_in_that_crowd(capsys):
+    main(["evaluate", "--policy", "orca", "--crowd", "linear", "--episodes", "3", "--no-progress"])
+    printed = capsys.readouterr().out
+    expected = summarize(run_episodes("orca", 3, {"crowd": "linear"}))
+    assert f"{expected.success_rate:.3f} [{expected.success_ci[0]:.3f}" in printed
+    other = summarize(run_episodes("orca", 3))
+    assert (other.success_rate, other.navigation_time) != (expected.success_rate, expected.navigation_time)
+
+
+def _csv(path: Path) -> list[dict[str, str]]:
+    with path.open() as f:
+        return list(csv.DictReader(f))
+
+
+def test_benchmark_evaluates_every_policy_in_every_crowd_on_the_same_seeds(tmp_path, capsys):
+    out = tmp_path / "bench"
+    main(["benchmark", "--policy", "orca", "--policy", "random:0", "--crowd", "orca", "linear", "--episodes", "2",
+          "--no-progress", "--out", str(out)])
+    printed = capsys.readouterr().out
+    assert "| method | orca | linear |" in printed
+    rows = _csv(out / "crowds.csv")
+    assert [(r["method"], r["crowd"]) for r in rows] == [("ORCA", "orca"), ("ORCA", "linear"),
+                                                         ("Random", "orca"), ("Random", "linear")]
+    for row in rows:  # each cell is the runner's own summary of that policy in that crowd, on the same seeds
+        episodes = _csv(out / f"episodes_{row['method']}_{row['crowd']}.csv")
+        assert [int(e["seed"]) for e in episodes] == [1_000_000, 1_000_001]
+        spec = "orca" if row["method"] == "ORCA" else "random:0"
+        expected = summarize(run_episodes(spec, 2, {"crowd": row["crowd"]}))
+        assert float(row["success"]) == pytest.approx(expected.success_rate)
+        assert float(row["collision"]) == pytest.approx(expected.collision_rate)
+        assert [e["outcome"] for e in episodes] == [r.outcome for r in run_episodes(spec, 2, {"crowd": row["crowd"]})]
+    meta = json.loads((out / "meta.json").read_text())
+    assert meta["crowds"] == {"orca": "orca", "linear": "linear"}
+    assert not (out / "results.md").exists() and not list(out.glob("*.gif"))
+
+
+def test_the_same_crowd_twice_gets_two_columns(tmp_path, capsys):
+    main(["benchmark", "--policy", "orca", "--crowd", "linear", "linear", "--episodes", "1", "--no-progress",
+          "--out", str(tmp_path)])
+    assert [r["crowd"] for r in _csv(tmp_path / "crowds.csv")] == ["linear", "linear_2"]
+
+
+# ------------------------------------------------------------------ the table
+def _summaries():
+    orca = summarize(run_episodes("orca", 3))
+    linear = summarize(run_episodes("orca", 3, {"crowd": "linear"}))
+    return {("ORCA", "orca"): orca, ("ORCA", "linear"): linear, ("Random", "linear"): linear}
+
+
+def test_the_crowd_table_has_a_column_per_crowd_and_reads_back(tmp_path):
+    table = crowd_table(_summaries())
+    assert table.policies == ["ORCA", "Random"] and table.crowds == ["orca", "linear"]
+    md = table.to_markdown({"orca": "ORCA, 6 people"})
+    assert md.splitlines()[0] == "| method | ORCA, 6 people | linear |"
+    assert md.splitlines()[3].split(" | ")[1] == "–"  # Random was not run among ORCA people
+    table.save(tmp_path / "crowds")
+    again = CrowdTable.read_csv(tmp_path / "crowds.csv")
+    assert again.to_markdown() == table.to_markdown()
+    for a, b in zip(again.rows, table.rows, strict=True):
+        for key in CSV_COLUMNS:
+            assert (math.isnan(a[key]) and math.isnan(b[key])) or a[key] == pytest.approx(b[key]), key
+
+
+def test_a_crowd_table_has_one_row_per_pair():
+    row = {"method": "A", "crowd": "orca", **dict.fromkeys(CSV_COLUMNS, 0.0)}
+    with pytest.raises(ValueError, match="one row per"):
+        CrowdTable([row, dict(row)])
+    with pytest.raises(ValueError, match="at least one"):
+        CrowdTable([])
+
+
+# ------------------------------------------------------------------ the measured-speed population
+def test_the_measured_population_passes_the_checkers_without_warnings():
+    env = gym.make("CrowdNav-v0", **MEASURED_POPULATION)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        gym_check_env(env.unwrapped)
+        sb3_check_env(env.unwrapped, warn=True)
+    scene = env.unwrapped.scene
+    assert (scene.human_speed, scene.robot_visible) == ("measured", 0.5) and scene.stop_probability > 0
+
+
+def test_the_measured_population_repeats_its_episodes():
+    def episode(seed):
+        env = gym.make("CrowdNav-v0", **MEASURED_POPULATION)
+        obs, _ = env.reset(seed=seed)
+        out = [obs["humans"].copy()]
+        for _ in range(30):
+            obs, *_ = env.step(40)
+            out.append(obs["humans"].copy())
+        return np.stack(out)
+
+    np.testing.assert_array_equal(episode(5), episode(5))
+    assert not np.array_equal(episode(5), episode(6))
+
+
+# ------------------------------------------------------------------ the script
+def test_the_script_refuses_columns_it_cannot_run_before_any_episode(tmp_path, capsys):
+    script = _script()
+    missing = [name for name in ("social_force", "replay") if name not in CROWD_MODELS]
+    if "social_force" in missing:
+        _refused(capsys, ["--out", str(tmp_path / "o")], "'social_force', which is not registered", script.main)
+    if "replay" in missing:
+        _refused(capsys, ["--columns", "orca6", "--scene", "eth=x.txt", "--out", str(tmp_path / "o")],
+                 "'replay', which is not registered", script.main)
+    _refused(capsys, ["--columns", "orca6", "--scene", "ETH", "--out", str(tmp_path / "o")], "NAME=PATH", script.main)
+    _refused(capsys, ["--columns", "--out", str(tmp_path / "o")], "no column", script.main)
+    _refused(capsys, ["--columns", "orca6", "--scene", "empty=a.txt", "--out", str(tmp_path / "o")], "is taken",
+             script.main)
+    _refused(capsys, ["--columns", "nope", "--out", str(tmp_path / "o")], "--columns", script.main)
+    (tmp_path / "doc.md").write_text("no markers\n")
+    _refused(capsys, ["--columns", "orca6", "--out", str(tmp_path / "o"), "--markdown-into", str(tmp_path / "doc.md")],
+             "generalisation:begin", script.main)
+    assert not (tmp_path / "o").exists() or not any((tmp_path / "o").iterdir())
+
+
+def test_a_scene_is_a_replay_column_and_eth_and_hotel_are_held_out():
+    script = _script()
+    assert script.parse_scene("eth=d/biwi_eth.txt,frame_rate=15") == (
+        "eth", "eth (held out)", CrowdSpec("replay", (("path", "d/biwi_eth.txt"), ("frame_rate", 15))))
+    assert script.parse_scene("zara1=d/crowds_zara01.txt")[1] == "zara1"
+
+
+def test_the_script_writes_the_table_the_cells_and_the_docs_block(tmp_path, capsys):
+    doc = tmp_path / "results.md"
+    doc.write_text("# Results\n\n<!-- generalisation:begin -->\nold\n<!-- generalisation:end -->\n\nafter\n")
+    out = tmp_path / "out"
+    _script().main(["--episodes", "2", "--workers", "1", "--policy", "orca-constrained", "--policy", "random:0",
+                    "--columns", "orca6", "empty", "measured", "--out", str(out), "--markdown-into", str(doc)])
+    rows = _csv(out / "generalisation.csv")
+    assert [(r["method"], r["crowd"]) for r in rows] == [
+        (p, c) for p in ("ORCA-constrained", "Random") for c in ("orca6", "empty", "measured")]
+    for key in ("orca6", "empty", "measured"):
+        assert (out / "cells" / key / "episodes_Random_orca.csv").is_file()
+    empty = next(r for r in rows if (r["method"], r["crowd"]) == ("ORCA-constrained", "empty"))
+    assert float(empty["collision"]) == 0.0  # no one to run into
+    text = doc.read_text()
+    assert "old" not in text and text.endswith("<!-- generalisation:end -->\n\nafter\n")
+    assert "| method | ORCA, 6 people | empty floor | measured-speed population |" in text
+    assert "| ORCA-constrained |" in (out / "headline.md").read_text()
+    assert "Random" not in (out / "headline.md").read_text()
+    columns = json.loads((out / "columns.json").read_text())
+    assert columns["measured"]["env_kwargs"]["human_speed"] == "measured"
