@@ -3,7 +3,7 @@ crowds than the one they were trained in.
 
     python examples/generalisation.py [--episodes 500] [--workers 2] [--out paper_results/generalisation] \\
         [--scene eth=DIR/biwi_eth.txt,frame_rate=15 --scene hotel=DIR/biwi_hotel.txt ...] \\
-        [--markdown-into docs/results.md]
+        [--markdown-into docs/results.md] [--resume]
 
 Rows: ``pretrained:NAME`` for each shipped open-floor model and the ORCA robot (``orca-constrained``: ORCA's velocity
 mapped onto the robot's 80 actions), or the ``--policy`` given. Columns (``--columns``, default all five), each one
@@ -23,8 +23,9 @@ out (never used for training or model selection) and flagged so in the table.
 Every column is checked before the first episode: a crowd model that is not registered in this installation is
 refused with a message, never skipped. ``OUT/generalisation.md`` / ``.csv`` hold the table (the CSV one row per
 policy and column, with every metric and interval), ``OUT/headline.md`` the README's rows (``apg_rl`` and the ORCA
-robot), ``OUT/columns.json`` what each column is, and ``OUT/cells/COLUMN/`` each benchmark's own table, its episode
-CSVs (one per policy) and its ``meta.json``. ``--markdown-into FILE`` also replaces the block between
+robot), ``OUT/columns.json`` what each column is, and ``OUT/cells/COLUMN/POLICY/`` each cell's own table, its
+episode CSV and its ``meta.json``. The rows run one after the other over every column (the README's first), and
+``--resume`` keeps the finished cells of an interrupted run. ``--markdown-into FILE`` also replaces the block between
 ``<!-- generalisation:begin -->`` and ``<!-- generalisation:end -->`` in FILE (docs/results.md) with the table.
 """
 
@@ -47,6 +48,7 @@ ENV = "CrowdNav-v0"
 MODELS = ("apg_rl", "lm_rl", "sf_rl", "cadrl", "ppo_apg", "dqn_apg", "apg_crl", "apg_carl")
 POLICIES = (*(f"pretrained:{name}" for name in MODELS), "orca-constrained")
 HEADLINE = ("APG_RL", "ORCA-constrained")  # the README's rows (table labels)
+FIRST = ("pretrained:apg_rl", "orca-constrained")  # their policies, run first
 HELD_OUT = ("eth", "hotel")  # scenes never used for training or model selection
 # key -> (title, crowd spec, env keyword arguments beside the crowd)
 COLUMNS: dict[str, tuple[str, str, dict[str, Any]]] = {
@@ -97,26 +99,41 @@ def plan(columns: list[str], scenes: list[str]) -> dict[str, tuple[str, CrowdSpe
     return planned
 
 
-def benchmark(out: Path, spec: CrowdSpec, env_kwargs: dict[str, Any], policies, episodes: int, workers: int) -> None:
-    """One ``sb3-crowdnav benchmark --crowd`` run: every policy in one column."""
+def cell(out: Path, key: str, policy: str) -> Path:
+    """The folder of one cell: one policy in one column."""
+    return out / "cells" / key / "".join(c if c.isalnum() or c in "-_." else "_" for c in policy)
+
+
+def done(folder: Path, episodes: int) -> bool:
+    """Whether the cell in ``folder`` is finished with ``episodes`` episodes (``--resume`` keeps it); a finished cell
+    with another number of episodes is refused, not mixed into the table."""
+    if not (folder / "crowds.csv").is_file():
+        return False
+    had = json.loads((folder / "meta.json").read_text()).get("episodes")
+    if had != episodes:
+        raise SystemExit(f"{folder} holds {had} episodes, not --episodes {episodes}: give another --out")
+    return True
+
+
+def benchmark(out: Path, spec: CrowdSpec, env_kwargs: dict[str, Any], policy: str, episodes: int,
+              workers: int) -> None:
+    """One ``sb3-crowdnav benchmark --crowd`` run: one policy in one column."""
     args = ["benchmark", "--env", ENV, "--crowd", str(spec), "--episodes", str(episodes), "--workers", str(workers),
-            "--out", str(out), "--no-progress"]
+            "--out", str(out), "--no-progress", "--policy", policy]
     if env_kwargs:
         args += ["--env-kwargs", repr(env_kwargs)]
-    for policy in policies:
-        args += ["--policy", policy]
     code = cli(args)
     if code:
         raise SystemExit(f"sb3-crowdnav {' '.join(args)} exited with {code}")
 
 
-def combine(out: Path, planned: dict[str, tuple[str, CrowdSpec, dict[str, Any]]]) -> CrowdTable:
-    """The columns' tables as one, each column's crowd named by its key."""
+def combine(out: Path, planned: dict[str, tuple[str, CrowdSpec, dict[str, Any]]], policies: list[str]) -> CrowdTable:
+    """The cells' tables as one, each column's crowd named by its key, the rows in the order of ``policies``."""
     rows = []
-    for key in planned:
-        rows += [{**row, "crowd": key} for row in CrowdTable.read_csv(out / "cells" / key / "crowds.csv").rows]
-    policies = list(dict.fromkeys(row["method"] for row in rows))
-    return CrowdTable(sorted(rows, key=lambda row: policies.index(row["method"])))  # stable: columns stay in order
+    for policy in policies:
+        for key in planned:
+            rows += [{**row, "crowd": key} for row in CrowdTable.read_csv(cell(out, key, policy) / "crowds.csv").rows]
+    return CrowdTable(rows)
 
 
 def markdown_block(table: CrowdTable, planned, episodes: int) -> str:
@@ -155,6 +172,8 @@ def main(argv: list[str] | None = None) -> None:
                    help=f"the built-in columns, of {', '.join(COLUMNS)} (default: all)")
     p.add_argument("--scene", action="append", default=[], metavar="NAME=PATH[,frame_rate=F]",
                    help="a column of a recorded scene (repeat); eth and hotel are flagged held out")
+    p.add_argument("--resume", action="store_true",
+                   help="keep the finished cells (one policy in one column) of an earlier run into --out")
     p.add_argument("--markdown-into", type=Path, metavar="FILE",
                    help=f"replace the block between {BEGIN} and {END} in FILE with the table")
     args = p.parse_args(argv)
@@ -166,10 +185,18 @@ def main(argv: list[str] | None = None) -> None:
     except UsageError as exc:
         p.error(str(exc))
     policies = args.policy or list(POLICIES)
+    if not args.resume and (args.out / "cells").exists():
+        p.error(f"--out {str(args.out)!r} holds cells of an earlier run: pass --resume to keep them, or give another")
 
-    for key, (_, spec, kwargs) in planned.items():
-        benchmark(args.out / "cells" / key, spec, kwargs, policies, args.episodes, args.workers)
-    table = combine(args.out, planned)
+    # one policy at a time over every column (the first rows, the README's, finish first); a finished cell is kept
+    for policy in sorted(policies, key=lambda spec: spec not in FIRST):
+        for key, (_, spec, kwargs) in planned.items():
+            folder = cell(args.out, key, policy)
+            if args.resume and done(folder, args.episodes):
+                print(f"kept {folder}")
+                continue
+            benchmark(folder, spec, kwargs, policy, args.episodes, args.workers)
+    table = combine(args.out, planned, policies)
     titles = {key: title for key, (title, _, _) in planned.items()}
     table.save(args.out / "generalisation", titles)
     (args.out / "columns.json").write_text(json.dumps(

@@ -7,6 +7,7 @@ import csv
 import importlib.util
 import json
 import math
+import shutil
 import warnings
 from pathlib import Path
 
@@ -244,7 +245,7 @@ def test_the_script_writes_the_table_the_cells_and_the_docs_block(tmp_path, caps
     assert [(r["method"], r["crowd"]) for r in rows] == [
         (p, c) for p in ("ORCA-constrained", "Random") for c in ("orca6", "empty", "measured")]
     for key in ("orca6", "empty", "measured"):
-        assert (out / "cells" / key / "episodes_Random_orca.csv").is_file()
+        assert (out / "cells" / key / "random_0" / "episodes_Random_orca.csv").is_file()
     empty = next(r for r in rows if (r["method"], r["crowd"]) == ("ORCA-constrained", "empty"))
     assert float(empty["collision"]) == 0.0  # no one to run into
     text = doc.read_text()
@@ -254,3 +255,17 @@ def test_the_script_writes_the_table_the_cells_and_the_docs_block(tmp_path, caps
     assert "Random" not in (out / "headline.md").read_text()
     columns = json.loads((out / "columns.json").read_text())
     assert columns["measured"]["env_kwargs"]["human_speed"] == "measured"
+
+    # an interrupted run resumes: the finished cells are kept, a missing one runs again; never mixed silently
+    again = ["--episodes", "2", "--workers", "1", "--policy", "orca-constrained", "--policy", "random:0",
+             "--columns", "orca6", "empty", "measured", "--out", str(out)]
+    with pytest.raises(SystemExit):
+        _script().main(again)
+    shutil.rmtree(out / "cells" / "empty" / "random_0")
+    capsys.readouterr()
+    _script().main([*again, "--resume"])
+    printed = capsys.readouterr().out
+    assert printed.count("kept ") == 5 and "empty/random_0" not in printed.split("README headline")[0].split("kept")[-1]
+    assert _csv(out / "generalisation.csv") == rows
+    with pytest.raises(SystemExit, match="holds 2 episodes"):
+        _script().main([*again[2:], "--episodes", "3", "--resume"])
