@@ -247,6 +247,43 @@ def test_more_people_at_once_than_max_humans_is_refused_naming_both_numbers(tmp_
     assert 1 < seen <= most
 
 
+def test_tracked_nearest_observes_the_max_humans_people_nearest_to_the_robot_each_in_its_slot(tmp_path):
+    path = _walkers(tmp_path / "busy.csv", n=30, seconds=40.0)
+    rec = read_recording(path)
+    assert rec.max_present() > 6
+    env = gym.make("CrowdNav-v0", crowd="replay", max_humans=6, time_limit=12.0,
+                   crowd_kwargs={"path": path, "start_time": 10.0, "tracked": "nearest"})
+    base = env.unwrapped
+    obs, _ = env.reset(seed=0)
+    model = base.sim.crowd
+    track_pos, _, track_present = model.tracks
+    kept = changed = 0
+    previous = None
+    for k in range(40):
+        robot = obs["robot"][:2].astype(np.float64)
+        obs, _, terminated, truncated, _ = env.step(k % 80)
+        here = np.flatnonzero(track_present[k + 1])
+        nearest = here[np.argsort(np.linalg.norm(track_pos[k + 1, here] - robot, axis=-1),
+                                  kind="stable")[:6]]
+        slots = model.slot_person.copy()
+        assert sorted(slots[slots >= 0].tolist()) == sorted(nearest.tolist())  # the 6 nearest at the step's start
+        assert obs["humans_mask"].sum() == min(6, len(here))
+        humans = obs["humans"].reshape(base.scene.history_length, 6, -1)
+        for s, person in enumerate(slots.tolist()):
+            if person >= 0:
+                np.testing.assert_allclose(humans[-1, s, :2], track_pos[k + 1, person], atol=1e-5)
+        if previous is not None:  # a person who stays among the nearest keeps its slot
+            for s, person in enumerate(previous.tolist()):
+                if person >= 0 and person in slots:
+                    assert slots[s] == person
+                    kept += 1
+            changed += int((slots != previous).any())
+        previous = slots
+        if terminated or truncated:
+            break
+    assert kept > 0 and changed > 0  # both happened: the test saw slots kept and people coming into view
+
+
 def test_the_warehouse_refuses_a_replay(street):
     with pytest.raises(ValueError, match=r"crowd.*replay.*open floor"):
         gym.make("CrowdNavWarehouse-v0", crowd="replay", crowd_kwargs={"path": street})

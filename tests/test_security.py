@@ -140,3 +140,22 @@ def test_a_model_is_never_silently_evaluated_in_another_world(tmp_path, capsys, 
     with pytest.raises(ValueError, match=f"trained with {name}="):
         make_policy(policy, env)
     assert make_policy(policy, env, allow_env_mismatch=True) is not None
+
+
+def test_a_model_takes_the_env_bounds_when_only_the_bounds_differ():
+    """A faster crowd widens the env's observation bounds (the shapes stay): a shipped model loads there and acts as in
+    its own env on the same observation; another layout (max_humans) is still refused."""
+    from sb3_crowdnav.models import pretrained
+    from sb3_crowdnav.serialization import same_layout
+
+    own, fast = gym.make("CrowdNav-v0"), gym.make("CrowdNav-v0", human_speed="measured")
+    assert own.observation_space != fast.observation_space and same_layout(own.observation_space,
+                                                                            fast.observation_space)
+    a, b = pretrained("apg_rl", env=own), pretrained("apg_rl", env=fast)
+    assert b.observation_space == fast.observation_space
+    obs, _ = own.reset(seed=3)
+    assert a.predict(obs, deterministic=True)[0] == b.predict(obs, deterministic=True)[0]
+    other = gym.make("CrowdNav-v0", max_humans=7, num_humans=5)
+    assert not same_layout(own.observation_space, other.observation_space)
+    with pytest.raises(ValueError):
+        pretrained("apg_rl", env=other)
