@@ -274,3 +274,24 @@ def test_the_lookahead_acts_on_an_empty_floor():
         action, _ = model.predict(obs, deterministic=True)
         assert env.action_space.contains(int(action))
         obs, *_ = env.step(int(action))
+
+
+@pytest.mark.parametrize("crowd", ["linear", "social_force", "measured"])
+def test_the_policy_cannot_tell_which_crowd_runs(crowd):
+    """The lookahead stays honest: the world contract a model is checked and propagated with, the observation's keys
+    and shapes, and the shipped model's decision on the same observation are the same whatever moves the people."""
+    from sb3_crowdnav.models import pretrained
+    from sb3_crowdnav.serialization import same_layout
+    from sb3_crowdnav.sim.world import compare_worlds
+
+    kwargs = {"human_speed": "measured"} if crowd == "measured" else {"crowd": crowd}
+    paper, other = gym.make("CrowdNav-v0"), gym.make("CrowdNav-v0", **kwargs)
+    assert other.unwrapped.world == paper.unwrapped.world
+    assert compare_worlds(paper.unwrapped.world, other.unwrapped.world) is None
+    assert same_layout(paper.observation_space, other.observation_space)
+    obs, _ = other.reset(seed=1)
+    for _ in range(3):
+        obs, *_ = other.step(0)
+    a = pretrained("apg_rl", env=paper).predict(obs, deterministic=True)[0]
+    b = pretrained("apg_rl", env=other).predict(obs, deterministic=True)[0]
+    assert a == b
