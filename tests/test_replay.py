@@ -405,3 +405,29 @@ def test_a_window_past_the_recording_is_an_empty_floor(tmp_path):
         obs, reward, *_, info = env.step(8)
     assert not obs["humans_mask"].any() and not obs["humans"].reshape(5, 10, 5)[-1].any()
     assert info["min_distance"] == env.unwrapped.no_one_distance and math.isfinite(reward)
+
+
+def test_the_preparation_script_writes_each_scene_in_the_replay_format(tmp_path, capsys):
+    """examples/prepare_recordings.py: OpenTraj's 8-column obsmat files become ``frame id x y`` files the replay reads
+    at the scene's frame rate; a person seen once is dropped and named."""
+    import importlib.util
+
+    script = Path(__file__).resolve().parents[1] / "examples" / "prepare_recordings.py"
+    spec = importlib.util.spec_from_file_location("prepare_recordings", script)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    root = tmp_path / "OpenTraj"
+    for name, (path, _) in module.SCENES.items():
+        rows = [(f, 1, 0.5 * f / 6, 0.0, 2.0, 1.0, 0.0, 0.0) for f in range(0, 60, 6)]  # 1.25 m/s at 15 fps ETH-like
+        rows += [(f, 2, 3.0, 0.0, -0.1 * f / 6, 0.0, 0.0, -0.5) for f in range(6, 48, 6)]
+        rows += [(12, 9, 1.0, 0.0, 1.0, 0.0, 0.0, 0.0)]  # one sample only
+        (root / path).parent.mkdir(parents=True, exist_ok=True)
+        np.savetxt(root / path, rows)
+    assert module.main([str(root), str(tmp_path / "out")]) == 0
+    printed = capsys.readouterr().out
+    assert printed.count("dropped the single-sample person(s) [9]") == len(module.SCENES)
+    for name, (_, fps) in module.SCENES.items():
+        rec = read_recording(tmp_path / "out" / f"{name}.txt", fps)
+        assert rec.max_present() == 2
+        np.testing.assert_allclose(rec.positions[0][1] - rec.positions[0][0], [0.5, 0.0])  # x and y, not z
+        assert f"--scene {name}=" in printed and f"frame_rate={fps:g},tracked=nearest" in printed
