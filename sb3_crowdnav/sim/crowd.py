@@ -29,6 +29,7 @@ from sb3_crowdnav.sim.orca import OrcaCrowd
 from sb3_crowdnav.sim.population import People
 from sb3_crowdnav.sim.replay import ReplayCrowdModel
 from sb3_crowdnav.sim.scenarios import Scenario
+from sb3_crowdnav.sim.social_force_kernels import first_inside, heading_points, in_square
 
 
 class RobotAgent(NamedTuple):
@@ -262,7 +263,7 @@ class SocialForceCrowdModel:
     def _inside(self, points: np.ndarray) -> np.ndarray:
         """(n,) bool: ``points`` (n, 2) in the walkable area (the open floor's open square by its bounds: cheaper)."""
         if self._half is not None:
-            return np.abs(points).max(axis=1) < self._half
+            return in_square(points, self._half)
         import shapely
 
         return shapely.contains_xy(self._area, points[:, 0], points[:, 1])
@@ -329,18 +330,14 @@ class SocialForceCrowdModel:
         robot = None if self._robot is None else self._native.agent(self._robot)
         self._robot_handle = None if robot is None else (robot, robot.model)
 
-    def _targets(self, preferred: np.ndarray, speeds: np.ndarray) -> np.ndarray:
-        """Each person's target, (n, 2): :data:`TARGET_AHEAD` along its preferred velocity, or as far as one step
-        of it, or where it stands, whichever first is inside the walkable area."""
-        ahead = preferred / np.maximum(speeds, 1e-12)[:, None] * TARGET_AHEAD
-        targets = self.positions + ahead
-        outside = ~self._inside(targets)
-        if outside.any():
-            near = self.positions + preferred * self.scene.time_step
-            targets[outside] = near[outside]
-            outside &= ~self._inside(near)
-            targets[outside] = self.positions[outside]
-        return targets
+    def _targets(self, preferred: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Each person's speed (n,) [m/s] and target, (n, 2): :data:`TARGET_AHEAD` along its preferred velocity, or
+        as far as one step of it, or where it stands, whichever first is inside the walkable area."""
+        speeds, targets, near = heading_points(self.positions, preferred, self.scene.time_step, TARGET_AHEAD)
+        inside = self._inside(np.concatenate((targets, near)))
+        if not inside.all():
+            first_inside(targets, near, self.positions, inside)
+        return speeds, targets
 
     def _iterate(self, count: int) -> None:
         """``count`` JuPedSim iterations; a person outside the walkable area (where JuPedSim cannot route it) leaves
@@ -373,10 +370,8 @@ class SocialForceCrowdModel:
         return True
 
     def step(self, preferred: list[tuple[float, float]], robot: RobotAgent) -> tuple[np.ndarray, np.ndarray]:
-        pref = np.array(preferred, dtype=np.float64).reshape(-1, 2)
-        speeds = np.hypot(pref[:, 0], pref[:, 1])
-        for handle, target, speed in zip(self._agents, self._targets(pref, speeds).tolist(), speeds.tolist(),
-                                         strict=True):
+        speeds, targets = self._targets(np.array(preferred, dtype=np.float64).reshape(-1, 2))
+        for handle, target, speed in zip(self._agents, targets.tolist(), speeds.tolist(), strict=True):
             if handle is not None:
                 handle[0].target = target
                 handle[1].desired_speed = speed
