@@ -252,6 +252,26 @@ class SocialForceCrowdModel:
         self.positions = np.zeros((0, 2))
         self.frozen = np.zeros(0, dtype=bool)  # people who left the walkable area
 
+    def stops_short(self, clearance: float, speed: float, slowing: bool = True) -> float:
+        """How far short [m] of a point ``clearance`` [m] off a wall (between the person's body and the wall) a person
+        heading for it comes to rest, facing the wall: where the wall's push, ``wall_strength · exp(-(clearance +
+        d) / force_range)``, balances its driving force, ``mass · v / relaxation_time``, its preferred speed v
+        ``speed`` [m/s], or with ``slowing`` the distance d left per second, at most ``speed``; 0 without a wall
+        force. The warehouse's pickers reach a waypoint or a pick slot within this much more of it
+        (:mod:`sb3_crowdnav.sim.warehouse.pickers`)."""
+        s = self.settings
+
+        def push_wins(d: float) -> bool:
+            v = min(d, speed) if slowing else speed
+            return s.wall_strength * math.exp(-(clearance + d) / s.force_range) > PERSON_MASS * v / s.relaxation_time
+
+        low, high = 0.0, 1.0
+        while push_wins(high):  # (the push decays exponentially: a bracket is soon found)
+            low, high = high, 2 * high
+        for _ in range(60):  # bisection of the one crossing (the push falls, the driving force grows with d)
+            low, high = (low, (low + high) / 2) if not push_wins((low + high) / 2) else ((low + high) / 2, high)
+        return high if push_wins(0.0) else 0.0
+
     def _open_floor(self) -> Any:
         import shapely
 
