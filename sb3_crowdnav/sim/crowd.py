@@ -29,7 +29,7 @@ from sb3_crowdnav.sim.orca import OrcaCrowd
 from sb3_crowdnav.sim.population import People
 from sb3_crowdnav.sim.replay import ReplayCrowdModel
 from sb3_crowdnav.sim.scenarios import Scenario
-from sb3_crowdnav.sim.social_force_kernels import first_inside, heading_points, in_square
+from sb3_crowdnav.sim.social_force_kernels import first_inside, heading_points, in_square, native_simulation, wall_standoff
 
 
 class RobotAgent(NamedTuple):
@@ -178,13 +178,6 @@ STABILITY_BOUND = 1.5
 BODY_FORCE = 120000.0  # [kg/s²] JuPedSim's SocialForceModel default, Helbing et al. (2000)'s k
 
 
-def native_simulation(simulation: Any) -> Any:
-    """The compiled simulation inside a ``jupedsim.Simulation`` (JuPedSim 1.4.2's ``_obj``). The model calls it, its
-    agents and their model states directly: JuPedSim's Python layer wraps every call (a new wrapper object per
-    agent or model state asked for, per-call checks), which cost more than the calls themselves at dozens a step."""
-    return simulation._obj
-
-
 def import_jupedsim() -> Any:
     """JuPedSim, or an ``ImportError`` saying how to install it (without the Qt/VTK of its viewer)."""
     try:
@@ -260,17 +253,7 @@ class SocialForceCrowdModel:
         force. The warehouse's pickers reach a waypoint or a pick slot within this much more of it
         (:mod:`sb3_crowdnav.sim.warehouse.pickers`)."""
         s = self.settings
-
-        def push_wins(d: float) -> bool:
-            v = min(d, speed) if slowing else speed
-            return s.wall_strength * math.exp(-(clearance + d) / s.force_range) > PERSON_MASS * v / s.relaxation_time
-
-        low, high = 0.0, 1.0
-        while push_wins(high):  # (the push decays exponentially: a bracket is soon found)
-            low, high = high, 2 * high
-        for _ in range(60):  # bisection of the one crossing (the push falls, the driving force grows with d)
-            low, high = (low, (low + high) / 2) if not push_wins((low + high) / 2) else ((low + high) / 2, high)
-        return high if push_wins(0.0) else 0.0
+        return wall_standoff(s.wall_strength, s.force_range, s.relaxation_time, PERSON_MASS, clearance, speed, slowing)
 
     def _open_floor(self) -> Any:
         import shapely

@@ -1,9 +1,13 @@
-"""Compiled loops (``numba``) of the social force crowd (:class:`~sb3_crowdnav.sim.crowd.SocialForceCrowdModel`): each
-step's targets and the open floor's inside test, a loop over a few dozen values where the per-call overhead of the
-dozen small NumPy calls they replace cost more than JuPedSim's own iterations. Same arithmetic, in the same order, as
-those NumPy calls: the episodes are the same bit for bit."""
+"""Compiled loops (``numba``) and helpers of the social force crowd
+(:class:`~sb3_crowdnav.sim.crowd.SocialForceCrowdModel`): JuPedSim's compiled simulation, the walls' standoff, and
+each step's targets and the open floor's inside test, loops over a few dozen values where the per-call overhead of
+the dozen small NumPy calls they replace cost more than JuPedSim's own iterations. Same arithmetic, in the same order,
+as those NumPy calls: the episodes are the same bit for bit."""
 
 from __future__ import annotations
+
+import math
+from typing import Any
 
 import numpy as np
 from numba import njit
@@ -49,3 +53,32 @@ def in_square(points, half):  # pragma: no cover  (compiled)
     for i in range(points.shape[0]):
         out[i] = abs(points[i, 0]) < half and abs(points[i, 1]) < half
     return out
+
+
+def native_simulation(simulation: Any) -> Any:
+    """The compiled simulation inside a ``jupedsim.Simulation`` (JuPedSim 1.4.2's ``_obj``). The model calls it, its
+    agents and their model states directly: JuPedSim's Python layer wraps every call (a new wrapper object per
+    agent or model state asked for, per-call checks), which cost more than the calls themselves at dozens a step."""
+    return simulation._obj
+
+
+def wall_standoff(strength: float, force_range: float, relaxation_time: float, mass: float, clearance: float,
+                  speed: float, slowing: bool) -> float:
+    """:meth:`~sb3_crowdnav.sim.crowd.SocialForceCrowdModel.stops_short`: the d [m] where a wall's push
+    ``strength · exp(-(clearance + d) / force_range)`` [N] balances the driving force ``mass · v / relaxation_time``,
+    v ``speed`` or, ``slowing``, min(d, ``speed``) [m/s]; 0 without a push (bisection: the push falls, the drive
+    does not)."""
+
+    def push_wins(d: float) -> bool:
+        v = min(d, speed) if slowing else speed
+        return strength * math.exp(-(clearance + d) / force_range) > mass * v / relaxation_time
+
+    if not push_wins(0.0):
+        return 0.0
+    low, high = 0.0, 1.0
+    while push_wins(high):  # (the push decays exponentially: a bracket is soon found)
+        low, high = high, 2 * high
+    for _ in range(60):
+        mid = (low + high) / 2
+        low, high = (mid, high) if push_wins(mid) else (low, mid)
+    return high
