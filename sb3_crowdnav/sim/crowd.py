@@ -29,6 +29,7 @@ from sb3_crowdnav.sim.orca import OrcaCrowd
 from sb3_crowdnav.sim.population import People
 from sb3_crowdnav.sim.replay import ReplayCrowdModel
 from sb3_crowdnav.sim.scenarios import Scenario
+from sb3_crowdnav.sim.social_force_kernels import first_inside, heading_points, in_square, native_simulation, wall_standoff
 
 
 class RobotAgent(NamedTuple):
@@ -229,32 +230,43 @@ class SocialForceCrowdModel:
         self.jps = import_jupedsim()
         self.sub_steps = need if self.settings.sub_steps is None else self.settings.sub_steps
         self.h = scene.time_step / self.sub_steps  # [s]
-        self._box: tuple[float, float, float, float] | None = None  # the open floor's area, tested by its bounds
+        self._half: float | None = None  # the open floor's area, the square [-half, half]², tested by its bounds
         self._sim: Any = None
+        self._native: Any = None  # the simulation's compiled object (see _fetch)
         self._walls: Walls | None = None
         self._area: Any = None
         self._route = (0, 0)  # the journey and its one direct-steering stage
         self._ids: list[int] = []
         self._agents: list[Any] = []  # their JuPedSim handles, fetched again when the agents change
+        self._any_frozen = False  # self.frozen.any()
         self._robot_handle: Any = None
         self._robot: int | None = None  # the robot's agent id while it is in the model
         self._changed = False  # an agent was marked for removal: handles fetched again after the next iteration
         self.positions = np.zeros((0, 2))
         self.frozen = np.zeros(0, dtype=bool)  # people who left the walkable area
 
+    def stops_short(self, clearance: float, speed: float, slowing: bool = True) -> float:
+        """How far short [m] of a point ``clearance`` [m] off a wall (between the person's body and the wall) a person
+        heading for it comes to rest, facing the wall: where the wall's push, ``wall_strength · exp(-(clearance +
+        d) / force_range)``, balances its driving force, ``mass · v / relaxation_time``, its preferred speed v
+        ``speed`` [m/s], or with ``slowing`` the distance d left per second, at most ``speed``; 0 without a wall
+        force. The warehouse's pickers reach a waypoint or a pick slot within this much more of it
+        (:mod:`sb3_crowdnav.sim.warehouse.pickers`)."""
+        s = self.settings
+        return wall_standoff(s.wall_strength, s.force_range, s.relaxation_time, PERSON_MASS, clearance, speed, slowing)
+
     def _open_floor(self) -> Any:
         import shapely
 
         s = self.scene
         half = max(s.circle_radius, s.square_width / 2) + s.start_noise + OPEN_FLOOR_MARGIN
-        self._box = (-half, -half, half, half)
+        self._half = half
         return shapely.box(-half, -half, half, half)
 
     def _inside(self, points: np.ndarray) -> np.ndarray:
-        """(n,) bool: ``points`` (n, 2) in the walkable area (the open floor's square by its bounds: cheaper)."""
-        if self._box is not None:
-            x0, y0, x1, y1 = self._box
-            return (points[:, 0] > x0) & (points[:, 0] < x1) & (points[:, 1] > y0) & (points[:, 1] < y1)
+        """(n,) bool: ``points`` (n, 2) in the walkable area (the open floor's open square by its bounds: cheaper)."""
+        if self._half is not None:
+            return in_square(points, self._half)
         import shapely
 
         return shapely.contains_xy(self._area, points[:, 0], points[:, 1])
@@ -265,34 +277,37 @@ class SocialForceCrowdModel:
         if self._sim is None or walls is not self._walls:
             import shapely
 
-            self._box = None
+            self._half = None
             self._area = walls.area if walls is not None else self._open_floor()
             shapely.prepare(self._area)
             self._sim = jps.Simulation(model=jps.SocialForceModel(), geometry=self._area, dt=self.h)
+            self._native = native_simulation(self._sim)
             stage = self._sim.add_direct_steering_stage()
             self._route = (self._sim.add_journey(jps.JourneyDescription([stage])), stage)
             self._walls = walls
-        elif self._sim.agent_count():
-            for agent in list(self._sim.agents()):
-                self._sim.mark_agent_for_removal(agent.id)
-            self._sim.iterate()  # removes them (and empties the neighbour grid, which add_agent checks)
+        elif self._native.agent_count():
+            for agent in list(self._native.agents()):
+                self._native.mark_agent_for_removal(agent.id)
+            self._native.iterate()  # removes them (and empties the neighbour grid, which add_agent checks)
         return self._sim
 
     def reset(self, rng: np.random.Generator, people: People, robot: RobotAgent, walls: Walls | None = None) -> None:
-        sim, s = self._simulation(walls), self.settings
-        journey, stage = self._route
-        self._ids = []
-        for (x, y), radius, speed in zip(people.starts.tolist(), people.radii.tolist(), people.v_prefs.tolist(),
-                                         strict=True):
-            self._ids.append(sim.add_agent(self.jps.SocialForceModelAgentParameters(
-                position=(x, y), orientation=(1.0, 0.0), journey_id=journey, stage_id=stage, desired_speed=speed,
-                mass=PERSON_MASS, reaction_time=s.relaxation_time, agent_scale=s.person_strength,
-                obstacle_scale=s.wall_strength, force_distance=s.force_range, radius=radius)))
+        self._simulation(walls)
+        s, (journey, stage) = self.settings, self._route
+        person = functools.partial(
+            self.jps.native.SocialForceModelAgentParameters, orientation=(1.0, 0.0), journey_id=journey,
+            stage_id=stage, velocity=(0.0, 0.0), mass=PERSON_MASS, reaction_time=s.relaxation_time,
+            agent_scale=s.person_strength, obstacle_scale=s.wall_strength, force_distance=s.force_range)
+        add = self._native.add_agent
+        self._ids = [add(person(position=(x, y), desired_speed=speed, radius=radius))
+                     for (x, y), radius, speed in zip(people.starts.tolist(), people.radii.tolist(),
+                                                      people.v_prefs.tolist(), strict=True)]
         self._robot = None
         if self.scene.robot_visible:
             self._add_robot(robot.position, robot.radius)
         self.positions = np.array(people.starts, dtype=np.float64).reshape(-1, 2)
         self.frozen = np.zeros(people.n, dtype=bool)
+        self._any_frozen = False
         self._fetch()
 
     def _add_robot(self, position: tuple[float, float], radius: float) -> None:
@@ -301,10 +316,10 @@ class SocialForceCrowdModel:
             return
         journey, stage = self._route
         try:
-            self._robot = self._sim.add_agent(self.jps.SocialForceModelAgentParameters(
-                position=tuple(position), orientation=(1.0, 0.0), journey_id=journey, stage_id=stage, desired_speed=0.0,
-                mass=ROBOT_MASS, reaction_time=ROBOT_RELAXATION, agent_scale=0.0, obstacle_scale=0.0,
-                force_distance=self.settings.force_range, radius=radius))
+            self._robot = self._native.add_agent(self.jps.native.SocialForceModelAgentParameters(
+                position=tuple(position), orientation=(1.0, 0.0), journey_id=journey, stage_id=stage,
+                velocity=(0.0, 0.0), mass=ROBOT_MASS, desired_speed=0.0, reaction_time=ROBOT_RELAXATION,
+                agent_scale=0.0, obstacle_scale=0.0, force_distance=self.settings.force_range, radius=radius))
         except RuntimeError:  # JuPedSim refuses it within half its radius of a wall (the robot collided): next step
             self._robot = None
 
@@ -312,72 +327,77 @@ class SocialForceCrowdModel:
         """The JuPedSim handles (agent, model state) of the people (None for one out of the model) and of the robot's
         agent: pointers into JuPedSim's agents, fetched again whenever an agent is added or removed (kept between:
         finding an agent and its model state costs more than setting them)."""
-        sim = self._sim
-        self._agents = [None if frozen else (sim.agent(i), sim.agent(i).model)
-                        for i, frozen in zip(self._ids, self.frozen.tolist(), strict=True)]
-        self._robot_handle = None if self._robot is None else (sim.agent(self._robot), sim.agent(self._robot).model)
+        agents = [None if frozen else self._native.agent(i) for i, frozen in zip(self._ids, self.frozen.tolist(),
+                                                                                strict=True)]
+        self._agents = [None if agent is None else (agent, agent.model) for agent in agents]
+        robot = None if self._robot is None else self._native.agent(self._robot)
+        self._robot_handle = None if robot is None else (robot, robot.model)
 
-    def _targets(self, preferred: np.ndarray, speeds: np.ndarray) -> np.ndarray:
-        """Each person's target, (n, 2): :data:`TARGET_AHEAD` along its preferred velocity, or as far as one step
-        of it, or where it stands, whichever first is inside the walkable area."""
-        ahead = preferred / np.maximum(speeds, 1e-12)[:, None] * TARGET_AHEAD
-        targets = self.positions + ahead
-        outside = ~self._inside(targets)
-        if outside.any():
-            near = self.positions + preferred * self.scene.time_step
-            targets[outside] = near[outside]
-            outside &= ~self._inside(near)
-            targets[outside] = self.positions[outside]
-        return targets
+    def _targets(self, preferred: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Each person's speed (n,) [m/s] and target, (n, 2): :data:`TARGET_AHEAD` along its preferred velocity, or
+        as far as one step of it, or where it stands, whichever first is inside the walkable area."""
+        speeds, targets, near = heading_points(self.positions, preferred, self.scene.time_step, TARGET_AHEAD)
+        inside = self._inside(np.concatenate((targets, near)))
+        if not inside.all():
+            first_inside(targets, near, self.positions, inside)
+        return speeds, targets
 
-    def _iterate(self) -> None:
-        """One JuPedSim iteration; a person outside the walkable area (where JuPedSim cannot route it) leaves first."""
-        try:
-            self._sim.iterate()
-        except RuntimeError:
-            if not self._leave_area(self._rows()[:, :2]):
-                raise
-            self._sim.iterate()
-        if self._changed:
-            self._fetch()
-            self._changed = False
+    def _iterate(self, count: int) -> None:
+        """``count`` JuPedSim iterations; a person outside the walkable area (where JuPedSim cannot route it) leaves
+        first. (``Simulation.iterate(count)`` is this loop in Python over the compiled iteration, with its per-call
+        work; this one calls the compiled iteration directly and looks at the agents only when one left.)"""
+        iterate = self._native.iterate
+        for _ in range(count):
+            try:
+                iterate()
+            except RuntimeError:
+                if not self._leave_area(self._rows()[:, :2]):
+                    raise
+                iterate()
+            if self._changed:
+                self._fetch()
+                self._changed = False
 
     def _leave_area(self, positions: np.ndarray) -> bool:
         """Take the people at ``positions`` (n, 2) outside the walkable area out of the model; any?"""
-        out = ~self._inside(positions) & ~self.frozen
+        out = ~self._inside(positions)
+        if not out.any():
+            return False
+        out &= ~self.frozen
         if not out.any():
             return False
         for i in np.flatnonzero(out).tolist():
-            self._sim.mark_agent_for_removal(self._ids[i])
+            self._native.mark_agent_for_removal(self._ids[i])
         self.frozen |= out
-        self._changed = True
+        self._any_frozen = self._changed = True
         return True
 
     def step(self, preferred: list[tuple[float, float]], robot: RobotAgent) -> tuple[np.ndarray, np.ndarray]:
-        pref = np.array(preferred, dtype=np.float64).reshape(-1, 2)
-        speeds = np.hypot(pref[:, 0], pref[:, 1])
-        for handle, target, speed in zip(self._agents, self._targets(pref, speeds).tolist(), speeds.tolist(),
-                                         strict=True):
+        speeds, targets = self._targets(np.array(preferred, dtype=np.float64).reshape(-1, 2))
+        for handle, target, speed in zip(self._agents, targets.tolist(), speeds.tolist(), strict=True):
             if handle is not None:
-                agent, model = handle
-                agent.target = (target[0], target[1])
-                model.desired_speed = speed
+                handle[0].target = target
+                handle[1].desired_speed = speed
         path = self._robot_path(robot)
-        k, h = self.sub_steps, self.h
-        for j in range(k):
-            if path is not None and self._robot_handle is not None:
-                (x0, y0), (x1, y1) = path
-                agent, model = self._robot_handle
-                ax, ay = agent.position
-                f = (j + 1) / k
-                model.velocity = ((x0 + f * (x1 - x0) - ax) / h, (y0 + f * (y1 - y0) - ay) / h)
-            self._iterate()
+        if path is None:  # nothing changes between the sub-steps
+            self._iterate(self.sub_steps)
+        else:
+            k, h = self.sub_steps, self.h
+            (x0, y0), (x1, y1) = path
+            for j in range(k):
+                if self._robot_handle is not None:
+                    agent, model = self._robot_handle
+                    ax, ay = agent.position
+                    f = (j + 1) / k
+                    model.velocity = ((x0 + f * (x1 - x0) - ax) / h, (y0 + f * (y1 - y0) - ay) / h)
+                self._iterate(1)
         state = self._rows()
         # pushed out in the last sub-step: marked now, removed as the next step's first iteration starts
         self._leave_area(state[:, :2])
-        frozen = self.frozen
-        state[frozen, :2] = self.positions[frozen]  # where they were at the start of the step they left in
-        state[frozen, 2:] = 0.0
+        if self._any_frozen:
+            frozen = self.frozen
+            state[frozen, :2] = self.positions[frozen]  # where they were at the start of the step they left in
+            state[frozen, 2:] = 0.0
         self.positions = state[:, :2].copy()
         return state[:, :2], state[:, 2:]
 
@@ -397,7 +417,7 @@ class SocialForceCrowdModel:
             end = (start[0] + robot.velocity[0] * dt, start[1] + robot.velocity[1] * dt)
         inside = bool(self._inside(np.array([start, end])).all())
         if not inside and self._robot is not None:
-            self._sim.mark_agent_for_removal(self._robot)
+            self._native.mark_agent_for_removal(self._robot)
             self._robot = None
             self._robot_handle = None
             self._changed = True

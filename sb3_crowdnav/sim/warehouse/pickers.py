@@ -32,6 +32,7 @@ from sb3_crowdnav.sim.warehouse.layout import WarehouseLayout
 from sb3_crowdnav.sim.warehouse.roadmap import Roadmap
 
 SLOT_OFFSET = 0.1  # [m] a standing picker keeps this much between its body and the rack face
+PICKER_CLEARANCE = 0.02  # [m] the pickers' roadmap's clearance beyond their radius (their routes' waypoints near racks)
 ARRIVAL = 0.25  # [m] a waypoint of a picker's route counts as reached this close
 
 
@@ -113,6 +114,13 @@ class PickerCrowd:
         # a model that can put a person at a position (ORCA) gets the overlap guard of step; social force's walls
         # push the pickers off the racks and it has its own rule for one pushed out of the walkable area
         self._place = getattr(self.crowd, "move_person", None)
+        # a model whose walls push (social force) holds a picker heading for a waypoint near a rack (PICKER_CLEARANCE
+        # off it) or slowing into its slot short of it, where the push balances its driving force (``stops_short``):
+        # it reaches one within ARRIVAL of where it comes to rest. Without a push (ORCA), within ARRIVAL of it
+        stops_short = getattr(self.crowd, "stops_short", None)
+        v = scene.human_v_pref
+        self.waypoint_arrival = ARRIVAL + (stops_short(PICKER_CLEARANCE, v, slowing=False) if stops_short else 0.0)
+        self.slot_arrival = ARRIVAL + (stops_short(SLOT_OFFSET, v) if stops_short is not None else 0.0)
         here = self.slots[starts]
         people = People(here, here, np.full(n, scene.human_radius), np.full(n, scene.human_v_pref),
                         np.full(n, robot is not None), np.full(n, np.inf), np.full(n, np.inf))
@@ -158,7 +166,7 @@ class PickerCrowd:
         """Towards the current waypoint at v_pref (slowing into the last one); zero while standing
         (:func:`~sb3_crowdnav.sim.warehouse.kernels.picker_preferences`; passes the waypoints within reach)."""
         kernels.picker_preferences(positions, self.dwell, self.waypoint, self._route_array, self._route_lengths,
-                                   self.scene.human_v_pref, ARRIVAL, self._preferences)
+                                   self.scene.human_v_pref, self.waypoint_arrival, self._preferences)
         return self._preferences.tolist()
 
     def step(self, positions: np.ndarray, robot: RobotAgent) -> tuple[np.ndarray, np.ndarray]:
@@ -170,7 +178,7 @@ class PickerCrowd:
         state = np.concatenate(self.crowd.step(self.preferred_velocities(positions), robot), axis=1)
         # the overlap guard, then the dwells count down; a picker whose dwell is over gets its next job, one at the
         # last waypoint of its route stands for a dwell drawn now (in the pickers' order: the same draws)
-        progress = (self.dwell, self.waypoint, self._route_array, self._route_lengths, dt, ARRIVAL)
+        progress = (self.dwell, self.waypoint, self._route_array, self._route_lengths, dt, self.slot_arrival)
         if self._grown is not None:  # (one kernel for both when no picker is pressed)
             (w, h), radius = self._hall, self.scene.human_radius - 1e-6
             after = kernels.picker_after_step(state, self._room, self._grown, self._layout.boxes, w, h, radius, *progress)

@@ -17,10 +17,9 @@ from sb3_crowdnav.sim.simulator import CrowdSimulator
 from sb3_crowdnav.sim.warehouse import kernels
 from sb3_crowdnav.sim.warehouse.config import WarehouseConfig, check_feasible, check_pickers
 from sb3_crowdnav.sim.warehouse.layout import Roadmap, WarehouseLayout, generate_layout
-from sb3_crowdnav.sim.warehouse.pickers import PickerCrowd, PickSlots, pick_slots
+from sb3_crowdnav.sim.warehouse.pickers import PICKER_CLEARANCE, PickerCrowd, PickSlots, pick_slots
 
 ROUTE_CLEARANCE = 0.1  # [m] the robot's route keeps this much beyond its radius from racks and walls
-PICKER_CLEARANCE = 0.02  # [m] likewise for the pickers' routes
 START_GAP = 1.0  # [m] no picker starts, or picks, this close (surface to surface) to the robot's start or goal
 MAX_TRIES = 100
 STATION_BATCH = 16  # points drawn at once for the robot's start and goal
