@@ -417,7 +417,7 @@ def test_the_preparation_script_writes_each_scene_in_the_replay_format(tmp_path,
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     root = tmp_path / "OpenTraj"
-    for name, (path, _) in module.SCENES.items():
+    for path, _ in module.SCENES.values():
         rows = [(f, 1, 0.5 * f / 6, 0.0, 2.0, 1.0, 0.0, 0.0) for f in range(0, 60, 6)]  # 1.25 m/s at 15 fps ETH-like
         rows += [(f, 2, 3.0, 0.0, -0.1 * f / 6, 0.0, 0.0, -0.5) for f in range(6, 48, 6)]
         rows += [(12, 9, 1.0, 0.0, 1.0, 0.0, 0.0, 0.0)]  # one sample only
