@@ -199,6 +199,14 @@ def test_without_jupedsim_the_error_says_how_to_install_it(monkeypatch):
         gym.make("CrowdNav-v0", crowd="social_force")
 
 
+def test_another_jupedsim_version_is_refused_naming_the_one_needed(monkeypatch):
+    import jupedsim
+
+    monkeypatch.setattr(jupedsim, "__version__", "1.5.0")
+    with pytest.raises(ImportError, match=r"needs JuPedSim 1\.4\.2.*found 1\.5\.0"):
+        gym.make("CrowdNav-v0", crowd="social_force")
+
+
 def _jobs_per_picker_minute(crowd: str, steps: int) -> float:
     """Arrivals at a pick slot per picker per minute (the robot driving random actions, invisible to the pickers)."""
     env = gym.make("CrowdNavWarehouse-v0", crowd=crowd).unwrapped

@@ -162,7 +162,8 @@ class LinearCrowdModel:
         return np.array(self.positions).reshape(n, 2), np.array(preferred, dtype=np.float64).reshape(n, 2)
 
 
-JUPEDSIM_INSTALL = 'pip install --no-deps "jupedsim==1.4.2" deprecated wrapt'
+JUPEDSIM_VERSION = "1.4.2"  # the model calls its compiled layer (social_force_kernels.native_simulation): pinned
+JUPEDSIM_INSTALL = f'pip install --no-deps "jupedsim=={JUPEDSIM_VERSION}" deprecated wrapt'
 PERSON_MASS = 80.0  # [kg] JuPedSim's default, Helbing et al. (2000)'s
 # the robot's agent follows the robot's path (its velocity set each sub-step): so heavy and slow to react that neither
 # the people's forces nor a driving force move it off that path
@@ -185,6 +186,9 @@ def import_jupedsim() -> Any:
     except ImportError as error:
         raise ImportError(f"crowd='social_force' needs JuPedSim, installed without the Qt/VTK of its trajectory viewer: "
                           f"{JUPEDSIM_INSTALL} (see docs/installation.md)") from error
+    if jupedsim.__version__ != JUPEDSIM_VERSION:
+        raise ImportError(f"crowd='social_force' needs JuPedSim {JUPEDSIM_VERSION} (it calls its compiled layer), "
+                          f"found {jupedsim.__version__}: {JUPEDSIM_INSTALL}")
     return jupedsim
 
 
