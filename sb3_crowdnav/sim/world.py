@@ -34,6 +34,9 @@ PREDICTION_FIELDS = (*MOTION_FIELDS, "waypoint_radius")
 MAX_TIME_STEP = 2.0  # [s] SceneConfig's bound
 # the policy-kwargs entries in which files saved before this contract stored the world (read by from_legacy only)
 LEGACY_KEYS = ("time_step", "kinematics", "rotation_range", "reward", "obstacles")
+# the fields an env takes as keyword arguments of the same name (what a user passes to run a model in its world)
+ENV_KEYWORD_FIELDS = ("time_step", "kinematics", "rotation_range", "actions", "max_acceleration", "max_turn_rate",
+                      "obstacle_collision_penalty", "waypoint_radius", "progress_reward")
 # fields added to the plain form after models were shipped, with the value every file written before them meant
 ADDED_FIELDS = {"actions": "paper"}
 
@@ -244,6 +247,13 @@ def compare_worlds(trained: World, actual: World, fields: Iterable[str] | None =
     return f"the model was trained with {', '.join(diffs)}" if diffs else None
 
 
+def env_keywords(trained: World, actual: World, fields: Iterable[str]) -> dict[str, Any]:
+    """The env keyword arguments (of :data:`ENV_KEYWORD_FIELDS` among ``fields``) that give ``actual``'s env the
+    ``trained`` world's values where they differ: what to pass to run a model in the world it was trained in."""
+    return {name: getattr(trained, name) for name in fields
+            if name in ENV_KEYWORD_FIELDS and not _same(getattr(trained, name), getattr(actual, name))}
+
+
 def _same(a: Any, b: Any) -> bool:
     if isinstance(a, float) and isinstance(b, float):
         return abs(a - b) <= 1e-9 * max(1.0, abs(b))
@@ -251,4 +261,4 @@ def _same(a: Any, b: Any) -> bool:
 
 
 __all__ = ["ADDED_FIELDS", "LEGACY_KEYS", "MOTION_FIELDS", "PREDICTION_FIELDS", "World", "compare_worlds",
-           "upgrade_policy_kwargs"]
+           "env_keywords", "upgrade_policy_kwargs"]
