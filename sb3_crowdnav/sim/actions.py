@@ -11,7 +11,8 @@ range they are ``linspace(-range/2, range/2, 16)`` (end points included).
   the robot to its goal; the heading becomes the direction of motion.
 
 Action sets (:data:`ACTION_SETS`): ``"paper"``, the 80 actions above; ``"with_stop"``, the same 80 and
-:data:`STOP_ACTION` = 80, speed 0 and direction 0 (the robot stays where it is; its heading is kept).
+:data:`STOP_ACTION` = 80, speed 0 and direction 0 (the robot stops, at once without limits, and keeps its heading;
+stopped, it stays where it is).
 
 Limits (None: unlimited, the paper's robot). The command (speed ``v``, heading θ_c) of an action is clipped to
 what the robot can reach from its current velocity ``v0`` (the observation's vx, vy) within one step Δt:
