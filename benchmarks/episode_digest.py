@@ -8,7 +8,9 @@ robot (``mapping="constrained"``, 15); the layout file ``examples/warehouse_layo
 ``comfort_angular`` reward and the route shaping (``progress_reward=0.1``), random (20) and ORCA (5); the open floor
 with ``comfort_angular``, random (10) and ORCA (3). Every reset's observation and info and every step's observation
 (all keys: dtype, shape, bytes), reward, terminated/truncated flags and info (outcome, reward terms, episode
-statistics; floats by ``repr``, exact) go into the group's hash. Prints one digest per group and the total;
+statistics; floats by ``repr``, exact) go into the group's hash. The warehouse groups run the paper's robot
+(``actions="paper", max_acceleration=None, max_turn_rate=None``, the warehouse's defaults before the kinematic
+limits), so their digests are those recorded before. Prints one digest per group and the total;
 ``--save`` writes them as JSON, ``--check`` compares with such a file and exits 1 on any mismatch; ``--scale``
 multiplies every group's episodes (a stricter check; its digests differ from the default's).
 """
@@ -31,15 +33,16 @@ from sb3_crowdnav import OrcaPolicy
 
 LAYOUT_FILE = Path(__file__).resolve().parent.parent / "examples" / "warehouse_layout.yaml"
 RANDOM, ORCA = "random", "orca"
+PAPER_ROBOT = {"actions": "paper", "max_acceleration": None, "max_turn_rate": None}  # the warehouse's robot before #31
 
 # (name, env id, env kwargs, robot, episodes, seed)
 GROUPS: list[tuple[str, str, dict[str, Any], str, int, int]] = [
-    ("warehouse random x 8", "CrowdNavWarehouse-v0", {}, RANDOM, 60, 0),
-    ("warehouse ORCA", "CrowdNavWarehouse-v0", {}, ORCA, 15, 1),
+    ("warehouse random x 8", "CrowdNavWarehouse-v0", PAPER_ROBOT, RANDOM, 60, 0),
+    ("warehouse ORCA", "CrowdNavWarehouse-v0", PAPER_ROBOT, ORCA, 15, 1),
     ("layout file random x 8", "CrowdNavWarehouse-v0",
-     {"layout": str(LAYOUT_FILE), "reward": "comfort_angular", "progress_reward": 0.1}, RANDOM, 20, 2),
+     {"layout": str(LAYOUT_FILE), "reward": "comfort_angular", "progress_reward": 0.1, **PAPER_ROBOT}, RANDOM, 20, 2),
     ("layout file ORCA", "CrowdNavWarehouse-v0",
-     {"layout": str(LAYOUT_FILE), "reward": "comfort_angular", "progress_reward": 0.1}, ORCA, 5, 3),
+     {"layout": str(LAYOUT_FILE), "reward": "comfort_angular", "progress_reward": 0.1, **PAPER_ROBOT}, ORCA, 5, 3),
     ("open floor random x 8", "CrowdNav-v0", {"reward": "comfort_angular"}, RANDOM, 10, 4),
     ("open floor ORCA", "CrowdNav-v0", {"reward": "comfort_angular"}, ORCA, 3, 5),
 ]
@@ -78,7 +81,7 @@ def digest_group(env_id: str, kwargs: dict[str, Any], robot: str, episodes: int,
             if policy is not None:
                 action = int(policy.predict(obs)[0])
             elif t % 8 == 0:
-                action = int(rng.integers(80))
+                action = int(rng.integers(env.action_space.n))
             obs, reward, terminated, truncated, info = env.step(action)
             _feed(h, obs)
             h.update(f"{reward!r}|{terminated}|{truncated}|{_plain(info)}".encode())

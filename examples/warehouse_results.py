@@ -32,6 +32,8 @@ ENV = "CrowdNavWarehouse-v0"
 LAYOUT_FILE = Path(__file__).with_name("warehouse_layout.yaml")
 POLICIES = ("pretrained:apg_warehouse", "pretrained:ppo_warehouse", "orca", "orca-constrained")
 SWEEP = (2, 4, 6, 8, 10)
+# the robot the shipped warehouse models were trained with (the paper's: 80 actions, no limits), not today's default
+PAPER_ROBOT = "actions='paper', max_acceleration=None, max_turn_rate=None"
 
 
 def benchmark(out: Path, policies, episodes: int, workers: int, extra=()) -> None:
@@ -118,15 +120,17 @@ def main(argv: list[str] | None = None) -> None:
                  ("ppo_warehouse", args.runs / "ppo_warehouse", None), *timed]
 
     benchmark(args.out / "generated", POLICIES, args.episodes, args.workers,
-              ["--sweep", *map(str, args.sweep), *([] if args.gif else ["--no-gif"])])
+              ["--env-kwargs", f"dict({PAPER_ROBOT})", "--sweep", *map(str, args.sweep),
+               *([] if args.gif else ["--no-gif"])])
     benchmark(args.out / "layout_file", POLICIES, args.episodes, args.workers,
-              ["--env-kwargs", f"dict(layout={str(LAYOUT_FILE)!r})", "--no-gif"])
+              ["--env-kwargs", f"dict(layout={str(LAYOUT_FILE)!r}, {PAPER_ROBOT})", "--no-gif"])
     sections = [("Generated layouts, 6 pickers", args.out / "generated" / "results.csv", "method"),
                 (f"apg_warehouse with {', '.join(map(str, args.sweep))} pickers", args.out / "generated" / "sweep.csv",
                  "humans"),
                 (f"The layout file {LAYOUT_FILE.name}, 6 pickers", args.out / "layout_file" / "results.csv", "method")]
     if args.unshaped:
-        benchmark(args.out / "unshaped", [args.unshaped], args.episodes, args.workers, ["--no-gif"])
+        benchmark(args.out / "unshaped", [args.unshaped], args.episodes, args.workers,
+                  ["--env-kwargs", f"dict({PAPER_ROBOT})", "--no-gif"])
     if (args.out / "unshaped" / "results.csv").is_file():
         sections.append(("Trained without the progress shaping", args.out / "unshaped" / "results.csv", "method"))
     text = [f"# CrowdNavWarehouse-v0, {args.episodes} test episodes per row (seeds 1,000,000 + i)\n"]

@@ -159,9 +159,11 @@ def world_mismatch(model_or_path: Any, env: Any) -> str | None:
     The comparison is :func:`~sb3_crowdnav.sim.world.compare_worlds`: every policy must share the motion fields (time
     step, kinematics, action table); a lookahead (APGValue) also the waypoint rule it predicts with. The rewards a
     model was trained for only matter to further training, which :class:`~sb3_crowdnav.apg_value.APGValue` checks.
+    The message ends with the env keyword arguments that give the model its world (``make the env with
+    actions='paper', max_acceleration=None, max_turn_rate=None`` for the shipped warehouse models in today's warehouse).
     """
     from sb3_crowdnav.serialization import read_world, world_of
-    from sb3_crowdnav.sim.world import MOTION_FIELDS, PREDICTION_FIELDS, World, compare_worlds
+    from sb3_crowdnav.sim.world import MOTION_FIELDS, PREDICTION_FIELDS, World, compare_worlds, env_keywords
 
     if isinstance(model_or_path, (str, Path)):
         path = resolve_model_path(model_or_path)
@@ -173,7 +175,12 @@ def world_mismatch(model_or_path: Any, env: Any) -> str | None:
     actual = world_of(env)
     if not isinstance(trained, World) or actual is None:
         return None
-    return compare_worlds(trained, actual, PREDICTION_FIELDS if lookahead else MOTION_FIELDS)
+    fields = PREDICTION_FIELDS if lookahead else MOTION_FIELDS
+    mismatch = compare_worlds(trained, actual, fields)
+    keywords = env_keywords(trained, actual, fields)
+    if mismatch and keywords:
+        mismatch += f"; to run it in its world, make the env with {', '.join(f'{k}={v!r}' for k, v in keywords.items())}"
+    return mismatch
 
 
 def available_pretrained() -> list[str]:

@@ -11,11 +11,13 @@ import numpy as np
 import pytest
 
 from sb3_crowdnav import ENV_IDS, WAREHOUSE_ENV_IDS
+from sb3_crowdnav.sim.actions import STOP_ACTION
 from sb3_crowdnav.sim.observation import Robot
+from sb3_crowdnav.sim.warehouse.config import ROBOT_DEFAULTS
 
 ALL_IDS = [*ENV_IDS, *WAREHOUSE_ENV_IDS]
 LAYOUT_FILE = Path(__file__).resolve().parent.parent / "examples" / "warehouse_layout.yaml"
-STEPS = {"CrowdNavWarehouse-v0": 200}  # steps of a trace (episodes end and restart within it); 300 on the open floor
+STEPS: dict[str, int] = {}  # steps of a trace per env id (episodes end and restart within it); 300 by default
 WAIT = 24  # steps every other episode of a trace begins with on the spot (see _act)
 
 # one value other than the default for every keyword (a tuple: the first one the registered id does not set)
@@ -27,7 +29,7 @@ NON_DEFAULT = {
     "circle_radius": 5.0, "start_noise": 0.2, "human_policy": "linear", "square_width": 8.0,
     "orca_neighbor_dist": 2.0, "orca_max_neighbors": 1, "orca_time_horizon": 1.0, "orca_time_horizon_obst": 0.5,
     "crowd": "linear", "crowd_kwargs": {"safety_space": 0.2}, "human_speed": "measured", "stop_probability": 0.5,
-    "stop_duration": (0.5, 1.0),
+    "stop_duration": (0.5, 1.0), "actions": ("with_stop", "paper"), "max_acceleration": 0.5, "max_turn_rate": 0.8,
     # RewardConfig and the env's own
     "reward": ("comfort", "crowdnav"), "gamma": 0.5, "render_mode": "rgb_array",
     "success_reward": 2.0, "collision_penalty": -1.0, "discomfort_dist": 0.5, "discomfort_factor": 2.0,
@@ -52,6 +54,10 @@ REFUSED = {
 }
 
 
+# defaults an env sets itself beyond its registered kwargs
+ENV_DEFAULTS = {"CrowdNavWarehouse-v0": ROBOT_DEFAULTS}
+
+
 def _options(env_id: str) -> list[str]:
     return sorted(_env_class(env_id).option_names())
 
@@ -64,18 +70,18 @@ def _env_class(env_id: str) -> type:
 def _value(env_id: str, keyword: str):
     value = NON_DEFAULT[keyword]  # a KeyError here: a new keyword needs its non-default value in the table
     if isinstance(value, tuple) and isinstance(value[0], str):
-        registered = gym.spec(env_id).kwargs.get(keyword)
+        registered = gym.spec(env_id).kwargs.get(keyword, ENV_DEFAULTS.get(env_id, {}).get(keyword))
         value = value[0] if value[0] != registered else value[1]
     return value
 
 
-def _act(obs: dict[str, np.ndarray], rng: np.random.Generator, wait: int) -> int:
-    """Under unicycle kinematics: for ``wait`` steps back and forth on the spot (the slowest speed, turning by π),
-    then at full speed towards the current waypoint (the goal on the open floor), a random action one step in five.
-    Waiting lets the crossing crowd pass (successes), not waiting runs into it (collisions)."""
+def _act(obs: dict[str, np.ndarray], rng: np.random.Generator, wait: int, n_actions: int) -> int:
+    """Under unicycle kinematics: for ``wait`` steps on the spot (the stop, else back and forth at the slowest speed,
+    turning by π), then at full speed towards the current waypoint (the goal on the open floor), a random action one
+    step in five. Waiting lets the crossing crowd pass (successes), not waiting runs into it (collisions)."""
     noise = int(rng.integers(80))
     if wait > 0:
-        return 8
+        return STOP_ACTION if n_actions > STOP_ACTION else 8
     if rng.random() < 0.2:
         return noise
     robot = obs["robot"].astype(np.float64)
@@ -101,7 +107,7 @@ def trace(env: gym.Env, steps: int) -> list[str]:
     out = [_plain(obs) + _plain(info)]
     episode, wait = 0, WAIT
     for _ in range(steps):
-        obs, reward, terminated, truncated, info = env.step(_act(obs, rng, wait))
+        obs, reward, terminated, truncated, info = env.step(_act(obs, rng, wait, env.action_space.n))
         wait -= 1
         out.append(_plain(obs) + repr((reward, terminated, truncated)) + _plain(info))
         if terminated or truncated:

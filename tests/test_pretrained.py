@@ -9,6 +9,7 @@ import pytest
 import sb3_crowdnav
 from sb3_crowdnav.evaluation.runner import make_policy, policy_label
 from sb3_crowdnav.models import PRETRAINED, pretrained_path
+from sb3_crowdnav.sim.warehouse.config import PAPER_ROBOT
 
 
 def test_unknown_or_missing_pretrained_name_raises():
@@ -21,7 +22,8 @@ def test_unknown_or_missing_pretrained_name_raises():
 
 
 def test_every_shipped_model_loads_and_drives():
-    envs = {env_id: gym.make(env_id) for env_id in ("CrowdNav-v0", "CrowdNavWarehouse-v0")}
+    # the shipped warehouse models act in the world they were trained in: the paper's robot (80 actions, no limits)
+    envs = {"CrowdNav-v0": gym.make("CrowdNav-v0"), "CrowdNavWarehouse-v0": gym.make("CrowdNavWarehouse-v0", **PAPER_ROBOT)}
     observations = {env_id: env.reset(seed=1_000_000)[0] for env_id, env in envs.items()}
     for name in sb3_crowdnav.available_pretrained():
         model = sb3_crowdnav.pretrained(name)
@@ -32,6 +34,13 @@ def test_every_shipped_model_loads_and_drives():
         assert 0 <= int(action) < 80
         assert policy_label(f"pretrained:{name}") == name.upper()
         assert make_policy(f"pretrained:{name}", env).predict(obs, deterministic=True)[0] == action
+
+
+def test_a_shipped_warehouse_model_in_the_default_warehouse_is_told_its_world():
+    """The default warehouse robot (a stop, limits) is not the one the shipped models learnt: refused, naming the
+    keywords that give them their world."""
+    with pytest.raises(ValueError, match="make the env with actions='paper', max_acceleration=None, max_turn_rate=None"):
+        make_policy("pretrained:apg_warehouse", gym.make("CrowdNavWarehouse-v0"))
 
 
 def test_orca_specs_pick_the_mapping():
@@ -64,11 +73,11 @@ def test_shipped_apg_warehouse_is_the_documented_cautious_value_ensemble_and_nav
     value_net = model.policy.value_net
     assert isinstance(value_net, ValueEnsemble) and len(value_net.members) == 2
     assert model.policy.pedestrian_model == "cautious"
-    obs, _ = gym.make("CrowdNavWarehouse-v0").reset(seed=1_000_000)
+    obs, _ = gym.make("CrowdNavWarehouse-v0", **PAPER_ROBOT).reset(seed=1_000_000)
     tensors = {k: th.as_tensor(v[None], dtype=th.float32) for k, v in obs.items()}
     with th.no_grad():
         values = [member(tensors) for member in value_net.members]
         assert not th.allclose(values[0], values[1])  # two different networks
         th.testing.assert_close(value_net(tensors), (values[0] + values[1]) / 2)
-    records = run_episodes("pretrained:apg_warehouse", 10, env_id="CrowdNavWarehouse-v0")
+    records = run_episodes("pretrained:apg_warehouse", 10, env_id="CrowdNavWarehouse-v0", env_kwargs=PAPER_ROBOT)
     assert sum(r.outcome == "success" for r in records) >= 8

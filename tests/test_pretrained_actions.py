@@ -16,18 +16,20 @@ import pytest
 
 import sb3_crowdnav
 from sb3_crowdnav.models import PRETRAINED
+from sb3_crowdnav.sim.warehouse.config import PAPER_ROBOT
 
 RECORD = Path(__file__).parent / "data" / "pretrained_actions.npz"
 ENVS = {"crowdnav": ("CrowdNav-v0", 300), "warehouse": ("CrowdNavWarehouse-v0", 200)}  # env id, observations
+ENV_KWARGS = {"warehouse": PAPER_ROBOT}  # the world the shipped warehouse models were trained in
 
 
 def env_key(name: str) -> str:
     return "warehouse" if name.endswith("_warehouse") else "crowdnav"
 
 
-def observations(env_id: str, n: int, seed: int = 29) -> dict[str, np.ndarray]:
-    """``n`` observations of ``env_id`` visited by uniformly random actions, batched per key."""
-    env = gym.make(env_id)
+def observations(env_id: str, n: int, seed: int = 29, **kwargs) -> dict[str, np.ndarray]:
+    """``n`` observations of ``env_id`` (made with ``kwargs``) visited by uniformly random actions, batched per key."""
+    env = gym.make(env_id, **kwargs)
     rng = np.random.default_rng(seed)
     obs, _ = env.reset(seed=seed)
     seen = []
@@ -43,7 +45,7 @@ def observations(env_id: str, n: int, seed: int = 29) -> dict[str, np.ndarray]:
 def record_actions() -> None:
     """Write the record from the installed package (run only for a change meant to alter the shipped models)."""
     arrays: dict[str, np.ndarray] = {}
-    batches = {key: observations(env_id, n) for key, (env_id, n) in ENVS.items()}
+    batches = {key: observations(env_id, n, **ENV_KWARGS.get(key, {})) for key, (env_id, n) in ENVS.items()}
     for key, batch in batches.items():
         arrays.update({f"{key}/{k}": v for k, v in batch.items()})
     for name in PRETRAINED:

@@ -96,7 +96,7 @@ def test_the_compiled_kinematics_is_the_numpy_form(kinematics):
     np.testing.assert_allclose(vel, velocity, rtol=1e-12, atol=1e-15)
     np.testing.assert_allclose(new_pos, pos + velocity * DT, rtol=1e-12, atol=1e-15)
     assert ((-math.pi < new_heading) & (new_heading <= math.pi)).all()
-    one = [move(*p, h, *g, s, d, kinematics == "holonomic", DT) for p, h, g, s, d in
+    one = [move(*p, h, 0.0, 0.0, *g, s, d, kinematics == "holonomic", DT, math.inf, math.inf) for p, h, g, s, d in
            zip(pos.tolist(), heading.tolist(), goal.tolist(), speed.tolist(), direction.tolist(), strict=True)]
     np.testing.assert_array_equal(np.array(one), np.concatenate([new_pos, new_heading[:, None], vel], axis=1))
 

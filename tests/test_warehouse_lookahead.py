@@ -10,6 +10,7 @@ import torch as th
 import sb3_crowdnav  # noqa: F401
 from sb3_crowdnav.apg_value.propagation import PropagationModel
 from sb3_crowdnav.sim.observation import OBSTACLE_KEYS, WAYPOINT_KEY
+from sb3_crowdnav.sim.warehouse.config import PAPER_ROBOT
 
 
 def _model(env) -> PropagationModel:
@@ -76,8 +77,9 @@ def test_route_progress_shaping_is_the_metres_gained_on_the_current_waypoint():
     """``progress_reward`` k: each step earns k x (distance to the current waypoint before - after), zero on terminal
     steps; with k = 0 (the default, the paper's reward) the term is absent."""
     k = 0.1
-    shaped = gym.make("CrowdNavWarehouse-v0", num_humans=0, progress_reward=k)
-    plain = gym.make("CrowdNavWarehouse-v0", num_humans=0)
+    # the paper's robot: unlimited random actions go both ways along the route from the first steps
+    shaped = gym.make("CrowdNavWarehouse-v0", num_humans=0, progress_reward=k, **PAPER_ROBOT)
+    plain = gym.make("CrowdNavWarehouse-v0", num_humans=0, **PAPER_ROBOT)
     rng = np.random.default_rng(3)
     for seed in range(3):
         obs, _ = shaped.reset(seed=seed)

@@ -15,9 +15,12 @@ import pytest
 import sb3_crowdnav
 from sb3_crowdnav.serialization import decode, read_world, write_spaces
 from sb3_crowdnav.sim.config import RewardConfig
+from sb3_crowdnav.sim.warehouse.config import PAPER_ROBOT, ROBOT_DEFAULTS
 from sb3_crowdnav.sim.world import MOTION_FIELDS, World, compare_worlds, upgrade_policy_kwargs
 
+# the shipped apg_warehouse's world (the paper's robot) and the default warehouse's (a warehouse AMR)
 WAREHOUSE = World(obstacle_collision_penalty=-0.25, waypoint_radius=0.6, progress_reward=0.1)
+WAREHOUSE_AMR = dataclasses.replace(WAREHOUSE, **ROBOT_DEFAULTS)
 
 
 @pytest.mark.parametrize("world", [World(), WAREHOUSE, World(time_step=0.5, kinematics="holonomic", rotation_range=1.5,
@@ -34,7 +37,8 @@ def test_each_env_publishes_its_world():
     comfort = gym.make("CrowdNav-v0", reward="comfort", time_step=0.5, kinematics="holonomic").unwrapped.world
     assert (comfort.reward.name, comfort.time_step, comfort.kinematics) == ("comfort", 0.5, "holonomic")
     shaped = gym.make("CrowdNavWarehouse-v0", progress_reward=0.1, waypoint_radius=0.8).unwrapped.world
-    assert shaped == dataclasses.replace(WAREHOUSE, waypoint_radius=0.8) and shaped.has_static_world
+    assert shaped == dataclasses.replace(WAREHOUSE_AMR, waypoint_radius=0.8) and shaped.has_static_world
+    assert gym.make("CrowdNavWarehouse-v0", progress_reward=0.1, **PAPER_ROBOT).unwrapped.world == WAREHOUSE
 
 
 def test_from_dict_refuses_unknown_and_missing_keys():
@@ -55,8 +59,11 @@ def test_from_dict_refuses_unknown_and_missing_keys():
     ({"time_step": "0.25"}, TypeError, "time_step must be a real number"),
     ({"kinematics": "car"}, ValueError, "kinematics must be one of"),
     ({"rotation_range": 7.0}, ValueError, r"rotation_range must be in \(0, 2π\]"),
-    ({"max_acceleration": 1.0}, ValueError, "max_acceleration: kinematic limits are not implemented"),
-    ({"max_turn_rate": 1.0}, ValueError, "max_turn_rate: kinematic limits are not implemented"),
+    ({"max_acceleration": 0.0}, ValueError, "max_acceleration must be > 0"),
+    ({"max_acceleration": -1.0}, ValueError, "max_acceleration must be > 0"),
+    ({"max_turn_rate": "1.5"}, TypeError, "max_turn_rate must be a real number"),
+    ({"max_turn_rate": 1.5, "kinematics": "holonomic"}, ValueError, "max_turn_rate must be None with kinematics"),
+    ({"actions": "stop"}, ValueError, "actions must be one of"),
     ({"n_speeds": 6}, ValueError, "n_speeds must be 5"),
     ({"n_directions": 16.0}, TypeError, "n_directions must be an int"),
     ({"reward": {"name": "crowdnav"}}, TypeError, "reward must be a RewardConfig"),
@@ -123,7 +130,7 @@ def test_the_converter_refuses_what_it_cannot_read():
 @pytest.mark.parametrize(("name", "env_id", "env_kwargs"), [
     ("apg_rl", "CrowdNav-v0", {}),
     ("apg_carl", "CrowdNav-v0", {"reward": "comfort_angular"}),
-    ("apg_warehouse", "CrowdNavWarehouse-v0", {"progress_reward": 0.1}),
+    ("apg_warehouse", "CrowdNavWarehouse-v0", {"progress_reward": 0.1, **PAPER_ROBOT}),
 ])
 def test_shipped_value_files_hold_their_envs_world_in_the_legacy_form(name, env_id, env_kwargs):
     path = sb3_crowdnav.models.check_pretrained(name)
@@ -141,7 +148,8 @@ def test_shipped_sb3_files_agree_with_their_env_in_the_motion_fields():
     for name, env_id in (("ppo_apg", "CrowdNav-v0"), ("dqn_apg", "CrowdNav-v0"),
                          ("ppo_warehouse", "CrowdNavWarehouse-v0")):
         world = read_world(sb3_crowdnav.models.check_pretrained(name))
-        assert compare_worlds(world, gym.make(env_id).unwrapped.world, MOTION_FIELDS) is None
+        kwargs = PAPER_ROBOT if env_id == "CrowdNavWarehouse-v0" else {}  # the warehouse robot they learnt
+        assert compare_worlds(world, gym.make(env_id, **kwargs).unwrapped.world, MOTION_FIELDS) is None
 
 
 # ------------------------------------------------------------------ the one comparison
@@ -194,7 +202,9 @@ def test_an_sb3_model_file_stores_the_world_and_is_compared_in_the_motion_fields
 @pytest.mark.parametrize(("name", "env_id", "env_kwargs", "field"), [
     ("apg_rl", "CrowdNav-v0", {"time_step": 0.5}, "time_step"),
     ("ppo_apg", "CrowdNav-v0", {"kinematics": "holonomic"}, "kinematics"),
-    ("apg_warehouse", "CrowdNavWarehouse-v0", {"waypoint_radius": 1.0, "progress_reward": 0.1}, "waypoint_radius"),
+    ("apg_warehouse", "CrowdNavWarehouse-v0", {"waypoint_radius": 1.0, "progress_reward": 0.1, **PAPER_ROBOT},
+     "waypoint_radius"),
+    ("ppo_warehouse", "CrowdNavWarehouse-v0", {}, "actions"),
 ])
 def test_every_loader_refuses_a_model_of_another_world(name, env_id, env_kwargs, field, capsys):
     from sb3_crowdnav.cli import main

@@ -1,4 +1,4 @@
-"""``ValueLookaheadPolicy``: a state-value network that acts by one-step lookahead over the 80 actions."""
+"""``ValueLookaheadPolicy``: a state-value network that acts by one-step lookahead over the world's actions."""
 
 from __future__ import annotations
 
@@ -16,7 +16,6 @@ from torch import nn
 from sb3_crowdnav.apg_value.propagation import Propagated, PropagationModel
 from sb3_crowdnav.nn import ApgExtractor, CadrlExtractor, LmExtractor, LstmRlExtractor, SarlExtractor, SfExtractor
 from sb3_crowdnav.nn.layers import bfloat16_supported
-from sb3_crowdnav.sim.actions import N_ACTIONS
 from sb3_crowdnav.sim.config import RewardConfig
 from sb3_crowdnav.sim.observation import OBS_KEYS, OBSTACLE_KEYS, WAYPOINT_KEY, ObservationSchema, Robot
 from sb3_crowdnav.sim.validation import check_choice, check_int, check_range
@@ -65,17 +64,17 @@ def bfloat16_extractors(net: nn.Module) -> list[nn.Module]:
 class ValueLookaheadPolicy(BasePolicy):
     """State-value policy acting by one-step lookahead (paper Eq. 1).
 
-    For every observation in the batch and every one of the 80 actions the
+    For every observation in the batch and every one of the world's actions (80, or 81 with a stop) the
     :class:`PropagationModel` gives the next observation and R(s, a); V is evaluated on all
-    B x 80 propagated states in **one** forward pass, and the action maximising
+    B x n_actions propagated states in **one** forward pass, and the action maximising
     ``R + γ^(Δt·v_pref) · V(s')`` (zero future value for terminal successors) is taken.
 
     :param observation_space: the env's Dict observation space
-    :param action_space: ``Discrete(80)``
+    :param action_space: ``Discrete(world.n_actions)``
     :param lr_schedule: learning-rate schedule (RL phase)
     :param world: the env's :class:`~sb3_crowdnav.sim.world.World`, or its plain form (:meth:`World.to_dict`, as
         ``policy_kwargs`` and the model file carry it; ``APGValue`` sets it from the env): the time step, kinematics
-        and action table the lookahead moves the robot by, the reward R(s, a) it charges and, in a world of static
+        action table and limits the lookahead moves the robot by, the reward R(s, a) it charges and, in a world of static
         obstacles, their collision penalty, the waypoint rule and the route shaping. Default: ``CrowdNav-v0``'s
     :param gamma: discount per second at v_pref = 1
     :param net_arch: hidden sizes of the value head ψ_M
@@ -127,9 +126,10 @@ class ValueLookaheadPolicy(BasePolicy):
         check_choice("pedestrian_model", pedestrian_model, PropagationModel.PEDESTRIAN_MODELS)
         check_int("ensemble_size", ensemble_size, 1)
         self.ensemble_size = int(ensemble_size)
-        if not isinstance(action_space, spaces.Discrete) or action_space.n != N_ACTIONS:
-            raise ValueError(f"ValueLookaheadPolicy needs Discrete({N_ACTIONS}) actions, got {action_space}")
         world = World() if world is None else World.coerce(world)
+        if not isinstance(action_space, spaces.Discrete) or action_space.n != world.n_actions:
+            raise ValueError(f"ValueLookaheadPolicy needs Discrete({world.n_actions}) actions (the world's "
+                             f"actions={world.actions!r}), got {action_space}")
         check_range("gamma", gamma, 0, 1, low_open=True)
         if optimizer_kwargs is None:
             optimizer_kwargs = {"momentum": 0.9} if optimizer_class is th.optim.SGD else {}
@@ -244,23 +244,23 @@ class ValueLookaheadPolicy(BasePolicy):
         return shaping.clamp(min=success) if isinstance(shaping, th.Tensor) else np.maximum(shaping, success)
 
     def lookahead(self, observation: dict[str, np.ndarray], net: nn.Module | None = None) -> tuple[np.ndarray, Propagated]:
-        """R + γ^(Δt·v_pref)·V(s') for every action of a batch of numpy observations: (B, 80).
+        """R + γ^(Δt·v_pref)·V(s') for every action of a batch of numpy observations: (B, n_actions).
 
         ``net`` replaces V (``self.value_net``) by another network of the same architecture (APGValue's acting copy).
         """
         net = self.value_net if net is None else net
         static = {k: observation[k] for k in STATIC_KEYS if k in observation}
         prop = self.propagation(observation["robot"], observation["humans"], observation["humans_mask"], static)
-        b = prop.reward.shape[0]
-        robot = prop.robot.reshape(b * N_ACTIONS, -1).astype(np.float32)
-        humans = np.repeat(prop.humans.astype(np.float32), N_ACTIONS, axis=0)  # the same under every action
-        mask = np.repeat(prop.humans_mask, N_ACTIONS, axis=0)
+        b, n_actions = prop.reward.shape
+        robot = prop.robot.reshape(b * n_actions, -1).astype(np.float32)
+        humans = np.repeat(prop.humans.astype(np.float32), n_actions, axis=0)  # the same under every action
+        mask = np.repeat(prop.humans_mask, n_actions, axis=0)
         tensors = self._as_tensors(robot, humans, mask)
         for key, value in prop.static.items():  # the warehouse: segments the same under every action, waypoints not
-            flat = value.reshape(b * N_ACTIONS, -1) if value.ndim == 3 else np.repeat(value, N_ACTIONS, axis=0)
+            flat = value.reshape(b * n_actions, -1) if value.ndim == 3 else np.repeat(value, n_actions, axis=0)
             tensors[key] = th.as_tensor(flat, dtype=th.float32, device=self.device)
         with th.inference_mode():  # a little cheaper than no_grad; the values leave as numpy
-            v = net(tensors).reshape(b, N_ACTIONS).cpu().numpy()
+            v = net(tensors).reshape(b, n_actions).cpu().numpy()
         ceiling = self.value_ceiling(np.asarray(observation["robot"], dtype=np.float64)[:, Robot.V_PREF])
         if ceiling is not None:
             v = np.minimum(v, ceiling[:, None])
@@ -268,7 +268,7 @@ class ValueLookaheadPolicy(BasePolicy):
         return q, prop
 
     def action_values(self, observation: dict[str, np.ndarray], net: nn.Module | None = None) -> np.ndarray:
-        """Lookahead value of each of the 80 actions, (B, 80) (Fig. 11's action-value map); ``net`` as in lookahead."""
+        """Lookahead value of each action, (B, n_actions) (Fig. 11's action-value map); ``net`` as in lookahead."""
         obs = {k: np.asarray(observation[k]) for k in (*OBS_KEYS, *STATIC_KEYS) if k in observation}
         if obs["robot"].ndim == 1:
             obs = {k: v[None] for k, v in obs.items()}

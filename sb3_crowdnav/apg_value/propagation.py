@@ -1,7 +1,7 @@
 """The state-propagation model of the one-step lookahead (paper Eq. 1-2).
 
-From a batch of observations and all 80 actions: the observations one Δt ahead (robot by
-the env's own kinematics and action table, pedestrians at constant velocity, history window
+From a batch of observations and all the world's actions (80, or 81 with a stop): the observations one Δt ahead
+(robot by the env's own kinematics, limits and action table, pedestrians at constant velocity, history window
 shifted) and the reward R(s, a) with its terminal flags. Everything it shares with the env
 comes from one :class:`~sb3_crowdnav.sim.world.World`.
 
@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sb3_crowdnav.sim.actions import N_ACTIONS, apply_action
+from sb3_crowdnav.sim.actions import apply_action
 from sb3_crowdnav.sim.geometry import SEGMENT_DIM, swept_clearance
 from sb3_crowdnav.sim.observation import HUMAN_DIM, Human, ObservationSchema, Robot
 from sb3_crowdnav.sim.rewards import (
@@ -34,15 +34,15 @@ from sb3_crowdnav.sim.world import World
 
 @dataclass(frozen=True)
 class Propagated:
-    """Result for B observations x 80 actions."""
+    """Result for B observations x A actions (the world's ``n_actions``)."""
 
-    robot: np.ndarray  # (B, 80, 9)
+    robot: np.ndarray  # (B, A, 9)
     humans: np.ndarray  # (B, T*M*5) -- the same for every action (constant-velocity pedestrians)
     humans_mask: np.ndarray  # (B, M)
-    reward: np.ndarray  # (B, 80)
-    terminal: np.ndarray  # (B, 80) collision or success
+    reward: np.ndarray  # (B, A)
+    terminal: np.ndarray  # (B, A) collision or success
     discount: np.ndarray  # (B,) γ^(Δt·v_pref)
-    static: dict[str, np.ndarray] = field(default_factory=dict)  # the warehouse's keys, per action (B, 80, ...)
+    static: dict[str, np.ndarray] = field(default_factory=dict)  # the warehouse's keys, per action (B, A, ...)
 
 
 class PropagationModel:
@@ -92,11 +92,12 @@ class PropagationModel:
         pos0, goal = robot[:, Robot.POS], robot[:, Robot.GOAL]
         heading0, v_pref, radius = robot[:, Robot.HEADING], robot[:, Robot.V_PREF], robot[:, Robot.RADIUS]
 
-        speeds = v_pref[:, None] * self.speed_fractions[None, :]  # (B, 80)
+        speeds = v_pref[:, None] * self.speed_fractions[None, :]  # (B, A)
+        world = self.world
         new_pos, new_heading, vel = apply_action(
             pos0[:, None, :], heading0[:, None], goal[:, None, :], speeds, self.directions[None, :],
-            self.world.kinematics, self.time_step,
-        )  # (B, 80, 2), (B, 80), (B, 80, 2)
+            world.kinematics, self.time_step, robot[:, None, Robot.VEL], world.max_acceleration, world.max_turn_rate,
+        )  # (B, A, 2), (B, A), (B, A, 2)
 
         latest = hist[:, -1].copy()  # (B, M, 5)
         hpos0 = hist[:, -1, :, Human.POS]
@@ -107,8 +108,9 @@ class PropagationModel:
         hpos1 = latest[:, :, Human.POS]
         dirs = None  # walking directions only matter to the comfort ellipses of the social term
         if self.reward.uses_social:
-            dirs = walking_direction(new_hist[:, None, :, :, Human.VEL], hpos1[:, None], new_pos)  # (B, 80, M, 2)
-        full = (b, N_ACTIONS)
+            dirs = walking_direction(new_hist[:, None, :, :, Human.VEL], hpos1[:, None], new_pos)  # (B, A, M, 2)
+        n_actions = self.world.n_actions
+        full = (b, n_actions)
         robot_args = (np.broadcast_to(pos0[:, None, :], (*full, 2)), new_pos, np.broadcast_to(heading0[:, None], full),
                       new_heading, np.broadcast_to(goal[:, None, :], (*full, 2)),
                       np.broadcast_to(radius[:, None], full))
@@ -133,8 +135,8 @@ class PropagationModel:
             moved = next_waypoints(np.broadcast_to(waypoints, (*full, waypoints.shape[2], 2)), new_pos,
                                    self.world.waypoint_radius)
             propagated_static = {"obstacles": np.asarray(static["obstacles"]), "obstacles_mask": seg_mask[:, 0],
-                                 "waypoints": moved.reshape(b, N_ACTIONS, -1)}
-        new_robot = np.repeat(robot[:, None, :], N_ACTIONS, axis=1)
+                                 "waypoints": moved.reshape(b, n_actions, -1)}
+        new_robot = np.repeat(robot[:, None, :], n_actions, axis=1)
         new_robot[:, :, Robot.POS] = new_pos
         new_robot[:, :, Robot.VEL] = vel
         new_robot[:, :, Robot.HEADING] = new_heading

@@ -22,7 +22,7 @@ import numpy as np
 from gymnasium import spaces
 
 from sb3_crowdnav.envs.statistics import EpisodeStatistics
-from sb3_crowdnav.sim.actions import N_ACTIONS
+from sb3_crowdnav.sim.actions import ACTION_SETS
 from sb3_crowdnav.sim.config import RewardConfig, SceneConfig
 from sb3_crowdnav.sim.observation import HUMAN_DIM, Human, ObservationSchema, Robot
 from sb3_crowdnav.sim.rewards import RewardTerms
@@ -100,7 +100,8 @@ class CrowdEnvBase(gym.Env):
         bounds = schema.bounds(pos_bound, vel_bound, rad_bound, scene.robot_v_pref + 1.0)
         self.observation_space = spaces.Dict({key: spaces.Box(low, high, dtype=np.float32)
                                               for key, (low, high) in bounds.items()})
-        self.action_space = spaces.Discrete(N_ACTIONS)
+        self.n_actions = ACTION_SETS[scene.actions]
+        self.action_space = spaces.Discrete(self.n_actions)
         self._pos_bound = pos_bound
         # the separation reported while no one is present: the diagonal of the observable positions' box, farther
         # than any two agents can be (finite in info; the metrics leave episodes without people out of the gap)
@@ -115,6 +116,7 @@ class CrowdEnvBase(gym.Env):
         """What a model acting in this env must agree on with it (checked by every loader and the runner)."""
         s = self.scene
         return World(time_step=s.time_step, kinematics=s.kinematics, rotation_range=s.rotation_range,
+                     actions=s.actions, max_acceleration=s.max_acceleration, max_turn_rate=s.max_turn_rate,
                      reward=self.reward_config)
 
     @property
@@ -176,8 +178,8 @@ class CrowdEnvBase(gym.Env):
 
     def step(self, action):
         """One step of Δt: simulate, reward, end (success or collision terminates, the time limit truncates), info."""
-        if not (type(action) in _INT_TYPES and 0 <= action < N_ACTIONS) and not self.action_space.contains(action):
-            raise ValueError(f"action must be an int in [0, {N_ACTIONS}), got {action!r}")
+        if not (type(action) in _INT_TYPES and 0 <= action < self.n_actions) and not self.action_space.contains(action):
+            raise ValueError(f"action must be an int in [0, {self.n_actions}), got {action!r}")
         sim = self.sim
         before = sim.robot.tolist()
         terms = sim.step(int(action))  # simulate

@@ -38,7 +38,10 @@ class CrowdNavEnv(CrowdEnvBase):
     ``Discrete(80)``: 5 speeds ``v_pref * {0.2, 0.4, 0.6, 0.8, 1.0}`` x 16 directions. Action
     ``a`` has speed index ``a // 16`` and direction index ``a % 16``. Under ``"unicycle"``
     kinematics the direction ``k * 2π/16`` rotates the heading; under ``"holonomic"`` it is an
-    absolute angle from the robot-to-goal axis (see :mod:`sb3_crowdnav.sim.actions`).
+    absolute angle from the robot-to-goal axis (see :mod:`sb3_crowdnav.sim.actions`). ``actions="with_stop"`` adds a
+    stop, action 80 (``Discrete(81)``). ``max_acceleration`` [m/s²] and ``max_turn_rate`` [rad/s] (default None:
+    unlimited, the paper's robot) clip each command to what the robot reaches from its current velocity within the
+    step (the rule of :mod:`sb3_crowdnav.sim.actions`; ``max_turn_rate`` is refused with ``"holonomic"``).
 
     ## Observation Space
 

@@ -14,7 +14,7 @@ from sb3_crowdnav.sim.config import RewardConfig, SceneConfig
 from sb3_crowdnav.sim.observation import ObservationSchema
 from sb3_crowdnav.sim.validation import check_bool, check_choice
 from sb3_crowdnav.sim.warehouse import LayoutRanges, WarehouseLayout
-from sb3_crowdnav.sim.warehouse.config import PICKER_CROWDS, WarehouseConfig
+from sb3_crowdnav.sim.warehouse.config import PICKER_CROWDS, ROBOT_DEFAULTS, WarehouseConfig
 from sb3_crowdnav.sim.warehouse.simulator import WarehouseSimulator
 from sb3_crowdnav.sim.world import World
 
@@ -56,7 +56,11 @@ class CrowdNavWarehouseEnv(CrowdEnvBase):
 
     ## Action Space
 
-    ``Discrete(80)``, as ``CrowdNav-v0``.
+    ``Discrete(81)``: ``CrowdNav-v0``'s 80 actions and a stop (action 80, ``actions="with_stop"``); the robot is a
+    warehouse AMR's, its commands clipped to ``max_acceleration`` = 1 m/s² and ``max_turn_rate`` = 1.5 rad/s (the rule
+    of :mod:`sb3_crowdnav.sim.actions`). ``actions="paper", max_acceleration=None, max_turn_rate=None`` give the
+    paper's robot (``Discrete(80)``, no limits), the world the shipped ``apg_warehouse`` and ``ppo_warehouse`` were
+    trained in. With ``kinematics="holonomic"`` the turn rate is not limited (its default is then None).
 
     ## Observation Space
 
@@ -116,6 +120,7 @@ class CrowdNavWarehouseEnv(CrowdEnvBase):
     * ``robot_visible=True`` puts the robot into the pickers' model (ORCA: moved each step to its actual position and
       velocity; social force: an agent following its path), so the pickers avoid it (default False: they do not
       yield, as on the open floor);
+    * ``actions``, ``max_acceleration`` and ``max_turn_rate``: the robot (defaults above; None is unlimited);
     * ``time_limit`` [s] replaces the route-based limit, so it excludes ``time_limit_factor`` and
       ``time_limit_slack``;
     * ``circle_radius``, ``square_width`` and ``start_noise`` (the open floor's) are refused, as are
@@ -126,7 +131,8 @@ class CrowdNavWarehouseEnv(CrowdEnvBase):
 
     ## Version History
 
-    * v0: initial version.
+    * v0: initial version. Since the kinematic limits: the robot defaults to a warehouse AMR's (a stop, 1 m/s²,
+      1.5 rad/s); the earlier episodes are those of ``actions="paper", max_acceleration=None, max_turn_rate=None``.
     """
 
     def __init__(self, render_mode: str | None = None, reward: str = "crowdnav", gamma: float = 0.9,
@@ -144,6 +150,9 @@ class CrowdNavWarehouseEnv(CrowdEnvBase):
             raise ValueError("crowd='replay' replays recorded people on the open floor (CrowdNav-v0 and its variants); "
                              f"the warehouse's pickers are moved by one of {PICKER_CROWDS}")
         check_choice("crowd", scene_kwargs.get("crowd", "orca"), PICKER_CROWDS)
+        for key, value in ROBOT_DEFAULTS.items():  # a warehouse AMR (a holonomic robot has no turn rate to limit)
+            if not (key == "max_turn_rate" and scene_kwargs.get("kinematics") == "holonomic"):
+                scene_kwargs.setdefault(key, value)
         fixed_time_limit = "time_limit" in kwargs
         both = [key for key in ROUTE_TIME_KEYS if key in kwargs]
         if fixed_time_limit and both:

@@ -154,13 +154,16 @@ def action_value_grid(values: np.ndarray, observation: Mapping[str, np.ndarray],
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Arrange the 80 action values as (speeds, angles, grid) for a polar heat map.
 
-    :param values: (80,) value of each action (action ``a``: speed ``a // 16``, direction ``a % 16``)
+    :param values: (80,) value of each action (action ``a``: speed ``a // 16``, direction ``a % 16``), or (81,) with the
+        stop of ``actions="with_stop"`` last, which has no direction and is left out of the map
     :param observation: one (unbatched) observation; its robot heading and goal fix the world angles
     :return: ``speeds (5,)`` [m/s], ``angles (16,)`` world direction of motion [rad] in [0, 2π)
         sorted ascending, ``grid (5, 16)`` values in the same order
     """
     scene = scene or SceneConfig()
     values = np.asarray(values, dtype=np.float64).reshape(-1)
+    if values.shape == (N_SPEEDS * N_DIRECTIONS + 1,):  # the stop (speed 0): not a point of the polar map
+        values = values[:-1]
     if values.shape != (N_SPEEDS * N_DIRECTIONS,):
         raise ValueError(f"values must have {N_SPEEDS * N_DIRECTIONS} entries, got shape {np.shape(values)}")
     robot = np.asarray(observation["robot"], dtype=np.float64).reshape(-1)

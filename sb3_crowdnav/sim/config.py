@@ -12,6 +12,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from sb3_crowdnav.sim.actions import ACTION_SETS
 from sb3_crowdnav.sim.crowd_settings import crowd_settings
 from sb3_crowdnav.sim.validation import (
     check_at_most,
@@ -59,6 +60,19 @@ def _to_python_scalars(config: Any) -> None:
             object.__setattr__(config, f.name, type(value)(v.item() if isinstance(v, np.generic) else v for v in value))
 
 
+def check_robot_limits(actions: str, max_acceleration: Any, max_turn_rate: Any, kinematics: str) -> None:
+    """The action set and the robot's limits (of a :class:`SceneConfig` and of a :class:`~sb3_crowdnav.sim.world.World`):
+    ``ValueError`` for an unknown set, a limit <= 0 or a turn-rate limit on a holonomic robot; ``TypeError`` for a
+    limit that is neither None nor a real number."""
+    check_choice("actions", actions, ACTION_SETS)
+    for name, value in (("max_acceleration", max_acceleration), ("max_turn_rate", max_turn_rate)):
+        if value is not None:
+            check_number(name, value)
+    if max_turn_rate is not None and kinematics == "holonomic":
+        raise ValueError(f"max_turn_rate must be None with kinematics='holonomic' (a holonomic robot moves in any "
+                         f"direction without turning), got {max_turn_rate!r}")
+
+
 @dataclass(frozen=True)
 class SceneConfig:
     """Geometry, agents and dynamics of a crowd scene (defaults: the paper's Table 1).
@@ -79,6 +93,11 @@ class SceneConfig:
         [0, 1], each person seeing it with that probability, drawn at reset (0.0 and 1.0 are stored as the bools)
     :param kinematics: ``"unicycle"`` (direction = rotation of the heading) or ``"holonomic"``
     :param rotation_range: width of the direction fan [rad]; 2π = all directions
+    :param actions: the action set, ``"paper"`` (the 80 actions) or ``"with_stop"`` (those and a stop, action 80;
+        :mod:`sb3_crowdnav.sim.actions`)
+    :param max_acceleration: the robot's a_max [m/s²], None: unlimited (the paper's); a command beyond it is clipped
+        by the rule of :mod:`sb3_crowdnav.sim.actions`
+    :param max_turn_rate: the robot's ω_max [rad/s], None: unlimited (the paper's); ``"unicycle"`` only
     :param crowd: the crowd model that moves the people (``sb3_crowdnav.sim.crowd.CROWD_MODELS``): ``"orca"``
         (pyrvo), ``"social_force"`` (JuPedSim), ``"linear"`` (constant velocity towards the goal; for tests) or
         ``"replay"`` (recorded people; the population settings and ``num_humans`` then stay at their defaults)
@@ -106,6 +125,9 @@ class SceneConfig:
     history_length: int = 5
     kinematics: Literal["unicycle", "holonomic"] = "unicycle"
     rotation_range: float = 2 * math.pi
+    actions: Literal["paper", "with_stop"] = "paper"
+    max_acceleration: float | None = None  # [m/s²]
+    max_turn_rate: float | None = None  # [rad/s]
     robot_radius: float = 0.3
     robot_v_pref: float = 1.0
     human_radius: float = 0.3
@@ -151,6 +173,10 @@ class SceneConfig:
             object.__setattr__(self, "robot_visible", bool(self.robot_visible))
         check_choice("scenario", self.scenario, SCENARIOS)
         check_choice("kinematics", self.kinematics, KINEMATICS)
+        check_robot_limits(self.actions, self.max_acceleration, self.max_turn_rate, self.kinematics)
+        for name in ("max_acceleration", "max_turn_rate"):
+            if getattr(self, name) is not None:
+                object.__setattr__(self, name, float(getattr(self, name)))
         self._check_crowd()
         check_int("history_length", self.history_length, 1)
         check_int("orca_max_neighbors", self.orca_max_neighbors, 1)

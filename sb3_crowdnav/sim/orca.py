@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pyrvo
 
-from sb3_crowdnav.sim.actions import action_table, nearest_action
+from sb3_crowdnav.sim.actions import action_table, apply_action, nearest_velocity
 from sb3_crowdnav.sim.config import SceneConfig
 from sb3_crowdnav.sim.observation import Human, ObservationSchema, Robot
 from sb3_crowdnav.sim.validation import check_choice, check_number
@@ -136,7 +136,7 @@ class OrcaPolicy:
     Each decision builds an RVO2 simulator with the robot (preferred velocity towards its goal)
     and the present pedestrians of the observation's latest step (preferred velocity = their
     observed velocity, as a constant-velocity guess), runs one ORCA step and maps the robot's
-    new velocity to one of the 80 actions:
+    new velocity to one of the env's actions (80, or 81 with ``actions="with_stop"``):
 
     * ``mapping="nearest"`` (default, the paper's ORCA row): the action nearest in velocity space
       (Euclidean distance between the ORCA velocity and the action's velocity under the env's
@@ -148,8 +148,13 @@ class OrcaPolicy:
       horizon); when no action satisfies them all, the nearest action overall. A far better
       driver (and the imitation demonstrator of :class:`~sb3_crowdnav.apg_value.APGValue`).
 
-    Because the action table has no zero speed, a wish to stop becomes the slowest action
-    closest in direction.
+    With the paper's actions, which have no zero speed, a wish to stop becomes the slowest action closest in
+    direction; with ``actions="with_stop"`` it is the stop.
+
+    With the scene's ``max_acceleration`` or ``max_turn_rate``, an action's velocity in both mappings is the one its
+    step reaches from the robot's current velocity (:func:`~sb3_crowdnav.sim.actions.apply_action`, the env's and the
+    lookahead's rule): ORCA's velocity becomes the action whose reachable velocity is nearest, and the robot
+    respects the same limits as any policy in the env.
 
     In ``CrowdNavWarehouse-v0`` the robot also sees the observed rack and wall segments as RVO2 obstacles and
     heads for its current route waypoint instead of the goal: obstacle-aware, route-following, from the
@@ -168,7 +173,8 @@ class OrcaPolicy:
         check_choice("mapping", mapping, self.MAPPINGS)
         self.mapping = mapping
         self.safety_space = float(safety_space)
-        self.speeds, self.directions = action_table(self.scene.robot_v_pref, self.scene.rotation_range)
+        self.speeds, self.directions = action_table(self.scene.robot_v_pref, self.scene.rotation_range,
+                                                    self.scene.actions)
         # the last decision's simulator with obstacles: (its segments, its number of pedestrians, the simulator)
         self._obstacle_sim: tuple[bytes, int, pyrvo.RVOSimulator] | None = None
 
@@ -185,14 +191,25 @@ class OrcaPolicy:
             scene = env.unwrapped.scene
         return cls(scene, safety_space, mapping)
 
-    def _allowed(self, sim, rid: int, heading: float, goal_direction: float) -> np.ndarray | None:
-        """Boolean mask (80,) of actions inside every ORCA half-plane of agent ``rid`` (None: no constraint)."""
+    def _velocities(self, robot: np.ndarray, goal_direction: float) -> tuple[np.ndarray, np.ndarray]:
+        """The velocity (vx, vy), each (n_actions,) [m/s], each action gives the robot: its command, or with limits the
+        velocity its step reaches (the env's rule)."""
+        cfg, heading = self.scene, float(robot[Robot.HEADING])
+        if cfg.max_acceleration is None and cfg.max_turn_rate is None:
+            angles = (heading if cfg.kinematics == "unicycle" else goal_direction) + self.directions
+            return self.speeds * np.cos(angles), self.speeds * np.sin(angles)
+        velocity = apply_action(robot[Robot.POS], np.float64(heading), robot[Robot.GOAL], self.speeds, self.directions,
+                                cfg.kinematics, cfg.time_step, robot[Robot.VEL], cfg.max_acceleration,
+                                cfg.max_turn_rate).velocity
+        return velocity[:, 0], velocity[:, 1]
+
+    @staticmethod
+    def _allowed(sim, rid: int, vx: np.ndarray, vy: np.ndarray) -> np.ndarray | None:
+        """Boolean mask (n_actions,) of the action velocities (``vx``, ``vy``) inside every ORCA half-plane of agent
+        ``rid`` (None: no constraint)."""
         n_lines = sim.get_agent_num_orca_lines(rid)
         if n_lines == 0:
             return None
-        base = heading if self.scene.kinematics == "unicycle" else goal_direction
-        angles = base + self.directions
-        vx, vy = self.speeds * np.cos(angles), self.speeds * np.sin(angles)
         get_line = sim.get_agent_orca_line
         lines = np.array([get_line(rid, i) for i in range(n_lines)]).reshape(n_lines, 4, 1)  # (L, [dx dy px py], 1)
         dx, dy, px, py = lines[:, 0], lines[:, 1], lines[:, 2], lines[:, 3]
@@ -208,7 +225,7 @@ class OrcaPolicy:
         present = latest[mask.astype(bool)]
         r = robot.tolist()
         (px, py), (gx, gy), (vx, vy) = r[Robot.POS], r[Robot.GOAL], r[Robot.VEL]
-        heading, v_pref = r[Robot.HEADING], r[Robot.V_PREF]
+        v_pref = r[Robot.V_PREF]
         args = (cfg.orca_neighbor_dist, cfg.orca_max_neighbors, cfg.orca_time_horizon, cfg.orca_time_horizon_obst)
         # Only the robot's new velocity is read, and RVO2 computes it from the others' position, velocity and radius
         # alone: the pedestrians look at no neighbour and (nearly) no obstacle, which spares their own ORCA programs.
@@ -243,9 +260,9 @@ class OrcaPolicy:
         sim.do_step()
         v = sim.get_agent_velocity(rid)
         goal_direction = math.atan2(gy - py, gx - px)
-        allowed = self._allowed(sim, rid, heading, goal_direction) if self.mapping == "constrained" else None
-        return nearest_action(np.array([v.x, v.y]), heading, goal_direction, self.speeds, self.directions,
-                              cfg.kinematics, allowed)
+        vx, vy = self._velocities(robot, goal_direction)
+        allowed = self._allowed(sim, rid, vx, vy) if self.mapping == "constrained" else None
+        return nearest_velocity(np.array([v.x, v.y]), vx, vy, allowed)
 
     def _reusable(self, segments: np.ndarray, humans: int) -> pyrvo.RVOSimulator | None:
         """The last decision's simulator with obstacles when it can serve a decision with ``segments`` (S, 4) and

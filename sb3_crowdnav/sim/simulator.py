@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from sb3_crowdnav.sim.actions import N_ACTIONS, action_table, move
+from sb3_crowdnav.sim.actions import action_table, move, step_limits
 from sb3_crowdnav.sim.config import RewardConfig, SceneConfig
 from sb3_crowdnav.sim.crowd import CrowdModel, RecordedCrowd, RobotAgent, make_crowd
 from sb3_crowdnav.sim.observation import HUMAN_DIM, ROBOT_DIM, Human, Robot
@@ -37,7 +37,9 @@ class CrowdSimulator:
     def __init__(self, scene: SceneConfig, reward: RewardConfig) -> None:
         self.scene = scene
         self.reward_cfg = reward
-        self.speeds, self.directions = action_table(scene.robot_v_pref, scene.rotation_range)
+        self.speeds, self.directions = action_table(scene.robot_v_pref, scene.rotation_range, scene.actions)
+        self.n_actions = len(self.speeds)
+        self._limits = step_limits(scene.max_acceleration, scene.max_turn_rate, scene.time_step)  # per step
         self._speed_list, self._direction_list = self.speeds.tolist(), self.directions.tolist()
         self.robot = np.zeros(ROBOT_DIM)
         self.history = np.zeros((scene.history_length, scene.max_humans, HUMAN_DIM))
@@ -149,16 +151,17 @@ class CrowdSimulator:
         mask[:] = present
 
     def step(self, action: int) -> RewardTerms:
-        """Apply ``action`` (0..79) and advance the pedestrians; return the reward terms of the transition."""
+        """Apply ``action`` (an index of the scene's action set) and advance the pedestrians; return the reward terms of
+        the transition. The robot moves by :func:`~sb3_crowdnav.sim.actions.move` within the scene's limits."""
         cfg, n = self.scene, self.num_humans
-        if not (0 <= action < N_ACTIONS):
-            raise ValueError(f"action must be in [0, {N_ACTIONS}), got {action!r}")
+        if not (0 <= action < self.n_actions):
+            raise ValueError(f"action must be in [0, {self.n_actions}), got {action!r}")
         robot, hist = self.robot, self.history
         r = robot.tolist()
-        (px, py), (gx, gy), heading0 = r[Robot.POS], r[Robot.GOAL], r[Robot.HEADING]
+        (px, py), (vx0, vy0), (gx, gy), heading0 = r[Robot.POS], r[Robot.VEL], r[Robot.GOAL], r[Robot.HEADING]
         x, y, heading, vx, vy = move(
-            px, py, heading0, gx, gy, self._speed_list[action], self._direction_list[action], cfg.kinematics == "holonomic",
-            cfg.time_step,
+            px, py, heading0, vx0, vy0, gx, gy, self._speed_list[action], self._direction_list[action],
+            cfg.kinematics == "holonomic", cfg.time_step, *self._limits,
         )
         human_pos0 = hist[-1, :n, Human.POS].copy()
         if n:

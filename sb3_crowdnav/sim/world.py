@@ -22,18 +22,23 @@ from typing import Any
 
 import numpy as np
 
-from sb3_crowdnav.sim.actions import N_DIRECTIONS, N_SPEEDS, action_table
-from sb3_crowdnav.sim.config import KINEMATICS, RewardConfig
+from sb3_crowdnav.sim.actions import ACTION_SETS, N_DIRECTIONS, N_SPEEDS, action_table
+from sb3_crowdnav.sim.config import KINEMATICS, RewardConfig, check_robot_limits
 from sb3_crowdnav.sim.validation import check_choice, check_int, check_number
 
 # the meaning of an action and of one step: what every policy acting in the env must share
-MOTION_FIELDS = ("time_step", "kinematics", "rotation_range", "max_acceleration", "max_turn_rate", "n_speeds",
-                 "n_directions")
+MOTION_FIELDS = ("time_step", "kinematics", "rotation_range", "actions", "max_acceleration", "max_turn_rate",
+                 "n_speeds", "n_directions")
 # a lookahead also moves the observed route's waypoints itself, by the env's rule
 PREDICTION_FIELDS = (*MOTION_FIELDS, "waypoint_radius")
 MAX_TIME_STEP = 2.0  # [s] SceneConfig's bound
 # the policy-kwargs entries in which files saved before this contract stored the world (read by from_legacy only)
 LEGACY_KEYS = ("time_step", "kinematics", "rotation_range", "reward", "obstacles")
+# the fields an env takes as keyword arguments of the same name (what a user passes to run a model in its world)
+ENV_KEYWORD_FIELDS = ("time_step", "kinematics", "rotation_range", "actions", "max_acceleration", "max_turn_rate",
+                      "obstacle_collision_penalty", "waypoint_radius", "progress_reward")
+# fields added to the plain form after models were shipped, with the value every file written before them meant
+ADDED_FIELDS = {"actions": "paper"}
 
 
 @dataclass(frozen=True)
@@ -44,8 +49,11 @@ class World:
     :param kinematics: ``"unicycle"`` (actions rotate the heading) or ``"holonomic"`` (directions are relative to the
         goal direction)
     :param rotation_range: width of the direction fan of the action table [rad], in (0, 2π]
-    :param max_acceleration: limit on the change of speed [m/s²]; None: unlimited (the only value implemented)
-    :param max_turn_rate: limit on the change of heading [rad/s]; None: unlimited (the only value implemented)
+    :param actions: the action set, ``"paper"`` (80 actions) or ``"with_stop"`` (81: those and a stop, the last)
+    :param max_acceleration: the robot's a_max [m/s²]: the speed (unicycle) or the velocity (holonomic) changes by at
+        most a_max·Δt per step (:mod:`sb3_crowdnav.sim.actions`); None: unlimited, the paper's
+    :param max_turn_rate: the robot's ω_max [rad/s]: the heading turns by at most ω_max·Δt per step; None:
+        unlimited, the paper's (and the only value with ``"holonomic"``)
     :param n_speeds: speeds of the action table, ``v_pref · (1..n_speeds) / n_speeds`` [m/s]
     :param n_directions: directions of the action table across ``rotation_range``
     :param reward: the reward's terms and weights (paper Eq. 9-14)
@@ -60,6 +68,7 @@ class World:
     time_step: float = 0.25  # [s]
     kinematics: str = "unicycle"
     rotation_range: float = 2 * math.pi  # [rad]
+    actions: str = "paper"
     max_acceleration: float | None = None  # [m/s²]
     max_turn_rate: float | None = None  # [rad/s]
     n_speeds: int = N_SPEEDS
@@ -77,10 +86,7 @@ class World:
         check_number("rotation_range", self.rotation_range)
         if self.rotation_range > 2 * math.pi + 1e-9:
             raise ValueError(f"rotation_range must be in (0, 2π] rad, got {self.rotation_range!r}")
-        for name in ("max_acceleration", "max_turn_rate"):  # a limit must change the physics or be refused
-            if getattr(self, name) is not None:
-                raise ValueError(f"{name}: kinematic limits are not implemented; only None (unlimited) is allowed, "
-                                 f"got {getattr(self, name)!r}")
+        check_robot_limits(self.actions, self.max_acceleration, self.max_turn_rate, self.kinematics)
         for name, table in (("n_speeds", N_SPEEDS), ("n_directions", N_DIRECTIONS)):
             check_int(name, getattr(self, name), 1)
             if getattr(self, name) != table:  # the action space is Discrete(N_SPEEDS · N_DIRECTIONS)
@@ -91,7 +97,7 @@ class World:
         self._check_static_rules()
         for f in dataclasses.fields(self):  # numpy scalars and ints of float fields become plain floats (JSON)
             value = getattr(self, f.name)
-            if f.name not in ("kinematics", "reward", "n_speeds", "n_directions") and value is not None:
+            if f.name not in ("kinematics", "actions", "reward", "n_speeds", "n_directions") and value is not None:
                 object.__setattr__(self, f.name, float(value))
             elif isinstance(value, np.integer):
                 object.__setattr__(self, f.name, int(value))
@@ -113,13 +119,18 @@ class World:
                              f"{self.progress_reward!r}")
 
     @property
+    def n_actions(self) -> int:
+        """The number of actions of the action set (the env's ``Discrete(n_actions)``)."""
+        return ACTION_SETS[self.actions]
+
+    @property
     def has_static_world(self) -> bool:
         """True in a world of static obstacles and a route (the warehouse), False on the open floor."""
         return self.waypoint_radius is not None
 
     def action_table(self, v_pref: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
-        """``(speeds [m/s], directions [rad])`` of the actions at preferred speed ``v_pref``, each (n_speeds·n_directions,)."""
-        return action_table(v_pref, self.rotation_range)
+        """``(speeds [m/s], directions [rad])`` of the actions at preferred speed ``v_pref``, each (n_actions,)."""
+        return action_table(v_pref, self.rotation_range, self.actions)
 
     # ------------------------------------------------------------------ plain form
     def to_dict(self) -> dict[str, Any]:
@@ -130,11 +141,13 @@ class World:
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> World:
-        """The :class:`World` of :meth:`to_dict`'s form; every field must be given, and no other key."""
+        """The :class:`World` of :meth:`to_dict`'s form; every field must be given, and no other key (but a field of
+        :data:`ADDED_FIELDS`, which files written before it lack: it takes the value they meant)."""
         if not isinstance(data, Mapping):
             raise TypeError(f"a world must be a mapping of its fields, got {type(data).__name__}")
         names = [f.name for f in dataclasses.fields(cls)]
         unknown = sorted(set(data) - set(names))
+        data = {**ADDED_FIELDS, **data}
         missing = [name for name in names if name not in data]
         if unknown or missing:
             raise ValueError(f"a world has exactly the keys {names}; unknown {unknown}, missing {missing}")
@@ -234,10 +247,18 @@ def compare_worlds(trained: World, actual: World, fields: Iterable[str] | None =
     return f"the model was trained with {', '.join(diffs)}" if diffs else None
 
 
+def env_keywords(trained: World, actual: World, fields: Iterable[str]) -> dict[str, Any]:
+    """The env keyword arguments (of :data:`ENV_KEYWORD_FIELDS` among ``fields``) that give ``actual``'s env the
+    ``trained`` world's values where they differ: what to pass to run a model in the world it was trained in."""
+    return {name: getattr(trained, name) for name in fields
+            if name in ENV_KEYWORD_FIELDS and not _same(getattr(trained, name), getattr(actual, name))}
+
+
 def _same(a: Any, b: Any) -> bool:
     if isinstance(a, float) and isinstance(b, float):
         return abs(a - b) <= 1e-9 * max(1.0, abs(b))
     return a == b
 
 
-__all__ = ["LEGACY_KEYS", "MOTION_FIELDS", "PREDICTION_FIELDS", "World", "compare_worlds", "upgrade_policy_kwargs"]
+__all__ = ["ADDED_FIELDS", "LEGACY_KEYS", "MOTION_FIELDS", "PREDICTION_FIELDS", "World", "compare_worlds",
+           "env_keywords", "upgrade_policy_kwargs"]

@@ -12,6 +12,11 @@ from sb3_crowdnav.sim.warehouse.layout import LayoutRanges, WarehouseLayout, lay
 
 MAX_PROGRESS_REWARD = 10.0  # [1/m] beyond this the shaping swamps the success reward (1) within centimetres
 AISLE_MARGIN = 0.2  # [m] an aisle must be at least the robot's diameter + this wide
+# the warehouse robot's defaults, a typical warehouse AMR's (docs/decisions.md, "Kinematics"): a stop, a_max [m/s²],
+# ω_max [rad/s] (unicycle only); its speed is robot_v_pref, 1 m/s
+ROBOT_DEFAULTS = {"actions": "with_stop", "max_acceleration": 1.0, "max_turn_rate": 1.5}
+# the robot the shipped warehouse models were trained with (the paper's): pass these to run them in their world
+PAPER_ROBOT = {"actions": "paper", "max_acceleration": None, "max_turn_rate": None}
 
 
 @dataclass(frozen=True)
