@@ -304,7 +304,7 @@ def layout_from_sizes(rows: int, segments: int, rack_length: float, rack_depth: 
     # racks, counter-clockwise already
     layout.__dict__["boxes"] = np.array(boxes, dtype=np.float64).reshape(-1, 4)
     layout.__dict__["rack_vertices"] = list(layout.racks)
-    segments = np.concatenate([rings, np.roll(rings, -1, axis=1)], axis=2).reshape(-1, 4)  # each vertex and the next
+    segments = np.concatenate([rings, rings[:, [1, 2, 3, 0]]], axis=2).reshape(-1, 4)  # each vertex and the next
     segments.setflags(write=False)
     layout.__dict__["segments"], layout.__dict__["rack_segments"] = segments, segments[: 4 * len(vertices)]
     return layout
