@@ -128,14 +128,20 @@ def main() -> None:
         return
     print(f"{args.num_humans} pedestrians/pickers, reward={args.reward!r}, best of {args.repeats} runs, resets included, "
           f"{'CPU' if args.cpu else 'wall-clock'} time")
-    print(f"{'robot':<14}{'CrowdNav-v0':>16}{'CrowdNavWarehouse-v0':>24}{'ratio':>8}")
+    # the warehouse with its default robot (a stop, acceleration and turn-rate limits), and with the paper's robot (80
+    # actions, no limits: the robot every ratio before issue #31 was measured with)
+    paper = gym.make("CrowdNavWarehouse-v0", num_humans=args.num_humans, reward=args.reward, actions="paper",
+                     max_acceleration=None, max_turn_rate=None).unwrapped
+    print(f"{'robot':<14}{'CrowdNav-v0':>16}{'warehouse':>16}{'ratio':>8}{'paper robot':>16}{'ratio':>8}")
     for label, steps, make in (("fixed action", args.steps, lambda e: None),
                                ("random x 8", args.steps, lambda e: RANDOM),
                                ("ORCA robot", args.steps // 4, lambda e: OrcaPolicy.from_env(e, mapping="constrained"))):
-        open_floor, hall = best([env, warehouse], steps, [make(env), make(warehouse)], args.repeats, args.cpu)
-        print(f"{label:<14}{open_floor:>12,.0f} /s{hall:>20,.0f} /s{hall / open_floor:>8.2f}")
+        envs = [env, warehouse, paper]
+        open_floor, hall, hall_paper = best(envs, steps, [make(e) for e in envs], args.repeats, args.cpu)
+        print(f"{label:<14}{open_floor:>12,.0f} /s{hall:>12,.0f} /s{hall / open_floor:>8.2f}"
+              f"{hall_paper:>12,.0f} /s{hall_paper / open_floor:>8.2f}")
         if args.breakdown:
-            for name, e in (("CrowdNav-v0", env), ("CrowdNavWarehouse-v0", warehouse)):
+            for name, e in (("CrowdNav-v0", env), ("warehouse", warehouse), ("paper robot", paper)):
                 print(f"{'':<14}{name}: {breakdown(e, steps, make(e), args.cpu)}")
     with tempfile.TemporaryDirectory() as directory:
         compare_crowds(args, env, directory)
