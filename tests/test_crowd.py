@@ -101,8 +101,8 @@ def test_the_warehouse_refuses_the_open_floors_crowd_settings():
                    {"stop_probability": 0.5}, {"stop_duration": (1.0, 2.0)}):
         with pytest.raises(ValueError, match=next(iter(kwargs))):
             gym.make("CrowdNavWarehouse-v0", **kwargs)
-    with pytest.raises(TypeError, match="robot_visible"):
-        gym.make("CrowdNavWarehouse-v0", robot_visible=0.5)
+    # a share of pickers seeing the robot is the warehouse's too now (tests/test_warehouse_visibility.py)
+    assert gym.make("CrowdNavWarehouse-v0", robot_visible=0.5).unwrapped.scene.robot_visible == 0.5
 
 
 def test_human_policy_is_the_old_name_of_crowd():

@@ -13,7 +13,7 @@ import pytest
 from sb3_crowdnav import ENV_IDS, WAREHOUSE_ENV_IDS
 from sb3_crowdnav.sim.actions import STOP_ACTION
 from sb3_crowdnav.sim.observation import Robot
-from sb3_crowdnav.sim.warehouse.config import ROBOT_DEFAULTS
+from sb3_crowdnav.sim.warehouse.config import PICKERS_SEE_ROBOT, ROBOT_DEFAULTS
 
 ALL_IDS = [*ENV_IDS, *WAREHOUSE_ENV_IDS]
 LAYOUT_FILE = Path(__file__).resolve().parent.parent / "examples" / "warehouse_layout.yaml"
@@ -55,7 +55,7 @@ REFUSED = {
 
 
 # defaults an env sets itself beyond its registered kwargs
-ENV_DEFAULTS = {"CrowdNavWarehouse-v0": ROBOT_DEFAULTS}
+ENV_DEFAULTS = {"CrowdNavWarehouse-v0": {**ROBOT_DEFAULTS, "robot_visible": PICKERS_SEE_ROBOT}}
 
 
 def _options(env_id: str) -> list[str]:

@@ -9,7 +9,7 @@ import pytest
 import sb3_crowdnav
 from sb3_crowdnav.evaluation.runner import make_policy, policy_label
 from sb3_crowdnav.models import PRETRAINED, pretrained_path
-from sb3_crowdnav.sim.warehouse.config import PAPER_ROBOT
+from sb3_crowdnav.sim.warehouse.config import BLIND_PICKERS, PAPER_ROBOT
 
 
 def test_unknown_or_missing_pretrained_name_raises():
@@ -79,5 +79,7 @@ def test_shipped_apg_warehouse_is_the_documented_cautious_value_ensemble_and_nav
         values = [member(tensors) for member in value_net.members]
         assert not th.allclose(values[0], values[1])  # two different networks
         th.testing.assert_close(value_net(tensors), (values[0] + values[1]) / 2)
-    records = run_episodes("pretrained:apg_warehouse", 10, env_id="CrowdNavWarehouse-v0", env_kwargs=PAPER_ROBOT)
+    # in its own world: the paper's robot among pickers who do not see it
+    records = run_episodes("pretrained:apg_warehouse", 10, env_id="CrowdNavWarehouse-v0",
+                           env_kwargs={**PAPER_ROBOT, **BLIND_PICKERS})
     assert sum(r.outcome == "success" for r in records) >= 8

@@ -174,8 +174,6 @@ BAD = [
 @pytest.mark.parametrize("env_id", ENVS)
 @pytest.mark.parametrize(("kwargs", "exception", "name"), BAD, ids=lambda x: str(x))
 def test_bad_settings_are_refused_at_construction_by_name(env_id, kwargs, exception, name):
-    if env_id == "CrowdNavWarehouse-v0" and "robot_visible" in kwargs:
-        exception = TypeError  # the warehouse takes a bool only, whatever the model
     with pytest.raises(exception, match=name):
         gym.make(env_id, crowd="social_force", **kwargs)
 

@@ -12,9 +12,15 @@ from sb3_crowdnav.envs import base
 from sb3_crowdnav.envs.base import CrowdEnvBase
 from sb3_crowdnav.sim.config import RewardConfig, SceneConfig
 from sb3_crowdnav.sim.observation import ObservationSchema
-from sb3_crowdnav.sim.validation import check_bool, check_choice
+from sb3_crowdnav.sim.validation import check_choice
 from sb3_crowdnav.sim.warehouse import LayoutRanges, WarehouseLayout
-from sb3_crowdnav.sim.warehouse.config import PICKER_CROWDS, ROBOT_DEFAULTS, WarehouseConfig
+from sb3_crowdnav.sim.warehouse.config import (
+    PICKER_CROWDS,
+    PICKERS_SEE_ROBOT,
+    ROBOT_DEFAULTS,
+    SOCIAL_FORCE_VISIBLE,
+    WarehouseConfig,
+)
 from sb3_crowdnav.sim.warehouse.simulator import WarehouseSimulator
 from sb3_crowdnav.sim.world import World
 
@@ -117,15 +123,17 @@ class CrowdNavWarehouseEnv(CrowdEnvBase):
 
     * ``crowd``: the pickers' model, ``"orca"`` (default) or ``"social_force"`` (JuPedSim's, the racks and walls its
       walkable area's boundary), with ``crowd_kwargs`` as on the open floor (``"orca"``'s ``safety_space`` too);
-    * ``robot_visible=True`` puts the robot into the pickers' model (ORCA: moved each step to its actual position and
-      velocity; social force: an agent following its path), so the pickers avoid it (default False: they do not
-      yield, as on the open floor);
+    * ``robot_visible``: who of the pickers sees the robot and avoids it, a share in [0, 1] (each picker sees it with
+      that probability, drawn per episode after the reset's other draws; the others are distracted and walk as if it
+      were not there) or a bool (all or none). Default 0.8 with ORCA, where a picker who sees it has it as one more
+      agent, at its actual position and velocity each step. Social force takes a bool (its forces act on everyone;
+      default True: the robot is an agent following its path). False: no picker yields (the shipped models' world);
     * ``actions``, ``max_acceleration`` and ``max_turn_rate``: the robot (defaults above; None is unlimited);
     * ``time_limit`` [s] replaces the route-based limit, so it excludes ``time_limit_factor`` and
       ``time_limit_slack``;
     * ``circle_radius``, ``square_width`` and ``start_noise`` (the open floor's) are refused, as are
-      ``human_policy`` other than ``"orca"``, ``crowd="linear"``, a share for ``robot_visible``, the ORCA fields with
-      ``crowd="social_force"``, the open floor's population (``human_speed``, ``stop_probability``,
+      ``human_policy`` other than ``"orca"``, ``crowd="linear"``, a share for ``robot_visible`` with social force,
+      the ORCA fields with ``crowd="social_force"``, the open floor's population (``human_speed``, ``stop_probability``,
       ``stop_duration``), ``scenario`` other
       than ``"warehouse"`` and a reward weight of another reward (as in ``CrowdNav-v0``).
 
@@ -133,6 +141,8 @@ class CrowdNavWarehouseEnv(CrowdEnvBase):
 
     * v0: initial version. Since the kinematic limits: the robot defaults to a warehouse AMR's (a stop, 1 m/s²,
       1.5 rad/s); the earlier episodes are those of ``actions="paper", max_acceleration=None, max_turn_rate=None``.
+      Since the pickers see the robot: 4 in 5 ORCA pickers see it by default (all with social force); the earlier
+      episodes also need ``robot_visible=False``.
     """
 
     def __init__(self, render_mode: str | None = None, reward: str = "crowdnav", gamma: float = 0.9,
@@ -153,13 +163,15 @@ class CrowdNavWarehouseEnv(CrowdEnvBase):
         for key, value in ROBOT_DEFAULTS.items():  # a warehouse AMR (a holonomic robot has no turn rate to limit)
             if not (key == "max_turn_rate" and scene_kwargs.get("kinematics") == "holonomic"):
                 scene_kwargs.setdefault(key, value)
+        # who sees the robot: a share of ORCA pickers; social force takes a bool (its forces act on everyone)
+        scene_kwargs.setdefault("robot_visible", SOCIAL_FORCE_VISIBLE if scene_kwargs.get("crowd") == "social_force"
+                                else PICKERS_SEE_ROBOT)
         fixed_time_limit = "time_limit" in kwargs
         both = [key for key in ROUTE_TIME_KEYS if key in kwargs]
         if fixed_time_limit and both:
             raise ValueError(f"time_limit and {both[0]} exclude each other: time_limit truncates every episode at a "
                              f"fixed time, {' and '.join(ROUTE_TIME_KEYS)} by its route's length; pass one or the other")
         scene = SceneConfig(**scene_kwargs)
-        check_bool("robot_visible", scene.robot_visible)  # all pickers or none: a share is the open floor's for now
         reward_config = RewardConfig(name=reward, **reward_kwargs)
         unused_crowd = {key: "concerns ORCA pickers; crowd='social_force' sets its forces in crowd_kwargs"
                         for key in ORCA_KEYS if scene.crowd == "social_force"}

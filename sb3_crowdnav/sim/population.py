@@ -44,11 +44,7 @@ def draw_people(scene: SceneConfig, starts: np.ndarray, goals: np.ndarray, rng: 
         v_prefs = np.clip(rng.normal(mean, sd, n), low, high)
     else:
         v_prefs = np.full(n, scene.human_v_pref)
-    share = scene.robot_visible
-    if isinstance(share, bool):
-        sees = np.full(n, share)
-    else:
-        sees = rng.random(n) < share
+    sees = draw_sees_robot(scene.robot_visible, n, rng)
     stop_start, stop_end = np.full(n, math.inf), np.full(n, math.inf)
     if scene.stop_probability > 0:
         stops = rng.random(n) < scene.stop_probability
@@ -59,6 +55,14 @@ def draw_people(scene: SceneConfig, starts: np.ndarray, goals: np.ndarray, rng: 
         stop_end = np.where(stops, when + duration, math.inf)
     return People(np.asarray(starts, dtype=np.float64).reshape(n, 2), np.asarray(goals, dtype=np.float64).reshape(n, 2),
                   np.full(n, scene.human_radius), v_prefs, sees, stop_start, stop_end)
+
+
+def draw_sees_robot(robot_visible: bool | float, n: int, rng: np.random.Generator) -> np.ndarray:
+    """Who of ``n`` people sees the robot, (n,) bool: everyone or no one for a bool (nothing drawn), else each person
+    with probability ``robot_visible`` (a share in (0, 1)), one ``rng.random(n)`` draw in the people's order."""
+    if isinstance(robot_visible, bool):
+        return np.full(n, robot_visible)
+    return rng.random(n) < robot_visible
 
 
 class PreferredVelocities:
@@ -101,4 +105,4 @@ MEASURED_POPULATION = MappingProxyType({
 seeing the robot with probability 0.5. The speeds are measured; the stops and the share who see the robot are a
 stated choice, not a measurement (``docs/decisions.md``). The generalisation table's "measured-speed population"."""
 
-__all__ = ["MEASURED_POPULATION", "People", "PreferredVelocities", "draw_people"]
+__all__ = ["MEASURED_POPULATION", "People", "PreferredVelocities", "draw_people", "draw_sees_robot"]

@@ -17,6 +17,12 @@ AISLE_MARGIN = 0.2  # [m] an aisle must be at least the robot's diameter + this 
 ROBOT_DEFAULTS = {"actions": "with_stop", "max_acceleration": 1.0, "max_turn_rate": 1.5}
 # the robot the shipped warehouse models were trained with (the paper's): pass these to run them in their world
 PAPER_ROBOT = {"actions": "paper", "max_acceleration": None, "max_turn_rate": None}
+# the share of pickers who see the robot by default with ORCA pickers (docs/decisions.md, "Pickers who see the robot");
+# social force takes a bool, its default SOCIAL_FORCE_VISIBLE
+PICKERS_SEE_ROBOT = 0.8
+SOCIAL_FORCE_VISIBLE = True
+# the pickers the shipped warehouse models met (none saw the robot): with PAPER_ROBOT, their world's episodes
+BLIND_PICKERS = {"robot_visible": False}
 
 
 @dataclass(frozen=True)
@@ -122,11 +128,10 @@ PICKER_CROWDS = ("orca", "social_force")  # the crowd models that see walls
 
 def check_pickers(scene: SceneConfig) -> None:
     """``ValueError`` naming a crowd setting the pickers do not have (yet): a crowd model that does not see walls,
-    the open floor's population, a share of people seeing the robot (all pickers or none)."""
+    the open floor's population. (A share of pickers seeing the robot is ORCA's; social force refuses it.)"""
     check_choice("crowd", scene.crowd, PICKER_CROWDS)
     default = SceneConfig()
     for name in OPEN_FLOOR_ONLY:
         if getattr(scene, name) != getattr(default, name):
             raise ValueError(f"{name} is the open floor's; the warehouse's pickers are its own ORCA crowd, got "
                              f"{getattr(scene, name)!r}")
-    check_instance("robot_visible", scene.robot_visible, bool, "a bool in the warehouse (all pickers or none)")

@@ -12,6 +12,12 @@ time step can still press an agent into a thin obstacle, every step ends by push
 a wall back out to its radius (:meth:`PickerCrowd.step`); with social force the walls push the pickers away, and the
 model has its own rule for one pushed out of the walkable area.
 
+Who sees the robot (``scene.robot_visible``): everyone or no one for a bool; for a share, each picker with that
+probability, drawn at reset after every other draw of the reset (the start slots, who stands, the dwells and first
+jobs), so that those stay the draws of a world without it. The others are distracted: they walk as if the robot
+were not there. With ORCA a picker who sees the robot has it as one more agent, at its actual position and velocity
+each step (:class:`~sb3_crowdnav.sim.crowd.OrcaCrowdModel`); social force takes a bool only.
+
 With a fixed layout, the slots, the roadmap and the routes between slots serve every episode (the simulator keeps
 its :class:`PickSlots`).
 """
@@ -25,7 +31,7 @@ from shapely.ops import nearest_points
 
 from sb3_crowdnav.sim.config import SceneConfig
 from sb3_crowdnav.sim.crowd import CrowdModel, RobotAgent, Walls, make_crowd
-from sb3_crowdnav.sim.population import People
+from sb3_crowdnav.sim.population import People, draw_sees_robot
 from sb3_crowdnav.sim.warehouse import kernels
 from sb3_crowdnav.sim.warehouse.boxes import in_free_space
 from sb3_crowdnav.sim.warehouse.layout import WarehouseLayout
@@ -91,8 +97,9 @@ class PickerCrowd:
     :param starts: start slot of each picker, an index into ``usable``
     :param rng: the episode's generator (dwell times, next slots)
     :param dwell_time: (min, max) [s]
-    :param robot: ``(position (2,), velocity (2,), radius)`` of the robot at the start when the pickers see it (with
-        ORCA it is then one more agent, moved each step to the robot's actual state); None: the robot is invisible
+    :param robot: ``(position (2,), velocity (2,), radius)`` of the robot at the start when some pickers see it
+        (``scene.robot_visible`` True or a share; with ORCA it is then one more agent of those who see it, moved each
+        step to the robot's actual position and velocity); None: the robot is invisible to all
     :param crowd: the crowd model that moves them (kept by the simulator across episodes); None: a new one of
         ``scene.crowd``
     """
@@ -122,12 +129,6 @@ class PickerCrowd:
         self.waypoint_arrival = ARRIVAL + (stops_short(PICKER_CLEARANCE, v, slowing=False) if stops_short else 0.0)
         self.slot_arrival = ARRIVAL + (stops_short(SLOT_OFFSET, v) if stops_short is not None else 0.0)
         here = self.slots[starts]
-        people = People(here, here, np.full(n, scene.human_radius), np.full(n, scene.human_v_pref),
-                        np.full(n, robot is not None), np.full(n, np.inf), np.full(n, np.inf))
-        seen = robot if robot is not None else (np.zeros(2), np.zeros(2), scene.robot_radius)
-        self.crowd.reset(rng, people, RobotAgent(tuple(np.asarray(seen[0], dtype=np.float64).tolist()),
-                                                 tuple(np.asarray(seen[1], dtype=np.float64).tolist()), float(seen[2])),
-                         slots.walls)
         self.slot = np.array(starts, dtype=np.int64)  # a copy: the caller keeps the start slots
         self.routes: list[list[list[float]]] = [[p] for p in self.slots[starts].tolist()]  # waypoints, in floats
         # the same waypoints for the kernels: row i holds the first _route_lengths[i] of (n, K, 2)
@@ -141,6 +142,15 @@ class PickerCrowd:
                 self.dwell[i] = rng.uniform(*dwell_time) * rng.random()
             else:
                 self._next_job(i)
+        # who sees the robot: drawn after the jobs (so that a share leaves the draws above as they were), one
+        # rng.random(n) in the pickers' order for a share, nothing for a bool
+        self.sees_robot = draw_sees_robot(scene.robot_visible, n, rng) if robot is not None else np.zeros(n, dtype=bool)
+        people = People(here, here, np.full(n, scene.human_radius), np.full(n, scene.human_v_pref),
+                        self.sees_robot, np.full(n, np.inf), np.full(n, np.inf))
+        seen = robot if robot is not None else (np.zeros(2), np.zeros(2), scene.robot_radius)
+        self.crowd.reset(rng, people, RobotAgent(tuple(np.asarray(seen[0], dtype=np.float64).tolist()),
+                                                 tuple(np.asarray(seen[1], dtype=np.float64).tolist()), float(seen[2])),
+                         slots.walls)
 
     @property
     def standing(self) -> np.ndarray:

@@ -46,7 +46,8 @@ class WarehouseSimulator(CrowdSimulator):
     directions) whose pedestrians are :class:`PickerCrowd` pickers, plus the layout, the robot's route, the
     obstacle segments and the swept-disc collision with them.
 
-    With ``scene.robot_visible`` the pickers' ORCA has the robot as one more agent (they avoid it). An episode is
+    With ``scene.robot_visible`` (True, or a share of the pickers drawn per episode) the pickers who see the robot
+    have it as one more agent of their model (they avoid it). An episode is
     truncated after ``time_limit_slack + time_limit_factor x`` its route's time at ``robot_v_pref``, or, with
     ``fixed_time_limit``, after ``scene.time_limit`` whatever the route.
     """
@@ -120,7 +121,8 @@ class WarehouseSimulator(CrowdSimulator):
         usable = kernels.far_from_both(slots, start[0], start[1], goal[0], goal[1], gap)  # np.hypot of each to both
         starts = self._spread(rng, slots[usable], n, 2 * s.human_radius + 0.2)
         self.num_humans = len(starts)
-        robot = (start, np.zeros(2), s.robot_radius) if s.robot_visible else None  # at rest, as on the open floor
+        # at rest, as on the open floor; a share is drawn per picker by PickerCrowd, after its other draws
+        robot = (start, np.zeros(2), s.robot_radius) if s.robot_visible else None
         self.pickers = PickerCrowd(s, picks, usable, starts, rng, cfg.dwell_time, robot, self.crowd) if n else None
         current = np.zeros((s.max_humans, HUMAN_DIM))
         current[: self.num_humans, Human.POS] = slots[usable[starts]] if n else np.zeros((0, 2))
