@@ -128,10 +128,10 @@ def main() -> None:
         return
     print(f"{args.num_humans} pedestrians/pickers, reward={args.reward!r}, best of {args.repeats} runs, resets included, "
           f"{'CPU' if args.cpu else 'wall-clock'} time")
-    # the warehouse with its default robot (a stop, acceleration and turn-rate limits), and with the paper's robot (80
-    # actions, no limits: the robot every ratio before issue #31 was measured with)
+    # the warehouse with its defaults (a robot with a stop and acceleration and turn-rate limits, pickers who mostly see
+    # it), and as before issue #31 (the paper's robot, 80 actions, no limits, pickers who never see it)
     paper = gym.make("CrowdNavWarehouse-v0", num_humans=args.num_humans, reward=args.reward, actions="paper",
-                     max_acceleration=None, max_turn_rate=None).unwrapped
+                     max_acceleration=None, max_turn_rate=None, robot_visible=False).unwrapped
     print(f"{'robot':<14}{'CrowdNav-v0':>16}{'warehouse':>16}{'ratio':>8}{'paper robot':>16}{'ratio':>8}")
     for label, steps, make in (("fixed action", args.steps, lambda e: None),
                                ("random x 8", args.steps, lambda e: RANDOM),
