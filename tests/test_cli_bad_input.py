@@ -36,6 +36,8 @@ ENV_CASES = [  # (arguments, what the message must say), for every command that 
     (["--env-kwargs", "__import__('os')"], "--env-kwargs"),
     (["--env-kwargs", "[1, 2]"], "--env-kwargs must be a dict"),
     (["--env-kwargs", "dict(no_such=1)"], "no_such"),
+    (["--humans", "4", "--env-kwargs", "dict(num_humans=5)"], "--humans and --env-kwargs num_humans both set"),
+    (["--visible", "--env-kwargs", "dict(robot_visible=0.5)"], "--visible and --env-kwargs robot_visible"),
     (["--threads", "0"], "--threads"),
 ]
 POLICY_CASES = [

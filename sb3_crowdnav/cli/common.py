@@ -132,12 +132,16 @@ def env_kwargs_from_args(args: argparse.Namespace, crowd: bool = True) -> dict[s
         if not isinstance(extra, dict):
             raise UsageError(f"--env-kwargs must be a dict, got {args.env_kwargs!r}")
         kwargs.update(extra)
-    for name, key in (("humans", "num_humans"), ("max_humans", "max_humans"), ("reward", "reward"),
-                      ("kinematics", "kinematics"), ("human_policy", "human_policy")):
-        if getattr(args, name) is not None:
-            kwargs[key] = getattr(args, name)
-    if args.visible:
-        kwargs["robot_visible"] = True
+    flags = {"num_humans": ("--humans", args.humans), "max_humans": ("--max-humans", args.max_humans),
+             "reward": ("--reward", args.reward), "kinematics": ("--kinematics", args.kinematics),
+             "human_policy": ("--human-policy", args.human_policy),
+             "robot_visible": ("--visible", True if args.visible else None)}
+    for key, (flag, value) in flags.items():
+        if value is None:
+            continue
+        if key in kwargs:  # one setting from two places: neither silently wins
+            raise UsageError(f"{flag} and --env-kwargs {key} both set {key}; give it once")
+        kwargs[key] = value
     specs = crowd_specs(args)
     if specs:
         given = [name for name in ("crowd", "crowd_kwargs", "human_policy") if name in kwargs]
