@@ -107,14 +107,7 @@ class ResultsTable:
 
     def to_csv(self, path: str | Path | None = None) -> str:
         """The CSV text; also written to ``path`` when given."""
-        buf = io.StringIO()
-        writer = csv.DictWriter(buf, fieldnames=[self.key_name, *CSV_COLUMNS], lineterminator="\n")
-        writer.writeheader()
-        writer.writerows(self.rows)
-        text = buf.getvalue()
-        if path is not None:
-            Path(path).write_text(text)
-        return text
+        return _write_csv(self.rows, [self.key_name, *CSV_COLUMNS], path)
 
     def save(self, stem: str | Path) -> tuple[Path, Path]:
         """Write ``stem.md`` and ``stem.csv``; return both paths."""
@@ -200,14 +193,7 @@ class CrowdTable:
 
     def to_csv(self, path: str | Path | None = None) -> str:
         """The CSV text (one row per pair); also written to ``path`` when given."""
-        buf = io.StringIO()
-        writer = csv.DictWriter(buf, fieldnames=["method", "crowd", *CSV_COLUMNS], lineterminator="\n")
-        writer.writeheader()
-        writer.writerows(self.rows)
-        text = buf.getvalue()
-        if path is not None:
-            Path(path).write_text(text)
-        return text
+        return _write_csv(self.rows, ["method", "crowd", *CSV_COLUMNS], path)
 
     def save(self, stem: str | Path, headers: Mapping[str, str] | None = None) -> tuple[Path, Path]:
         """Write ``stem.md`` and ``stem.csv``; return both paths."""
@@ -220,6 +206,18 @@ class CrowdTable:
 
     def __str__(self) -> str:
         return self.to_markdown()
+
+
+def _write_csv(rows: list[dict[str, Any]], columns: list[str], path: str | Path | None) -> str:
+    """``rows`` as CSV text with ``columns``; also written to ``path`` when given."""
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=columns, lineterminator="\n")
+    writer.writeheader()
+    writer.writerows(rows)
+    text = buf.getvalue()
+    if path is not None:
+        Path(path).write_text(text)
+    return text
 
 
 def _crowd_cell(row: Mapping[str, Any] | None) -> str:
