@@ -143,7 +143,11 @@ def markdown_block(table: CrowdTable, planned, episodes: int) -> str:
              "written by `examples/generalisation.py`.", "", table.to_markdown(titles).rstrip(), "", "Columns:", ""]
     for key, (title, spec, kwargs) in planned.items():
         setting = ", ".join(f"`{k}={v!r}`" for k, v in kwargs.items())
-        lines.append(f"- {title} (`{key}`): `--crowd {spec}`" + (f" with {setting}" if setting else ""))
+        text = str(spec)
+        path = dict(spec.settings).get("path") if spec.model == "replay" else None
+        if path:  # the recording's folder is this machine's: DATA, as in the command above the table
+            text = text.replace(str(path), f"DATA/{Path(str(path)).name}")
+        lines.append(f"- {title} (`{key}`): `--crowd {text}`" + (f" with {setting}" if setting else ""))
     return "\n".join(lines) + "\n"
 
 
