@@ -160,7 +160,10 @@ def test_cautious_pedestrian_model_charges_the_worse_of_moving_on_and_standing_s
     from sb3_crowdnav import APGValue
     from sb3_crowdnav.sim.observation import Human, ObservationSchema
 
-    env = gym.make("CrowdNavWarehouse-v0", num_humans=8)
+    # the world this test was written in (the paper's robot among blind pickers): under the warehouse's new defaults no
+    # action met a stopping picker in these 300 steps, so the comparison would check nothing
+    env = gym.make("CrowdNavWarehouse-v0", num_humans=8, actions="paper", max_acceleration=None, max_turn_rate=None,
+                   robot_visible=False)
     cv, cautious = _model(env), _model(env)
     cautious.pedestrian_model = "cautious"
     schema = ObservationSchema.from_space(env.observation_space)
