@@ -4,7 +4,6 @@ policy x crowd) and ``examples/generalisation.py``."""
 from __future__ import annotations
 
 import csv
-import importlib.util
 import json
 import math
 import shutil
@@ -14,6 +13,7 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 import pytest
+from example_scripts import load_example
 from gymnasium.utils.env_checker import check_env as gym_check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
@@ -26,14 +26,9 @@ from sb3_crowdnav.evaluation.tables import CSV_COLUMNS, CrowdTable, crowd_table
 from sb3_crowdnav.sim import CROWD_MODELS
 from sb3_crowdnav.sim.population import MEASURED_POPULATION
 
-SCRIPT = Path(__file__).resolve().parents[1] / "examples" / "generalisation.py"
-
 
 def _script():
-    spec = importlib.util.spec_from_file_location("generalisation", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_example("generalisation")
 
 
 def _refused(capsys, argv: list[str], fragment: str, run=main) -> str:

@@ -410,12 +410,9 @@ def test_a_window_past_the_recording_is_an_empty_floor(tmp_path):
 def test_the_preparation_script_writes_each_scene_in_the_replay_format(tmp_path, capsys):
     """examples/prepare_recordings.py: OpenTraj's 8-column obsmat files become ``frame id x y`` files the replay reads
     at the scene's frame rate; a person seen once is dropped and named."""
-    import importlib.util
+    from example_scripts import load_example
 
-    script = Path(__file__).resolve().parents[1] / "examples" / "prepare_recordings.py"
-    spec = importlib.util.spec_from_file_location("prepare_recordings", script)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    module = load_example("prepare_recordings")
     root = tmp_path / "OpenTraj"
     for path, _ in module.SCENES.values():
         rows = [(f, 1, 0.5 * f / 6, 0.0, 2.0, 1.0, 0.0, 0.0) for f in range(0, 60, 6)]  # 1.25 m/s at 15 fps ETH-like

@@ -2,21 +2,15 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import os
-from pathlib import Path
 
 import pytest
-
-SCRIPT = Path(__file__).resolve().parents[1] / "examples" / "warehouse_results.py"
+from example_scripts import load_example
 
 
 def _script():
-    spec = importlib.util.spec_from_file_location("warehouse_results", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_example("warehouse_results")
 
 
 def _run_folder(path, start, validations):
