@@ -129,9 +129,10 @@ def main() -> None:
     print(f"{args.num_humans} pedestrians/pickers, reward={args.reward!r}, best of {args.repeats} runs, resets included, "
           f"{'CPU' if args.cpu else 'wall-clock'} time")
     # the warehouse with its defaults (a robot with a stop and acceleration and turn-rate limits, pickers who mostly see
-    # it), and as before issue #31 (the paper's robot, 80 actions, no limits, pickers who never see it)
+    # it), and as before issue #31 (the paper's robot, 80 actions, no limits, pickers who never see it, seen through racks)
     paper = gym.make("CrowdNavWarehouse-v0", num_humans=args.num_humans, reward=args.reward, actions="paper",
-                     max_acceleration=None, max_turn_rate=None, robot_visible=False).unwrapped
+                     max_acceleration=None, max_turn_rate=None, robot_visible=False, occlusion=False,
+                     people_sensor_range=None).unwrapped
     print(f"{'robot':<14}{'CrowdNav-v0':>16}{'warehouse':>16}{'ratio':>8}{'paper robot':>16}{'ratio':>8}")
     for label, steps, make in (("fixed action", args.steps, lambda e: None),
                                ("random x 8", args.steps, lambda e: RANDOM),

@@ -10,8 +10,9 @@ with ``comfort_angular``, random (10) and ORCA (3). Every reset's observation an
 (all keys: dtype, shape, bytes), reward, terminated/truncated flags and info (outcome, reward terms, episode
 statistics; floats by ``repr``, exact) go into the group's hash. The warehouse groups run the paper's robot
 (``actions="paper", max_acceleration=None, max_turn_rate=None``, the warehouse's defaults before the kinematic
-limits) among pickers who do not see it (``robot_visible=False``, the default before the pickers saw the robot), so
-their digests are those recorded before. Prints one digest per group and the total;
+limits) among pickers who do not see it (``robot_visible=False``, the default before the pickers saw the robot), seen
+through racks at any range (``occlusion=False, people_sensor_range=None``, before the people sensor), so their digests
+are those recorded before. Prints one digest per group and the total;
 ``--save`` writes them as JSON, ``--check`` compares with such a file and exits 1 on any mismatch; ``--scale``
 multiplies every group's episodes (a stricter check; its digests differ from the default's).
 """
@@ -35,7 +36,8 @@ from sb3_crowdnav import OrcaPolicy
 LAYOUT_FILE = Path(__file__).resolve().parent.parent / "examples" / "warehouse_layout.yaml"
 RANDOM, ORCA = "random", "orca"
 # the warehouse's robot before #31, among pickers who do not see it (the warehouse's default before them)
-PAPER_ROBOT = {"actions": "paper", "max_acceleration": None, "max_turn_rate": None, "robot_visible": False}
+PAPER_ROBOT = {"actions": "paper", "max_acceleration": None, "max_turn_rate": None, "robot_visible": False,
+               "occlusion": False, "people_sensor_range": None}
 
 # (name, env id, env kwargs, robot, episodes, seed)
 GROUPS: list[tuple[str, str, dict[str, Any], str, int, int]] = [

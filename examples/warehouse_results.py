@@ -33,8 +33,9 @@ LAYOUT_FILE = Path(__file__).with_name("warehouse_layout.yaml")
 POLICIES = ("pretrained:apg_warehouse", "pretrained:ppo_warehouse", "orca", "orca-constrained")
 SWEEP = (2, 4, 6, 8, 10)
 # the world the shipped warehouse models were trained in, not today's defaults: the paper's robot (80 actions, no
-# limits) among pickers who do not see it (robot_visible=False)
-PAPER_ROBOT = "actions='paper', max_acceleration=None, max_turn_rate=None, robot_visible=False"
+# limits) among pickers who do not see it (robot_visible=False), seen through racks at any range
+PAPER_ROBOT = ("actions='paper', max_acceleration=None, max_turn_rate=None, robot_visible=False, occlusion=False, "
+               "people_sensor_range=None")
 
 
 def benchmark(out: Path, policies, episodes: int, workers: int, extra=()) -> None:

@@ -109,18 +109,19 @@ def test_the_stop_holds_the_robot_still(kinematics, limited):
 @pytest.mark.parametrize(("env_id", "kwargs"), [
     ("CrowdNav-v0", {"kinematics": "unicycle", "crowd": "linear", **LIMITS["unicycle"]}),
     ("CrowdNav-v0", {"kinematics": "holonomic", "crowd": "linear", **LIMITS["holonomic"]}),
-    ("CrowdNavWarehouse-v0", {}),  # its defaults: the stop and both limits
+    ("CrowdNavWarehouse-v0", {}),  # its defaults: the stop, both limits, occlusion by racks and an 8 m range
 ])
-def test_env_and_lookahead_agree_on_random_transitions_with_limits(env_id, kwargs):
+def test_env_and_lookahead_agree_on_random_transitions_with_limits_and_occlusion(env_id, kwargs):
     """The lookahead propagates the robot by the env's rule (the same compiled move()): on random states and actions
-    its next robot state is the env's (to float32), and on the open floor with constant-velocity people so is R."""
+    its next robot state is the env's (to float32), and on the open floor with constant-velocity people so is R. In
+    the warehouse the racks hide pickers: the lookahead reads the observation only, so it predicts from those seen."""
     env = gym.make(env_id, actions="with_stop", num_humans=3, **kwargs)
     world = env.unwrapped.world
     assert world.max_acceleration == 1.0
     model = PropagationModel(world, env.unwrapped.scene.history_length, 0.9)
     rng = np.random.default_rng(5)
     obs, _ = env.reset(seed=11)
-    checked = 0
+    checked = hidden = 0
     for _ in range(150):
         prop = model(obs["robot"][None], obs["humans"][None], obs["humans_mask"][None],
                      {k: obs[k][None] for k in ("obstacles", "obstacles_mask", "waypoints") if k in obs})
@@ -134,8 +135,10 @@ def test_env_and_lookahead_agree_on_random_transitions_with_limits(env_id, kwarg
             assert prop.reward[0, action] == pytest.approx(reward, abs=1e-4)
             assert bool(prop.terminal[0, action]) == terminated
         checked += 1
+        hidden += int(env.unwrapped.sim.mask.sum() - nxt["humans_mask"].sum())
         obs = env.reset()[0] if terminated or truncated else nxt
     assert checked == 150
+    assert (hidden > 0) == (env_id == "CrowdNavWarehouse-v0")  # occlusion was at work in the warehouse
 
 
 @pytest.mark.parametrize(("kwargs", "match"), [

@@ -9,7 +9,7 @@ import pytest
 import sb3_crowdnav
 from sb3_crowdnav.evaluation.runner import make_policy, policy_label
 from sb3_crowdnav.models import PRETRAINED, pretrained_path
-from sb3_crowdnav.sim.warehouse.config import BLIND_PICKERS, PAPER_ROBOT
+from sb3_crowdnav.sim.warehouse.config import PAPER_WAREHOUSE
 
 
 def test_unknown_or_missing_pretrained_name_raises():
@@ -23,7 +23,8 @@ def test_unknown_or_missing_pretrained_name_raises():
 
 def test_every_shipped_model_loads_and_drives():
     # the shipped warehouse models act in the world they were trained in: the paper's robot (80 actions, no limits)
-    envs = {"CrowdNav-v0": gym.make("CrowdNav-v0"), "CrowdNavWarehouse-v0": gym.make("CrowdNavWarehouse-v0", **PAPER_ROBOT)}
+    envs = {"CrowdNav-v0": gym.make("CrowdNav-v0"),
+            "CrowdNavWarehouse-v0": gym.make("CrowdNavWarehouse-v0", **PAPER_WAREHOUSE)}
     observations = {env_id: env.reset(seed=1_000_000)[0] for env_id, env in envs.items()}
     for name in sb3_crowdnav.available_pretrained():
         model = sb3_crowdnav.pretrained(name)
@@ -73,7 +74,7 @@ def test_shipped_apg_warehouse_is_the_documented_cautious_value_ensemble_and_nav
     value_net = model.policy.value_net
     assert isinstance(value_net, ValueEnsemble) and len(value_net.members) == 2
     assert model.policy.pedestrian_model == "cautious"
-    obs, _ = gym.make("CrowdNavWarehouse-v0", **PAPER_ROBOT).reset(seed=1_000_000)
+    obs, _ = gym.make("CrowdNavWarehouse-v0", **PAPER_WAREHOUSE).reset(seed=1_000_000)
     tensors = {k: th.as_tensor(v[None], dtype=th.float32) for k, v in obs.items()}
     with th.no_grad():
         values = [member(tensors) for member in value_net.members]
@@ -81,5 +82,5 @@ def test_shipped_apg_warehouse_is_the_documented_cautious_value_ensemble_and_nav
         th.testing.assert_close(value_net(tensors), (values[0] + values[1]) / 2)
     # in its own world: the paper's robot among pickers who do not see it
     records = run_episodes("pretrained:apg_warehouse", 10, env_id="CrowdNavWarehouse-v0",
-                           env_kwargs={**PAPER_ROBOT, **BLIND_PICKERS})
+                           env_kwargs=PAPER_WAREHOUSE)
     assert sum(r.outcome == "success" for r in records) >= 8

@@ -16,13 +16,13 @@ import pytest
 
 import sb3_crowdnav
 from sb3_crowdnav.models import PRETRAINED
-from sb3_crowdnav.sim.warehouse.config import BLIND_PICKERS, PAPER_ROBOT
+from sb3_crowdnav.sim.warehouse.config import PAPER_WAREHOUSE
 
 RECORD = Path(__file__).parent / "data" / "pretrained_actions.npz"
 ENVS = {"crowdnav": ("CrowdNav-v0", 300), "warehouse": ("CrowdNavWarehouse-v0", 200)}  # env id, observations
 # the world the shipped warehouse models were trained in: the paper's robot, pickers who do not see it (the recorded
 # observations are of that world)
-ENV_KWARGS = {"warehouse": {**PAPER_ROBOT, **BLIND_PICKERS}}
+ENV_KWARGS = {"warehouse": PAPER_WAREHOUSE}
 
 
 def env_key(name: str) -> str:

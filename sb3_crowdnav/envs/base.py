@@ -147,7 +147,7 @@ class CrowdEnvBase(gym.Env):
     # ------------------------------------------------------------------ observation
     def _get_obs(self) -> dict[str, np.ndarray]:
         sim = self.sim
-        obs = self.schema.observation(sim.robot, sim.history, sim.mask, **self._static_obs())
+        obs = self.schema.observation(sim.robot, *sim.observed(), **self._static_obs())
         robot, humans = obs["robot"], obs["humans"]
         b = np.float32(self._pos_bound)
         # Agents cannot leave the bounds within the time limit (|start| + v_pref * time_limit < bound), so
@@ -227,7 +227,9 @@ class CrowdEnvBase(gym.Env):
 
         if self._renderer is None:
             self._renderer = CrowdRenderer(self.scene, human=self.render_mode == "human")
-        frame = self._renderer.draw(self.trajectory, self.sim.human_goals, self.sim.robot[Robot.GOAL], self.sim.time,
+        sim = self.sim
+        unseen = None if sim.sensor is None else ~sim.observed()[1][: sim.num_humans]  # who the robot does not see
+        frame = self._renderer.draw(self.trajectory, sim.human_goals, sim.robot[Robot.GOAL], sim.time, unseen=unseen,
                                     **self._render_extras())
         return None if self.render_mode == "human" else frame  # Gymnasium: "human" draws on screen, returns None
 

@@ -119,6 +119,11 @@ class CrowdNavEnv(CrowdEnvBase):
       ``info["min_distance"]`` (and ``episode_stats["min_separation"]``) is the diagonal of the observation's
       position box, ``2·√2·pos_bound`` (``env.no_one_distance``, 87.7 m in ``CrowdNav-v0``), finite and farther than
       anyone can be.
+    * ``people_sensor_range`` [m] (default None: unlimited), ``people_sensor_noise`` [m] (σ on each observed
+      position, default 0) and ``people_sensor_latency`` [steps] (default 0): what the robot sees of the people
+      (:mod:`sb3_crowdnav.sim.sensing`; ``humans_mask`` is 1 for those seen now, an unseen slot is zeros over the
+      window). The people, rewards and collisions stay those of the true state; the noise is drawn from a child of
+      the episode's generator, so no other draw moves.
 
     Random draws come from the env's ``np_random`` at reset, after the scenario's and only for a setting away from
     its default (speeds, visibility, stops in this order), so the default episodes are the paper env's.

@@ -35,9 +35,10 @@ class CrowdRenderer:
 
     def draw(self, trajectory, human_goals: np.ndarray, robot_goal: np.ndarray, time: float,
              obstacles: Sequence[np.ndarray] = (), route: np.ndarray | None = None,
-             standing: np.ndarray | None = None) -> np.ndarray:
+             standing: np.ndarray | None = None, unseen: np.ndarray | None = None) -> np.ndarray:
         """One frame. The warehouse adds its ``obstacles`` ((k, 2) polygons, which also set the view), the robot's
-        ``route`` (n, 2) and which pickers are ``standing`` (hatched)."""
+        ``route`` (n, 2) and which pickers are ``standing`` (hatched); with a people sensor, who is ``unseen`` now
+        (faded, dashed outline)."""
         from matplotlib.patches import Circle, Polygon
 
         ax, s = self.ax, self.scene
@@ -70,7 +71,9 @@ class CrowdRenderer:
                 c = cmap(i % 10)
                 ax.plot(paths[:, i, 0], paths[:, i, 1], color=c, lw=0.8, alpha=0.6)
                 hatch = "////" if standing is not None and i < len(standing) and standing[i] else None
-                ax.add_patch(Circle(humans[i, :2], humans[i, 4], fc=c, ec="k", alpha=0.8, hatch=hatch))
+                hidden = unseen is not None and i < len(unseen) and unseen[i]
+                ax.add_patch(Circle(humans[i, :2], humans[i, 4], fc=c, ec="k", alpha=0.25 if hidden else 0.8,
+                                    hatch=hatch, ls="--" if hidden else "-"))
                 ax.plot(*human_goals[i], marker="x", color=c, ms=5)
         ax.add_patch(Circle(robot[Robot.POS], robot[Robot.RADIUS], fc=ROBOT_COLOR, ec="k"))
         h = robot[Robot.HEADING]
@@ -78,7 +81,8 @@ class CrowdRenderer:
                 color="k", lw=1.5)
         ax.plot(*robot_goal, marker="*", color="red", ms=14, mec="k", ls="none", label="goal")
         if len(obstacles):  # the warehouse has more to tell apart
-            ax.plot([], [], marker="o", color="0.5", ls="none", label="picker (hatched: standing)")
+            ax.plot([], [], marker="o", color="0.5", ls="none",
+                    label="picker (hatched: standing" + ("; faded: unseen)" if unseen is not None else ")"))
             ax.legend(loc="lower center", bbox_to_anchor=(0.5, 1.0), ncol=5, fontsize=6, frameon=False,
                       handlelength=1.5, columnspacing=1.0)
         ax.set_title(f"t = {time:.2f} s", pad=22 if len(obstacles) else 6)

@@ -15,6 +15,7 @@ from sb3_crowdnav.sim.observation import ObservationSchema
 from sb3_crowdnav.sim.validation import check_choice
 from sb3_crowdnav.sim.warehouse import LayoutRanges, WarehouseLayout
 from sb3_crowdnav.sim.warehouse.config import (
+    PEOPLE_SENSOR_RANGE,
     PICKER_CROWDS,
     PICKERS_SEE_ROBOT,
     ROBOT_DEFAULTS,
@@ -76,15 +77,18 @@ class CrowdNavWarehouseEnv(CrowdEnvBase):
     key                 shape                  content
     ==================  =====================  ==============================================================================
     ``robot``           (9,)                   px, py, vx, vy, radius, gx, gy (the final goal), v_pref, heading
-    ``humans``          (T * max_humans * 5,)  the pickers' px, py, vx, vy, radius for the last T = 5 steps
-    ``humans_mask``     (max_humans,)          1 for a present picker
+    ``humans``          (T * max_humans * 5,)  the seen pickers' px, py, vx, vy, radius for the last T = 5 steps (2)
+    ``humans_mask``     (max_humans,)          1 for a picker seen now
     ``obstacles``       (max_obstacles * 4,)   the nearest rack and wall segments (1), [x0, y0, x1, y1]
     ``obstacles_mask``  (max_obstacles,)       1 for an observed segment, 0 for padding (zeros)
     ``waypoints``       (num_waypoints * 2,)   the current route waypoint and the next ones (3), the goal repeated at the end
     ==================  =====================  ==============================================================================
 
     (1) the ``max_obstacles`` (16) segments nearest the robot within ``sensor_range`` (4 m), nearest first.
-    Positions are bounded by ± (the largest hall's half diagonal + 1 m).
+    (2) the robot sees a picker when a line of sight reaches their disc past the racks (``occlusion``) and the disc is
+    within ``people_sensor_range`` (8 m), with optional ``people_sensor_noise`` and ``people_sensor_latency``
+    (:mod:`sb3_crowdnav.sim.sensing`); an unseen picker's slot is zeros over the window, one seen again starts a new
+    history. Positions are bounded by ± (the largest hall's half diagonal + 1 m).
 
     ## Rewards
 
@@ -129,6 +133,8 @@ class CrowdNavWarehouseEnv(CrowdEnvBase):
       agent, at its actual position and velocity each step. Social force takes a bool (its forces act on everyone;
       default True: the robot is an agent following its path). False: no picker yields (the shipped models' world);
     * ``actions``, ``max_acceleration`` and ``max_turn_rate``: the robot (defaults above; None is unlimited);
+    * ``occlusion`` (default True), ``people_sensor_range`` (8 m; None: unlimited), ``people_sensor_noise`` (0 m) and
+      ``people_sensor_latency`` (0 steps): what the robot sees of the pickers; collisions count with everyone;
     * ``time_limit`` [s] replaces the route-based limit, so it excludes ``time_limit_factor`` and
       ``time_limit_slack``;
     * ``circle_radius``, ``square_width`` and ``start_noise`` (the open floor's) are refused, as are
@@ -142,7 +148,9 @@ class CrowdNavWarehouseEnv(CrowdEnvBase):
     * v0: initial version. Since the kinematic limits: the robot defaults to a warehouse AMR's (a stop, 1 m/s²,
       1.5 rad/s); the earlier episodes are those of ``actions="paper", max_acceleration=None, max_turn_rate=None``.
       Since the pickers see the robot: 4 in 5 ORCA pickers see it by default (all with social force); the earlier
-      episodes also need ``robot_visible=False``.
+      episodes also need ``robot_visible=False``. Since the people sensor: racks hide pickers and the range is 8 m;
+      the earlier observations also need ``occlusion=False, people_sensor_range=None`` (all of these:
+      ``sim.warehouse.config.PAPER_WAREHOUSE``).
     """
 
     def __init__(self, render_mode: str | None = None, reward: str = "crowdnav", gamma: float = 0.9,
@@ -163,6 +171,7 @@ class CrowdNavWarehouseEnv(CrowdEnvBase):
         for key, value in ROBOT_DEFAULTS.items():  # a warehouse AMR (a holonomic robot has no turn rate to limit)
             if not (key == "max_turn_rate" and scene_kwargs.get("kinematics") == "holonomic"):
                 scene_kwargs.setdefault(key, value)
+        scene_kwargs.setdefault("people_sensor_range", PEOPLE_SENSOR_RANGE)  # (and the racks hide pickers: occlusion)
         # who sees the robot: a share of ORCA pickers; social force takes a bool (its forces act on everyone)
         scene_kwargs.setdefault("robot_visible", SOCIAL_FORCE_VISIBLE if scene_kwargs.get("crowd") == "social_force"
                                 else PICKERS_SEE_ROBOT)

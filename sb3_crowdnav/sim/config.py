@@ -47,6 +47,8 @@ HUMAN_SPEEDS = ("fixed", "measured")
 # 28: 1.34 ± 0.26 m/s (after Henderson 1971 and Weidmann 1993's 1.34 m/s free walking speed)
 MEASURED_SPEED = (1.34, 0.26, 0.5, 2.0)
 MAX_STOP_DURATION = 3600.0  # [s]
+# the people sensor's bounds (:mod:`sb3_crowdnav.sim.sensing`): range [m], position noise σ [m], latency [steps]
+MAX_SENSOR_RANGE, MAX_SENSOR_NOISE, MAX_SENSOR_LATENCY = 1000.0, 5.0, 20
 REWARDS = ("crowdnav", "comfort", "comfort_angular")
 
 
@@ -111,6 +113,10 @@ class SceneConfig:
         per person at reset (when: uniform over the time it needs to walk straight to its goal)
     :param stop_duration: (min, max) [s] how long a stopping person stands, drawn uniformly per person
     :param history_length: T, number of past pedestrian states in the observation
+    :param people_sensor_range: [m] people whose disc is farther than this from the robot's centre are not observed;
+        None (the default): unlimited (:mod:`sb3_crowdnav.sim.sensing`)
+    :param people_sensor_noise: [m] σ of the Normal noise on each observed position, per axis; 0: exact
+    :param people_sensor_latency: [steps] the observation shows the people as sensed this many steps ago; 0: now
     :param orca_neighbor_dist: [m]
     :param orca_max_neighbors:
     :param orca_time_horizon: [s]
@@ -123,6 +129,9 @@ class SceneConfig:
     time_step: float = 0.25
     time_limit: float = 25.0
     history_length: int = 5
+    people_sensor_range: float | None = None  # [m]
+    people_sensor_noise: float = 0.0  # [m]
+    people_sensor_latency: int = 0  # [steps]
     kinematics: Literal["unicycle", "holonomic"] = "unicycle"
     rotation_range: float = 2 * math.pi
     actions: Literal["paper", "with_stop"] = "paper"
@@ -179,6 +188,7 @@ class SceneConfig:
                 object.__setattr__(self, name, float(getattr(self, name)))
         self._check_crowd()
         check_int("history_length", self.history_length, 1)
+        self._check_sensor()
         check_int("orca_max_neighbors", self.orca_max_neighbors, 1)
         for name, limit, unit in SCENE_LIMITS:
             check_at_most(name, getattr(self, name), limit, unit)
@@ -186,6 +196,16 @@ class SceneConfig:
             raise ValueError(f"time_limit / time_step must be <= {MAX_EPISODE_STEPS} steps per episode, got "
                              f"{self.time_limit} / {self.time_step} = {self.max_steps}")
         self._check_placement()
+
+    def _check_sensor(self) -> None:
+        """The people sensor: a range > 0 or None, a noise >= 0, a latency of whole steps >= 0, each within bounds."""
+        if self.people_sensor_range is not None:
+            check_number("people_sensor_range", self.people_sensor_range)
+            check_at_most("people_sensor_range", self.people_sensor_range, MAX_SENSOR_RANGE, " m")
+            object.__setattr__(self, "people_sensor_range", float(self.people_sensor_range))
+        check_number("people_sensor_noise", self.people_sensor_noise, allow_zero=True)
+        check_at_most("people_sensor_noise", self.people_sensor_noise, MAX_SENSOR_NOISE, " m")
+        check_int("people_sensor_latency", self.people_sensor_latency, 0, MAX_SENSOR_LATENCY)
 
     def _check_crowd(self) -> None:
         """The crowd model (``human_policy`` folded into ``crowd``), its settings and the population."""

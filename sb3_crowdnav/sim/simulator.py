@@ -13,6 +13,7 @@ from sb3_crowdnav.sim.observation import HUMAN_DIM, ROBOT_DIM, Human, Robot
 from sb3_crowdnav.sim.population import People, PreferredVelocities, draw_people
 from sb3_crowdnav.sim.rewards import STILL_SPEED, RewardTerms, compute_reward
 from sb3_crowdnav.sim.scenarios import generate_scenario
+from sb3_crowdnav.sim.sensing import PeopleSensor, sensing_on
 
 
 class CrowdSimulator:
@@ -55,6 +56,23 @@ class CrowdSimulator:
         self.num_humans = 0
         self.steps = 0
         self.max_steps = scene.max_steps  # the episode is truncated after this many steps (the env reads it)
+        # what the robot sees of the people (None: their true state, CrowdNav-v0's default)
+        self.sensor: PeopleSensor | None = PeopleSensor(scene) if sensing_on(scene) else None
+
+    def observed(self) -> tuple[np.ndarray, np.ndarray]:
+        """The pedestrian history (T, max_humans, 5) and mask (max_humans,) the robot observes: the sensor's
+        (:mod:`sb3_crowdnav.sim.sensing`), or the true ones without a sensor."""
+        if self.sensor is None:
+            return self.history, self.mask
+        return self.sensor.history, self.sensor.mask
+
+    def _sense_people(self, rng: np.random.Generator | None = None) -> None:
+        """Let the sensor see the people after a reset (with its ``rng``) or a step."""
+        (x, y), row = self.robot[Robot.POS].tolist(), self.history[-1]
+        if rng is not None:
+            self.sensor.reset(rng, x, y, row, self.mask)
+        else:
+            self.sensor.step(x, y, row, self.mask)
 
     # ------------------------------------------------------------------ reset
     def reset(self, rng: np.random.Generator) -> None:
@@ -92,6 +110,8 @@ class CrowdSimulator:
         self._preferred = PreferredVelocities(self.people)
         if n > 0:
             self.crowd.reset(rng, self.people, self._robot_agent())
+        if self.sensor is not None:
+            self._sense_people(rng)
 
     # ------------------------------------------------------------------ step
     def _robot_agent(self, end: tuple[float, float] | None = None) -> RobotAgent:
@@ -176,6 +196,8 @@ class CrowdSimulator:
         robot[Robot.VEL] = vx, vy
         robot[Robot.HEADING] = heading
         self.steps += 1
+        if self.sensor is not None:
+            self._sense_people()
 
         return compute_reward(
             self.reward_cfg, cfg.time_step, np.array([px, py]), robot[Robot.POS], np.float64(heading0),

@@ -7,7 +7,15 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from sb3_crowdnav.sim.config import SceneConfig
-from sb3_crowdnav.sim.validation import check_at_most, check_choice, check_instance, check_int, check_number, check_range
+from sb3_crowdnav.sim.validation import (
+    check_at_most,
+    check_bool,
+    check_choice,
+    check_instance,
+    check_int,
+    check_number,
+    check_range,
+)
 from sb3_crowdnav.sim.warehouse.layout import LayoutRanges, WarehouseLayout, layout_from_sizes
 
 MAX_PROGRESS_REWARD = 10.0  # [1/m] beyond this the shaping swamps the success reward (1) within centimetres
@@ -23,6 +31,13 @@ PICKERS_SEE_ROBOT = 0.8
 SOCIAL_FORCE_VISIBLE = True
 # the pickers the shipped warehouse models met (none saw the robot): with PAPER_ROBOT, their world's episodes
 BLIND_PICKERS = {"robot_visible": False}
+# the warehouse's people sensor by default (docs/decisions.md, "Sensing"): racks hide pickers (WarehouseConfig's
+# occlusion, True) and people farther than this [m] are not observed
+PEOPLE_SENSOR_RANGE = 8.0
+# how the shipped warehouse models saw the pickers: through racks, at any range
+FULL_SIGHT = {"occlusion": False, "people_sensor_range": None}
+# the warehouse before the realistic robot: the paper's robot, blind pickers, full sight (the shipped models' world)
+PAPER_WAREHOUSE = {**PAPER_ROBOT, **BLIND_PICKERS, **FULL_SIGHT}
 
 
 @dataclass(frozen=True)
@@ -33,6 +48,8 @@ class WarehouseConfig:
     :param layout_ranges: the ranges of generated layouts
     :param max_obstacles: M, obstacle segments in the observation (the nearest within ``sensor_range``)
     :param sensor_range: [m] obstacle segments farther than this from the robot are not observed
+    :param occlusion: pickers behind racks are not observed (:mod:`sb3_crowdnav.sim.sensing`); False: the robot sees
+        through racks (the world of the shipped warehouse models)
     :param num_waypoints: K, route waypoints in the observation (the current one first; the goal repeats)
     :param waypoint_radius: [m] a waypoint counts as passed when the robot's centre comes this close
     :param replan_distance: [m] the route is planned again from the robot when it strays farther than this
@@ -52,6 +69,7 @@ class WarehouseConfig:
     layout_ranges: LayoutRanges = field(default_factory=LayoutRanges)
     max_obstacles: int = 16
     sensor_range: float = 4.0
+    occlusion: bool = True
     num_waypoints: int = 3
     waypoint_radius: float = 0.6
     replan_distance: float = 1.5
@@ -66,6 +84,7 @@ class WarehouseConfig:
         check_instance("layout", self.layout, (WarehouseLayout, type(None)), "a WarehouseLayout or None")
         check_instance("layout_ranges", self.layout_ranges, LayoutRanges, "a LayoutRanges")
         check_int("max_obstacles", self.max_obstacles, 1)
+        check_bool("occlusion", self.occlusion)
         check_int("num_waypoints", self.num_waypoints, 1)
         for name in ("sensor_range", "waypoint_radius", "replan_distance", "min_route_distance", "time_limit_factor"):
             check_number(name, getattr(self, name))

@@ -13,11 +13,13 @@ from sb3_crowdnav.sim.config import RewardConfig, SceneConfig
 from sb3_crowdnav.sim.geometry import SEGMENT_DIM
 from sb3_crowdnav.sim.observation import HUMAN_DIM, ROBOT_DIM, Human, Robot
 from sb3_crowdnav.sim.rewards import RewardTerms, with_obstacle_collision, with_route_progress
+from sb3_crowdnav.sim.sensing import PeopleSensor, sensing_on
 from sb3_crowdnav.sim.simulator import CrowdSimulator
 from sb3_crowdnav.sim.warehouse import kernels
 from sb3_crowdnav.sim.warehouse.config import WarehouseConfig, check_feasible, check_pickers
 from sb3_crowdnav.sim.warehouse.layout import Roadmap, WarehouseLayout, generate_layout
 from sb3_crowdnav.sim.warehouse.pickers import PICKER_CLEARANCE, PickerCrowd, PickSlots, pick_slots
+from sb3_crowdnav.sim.warehouse.sight import RackSight
 
 ROUTE_CLEARANCE = 0.1  # [m] the robot's route keeps this much beyond its radius from racks and walls
 START_GAP = 1.0  # [m] no picker starts, or picks, this close (surface to surface) to the robot's start or goal
@@ -59,11 +61,13 @@ class WarehouseSimulator(CrowdSimulator):
         super().__init__(scene, reward)
         self.config = config
         self.fixed_time_limit = fixed_time_limit
+        if sensing_on(scene, config.occlusion):  # the racks hide pickers (the occluder is set per layout by reset)
+            self.sensor = PeopleSensor(scene)
         self.max_steps = 1  # set per episode by reset (by route), unless fixed_time_limit
         self.pickers: PickerCrowd | None = None
         self.segments = np.zeros((0, 4))
         self._segments_of: WarehouseLayout | None = None  # the layout whose segments are cached (see reset)
-        self._seg_dist = np.zeros(0)  # distance from the robot's centre to every segment, kept current (_sense)
+        self._seg_dist = np.zeros(0)  # distance from the robot's centre to every segment, kept current (_sense_obstacles)
         self._seg_order = np.zeros(0, dtype=np.int64)  # their stable order
         self._observed = [np.zeros((config.max_obstacles, SEGMENT_DIM)), np.zeros(config.max_obstacles, dtype=bool)]
         self.hit_obstacle = False
@@ -100,6 +104,8 @@ class WarehouseSimulator(CrowdSimulator):
             self._boxes = self.layout.boxes
             # filled by every sensing: the distance from the robot's centre to every segment, their stable order
             self._seg_dist, self._seg_order = np.zeros(len(self.segments)), np.zeros(len(self.segments), dtype=np.int64)
+            if self.sensor is not None and cfg.occlusion:
+                self.sensor.occluder = RackSight(self.layout)
         start, goal = self._stations(rng)
         self._set_route(self.robot_map.waypoints(start, goal))
         self.route_index, self.replans = 1, 0
@@ -134,7 +140,9 @@ class WarehouseSimulator(CrowdSimulator):
         self._walk_dir = [(1.0, 0.0)] * self.num_humans
         self._walk_age = [s.history_length] * self.num_humans
         self.steps = 0
-        self._sense(*start.tolist())
+        self._sense_obstacles(*start.tolist())
+        if self.sensor is not None:
+            self._sense_people(rng)
 
     def _stations(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         """Start and goal: free points (uniform) at least ``min_route_distance`` apart. Points are drawn uniformly
@@ -167,7 +175,7 @@ class WarehouseSimulator(CrowdSimulator):
         return chosen
 
     # ------------------------------------------------------------------ observation
-    def _sense(self, x: float, y: float) -> None:
+    def _sense_obstacles(self, x: float, y: float) -> None:
         """Sense from the robot's centre at (x, y) at the start of an episode (:func:`kernels.sense` of no move): the
         distances to every segment, their stable order, the observed segments; a step senses in
         :func:`kernels.sense_and_follow`."""

@@ -11,7 +11,7 @@ process loads them in well under a second (where that folder is read-only, numba
 user's, or in ``NUMBA_CACHE_DIR``).
 """
 
-from sb3_crowdnav.sim.warehouse.kernels.base import misses_boxes, point_clearance, segment_clearance
+from sb3_crowdnav.sim.warehouse.kernels.base import discs_in_sight, misses_boxes, point_clearance, segment_clearance
 from sb3_crowdnav.sim.warehouse.kernels.pickers import (
     AfterStep,
     far_from_both,
@@ -47,6 +47,7 @@ __all__ = [
     "SensingAndRoute",
     "bitangent_edges",
     "box_roadmap",
+    "discs_in_sight",
     "distances_to",
     "far_from_both",
     "free_points",

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 from numba import njit
 
 from sb3_crowdnav.sim.geometry import JIT, point_to_segment
@@ -86,3 +87,23 @@ def segment_clearance(ax, ay, bx, by, boxes, w, h, cap):  # pragma: no cover  (c
                    point_to_segment(x0, y0, ax, ay, bx, by), point_to_segment(x0, y1, ax, ay, bx, by),
                    point_to_segment(x1, y0, ax, ay, bx, by), point_to_segment(x1, y1, ax, ay, bx, by))
     return max(best, 0.0)
+
+
+@njit(**JIT)
+def discs_in_sight(ox, oy, positions, radii, boxes):  # pragma: no cover  (compiled)
+    """(n,) bool: whether a line of sight from (ox, oy) reaches each disc (``positions`` (n, 2), ``radii`` (n,)) past
+    ``boxes`` (B, 4): one of three lines, to the disc's centre and to its two sides across the line of sight (centre
+    ± radius, perpendicular to it), enters the open interior of no box (:func:`misses_boxes`: grazing a side or a corner
+    does not block)."""
+    n = positions.shape[0]
+    out = np.zeros(n, dtype=np.bool_)
+    for i in range(n):
+        cx, cy, r = positions[i, 0], positions[i, 1], radii[i]
+        dx, dy = cx - ox, cy - oy
+        d = math.hypot(dx, dy)
+        if misses_boxes(ox, oy, cx, cy, boxes):
+            out[i] = True
+        elif d > 1e-12:
+            px, py = -dy / d * r, dx / d * r
+            out[i] = misses_boxes(ox, oy, cx + px, cy + py, boxes) or misses_boxes(ox, oy, cx - px, cy - py, boxes)
+    return out

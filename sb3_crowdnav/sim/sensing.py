@@ -1,0 +1,108 @@
+"""What the robot sees of the people: a sensor between the crowd's true state and the observation (numpy only).
+
+Without any of its settings (``CrowdNav-v0``'s defaults) the observation is the crowd's true state and no sensor is
+built. With one of them, :class:`PeopleSensor` builds the observed history the env hands to the policy, while the
+simulator keeps the true one for the dynamics, the rewards and the collisions (a collision counts with everyone,
+seen or not). The rules, each a scene setting:
+
+* **range** (``people_sensor_range`` [m], None: unlimited): a person is seen when their disc comes within the range
+  of the robot's centre (centre distance - radius <= range);
+* **occlusion** (the warehouse's ``occlusion``): a person is seen only when a line of sight from the robot's centre
+  reaches their disc past the racks: one of three lines, to the centre of the disc and to its two sides across the
+  line of sight, enters no rack (grazing a rack's side or corner does not block). Walls never block (everyone is
+  inside the hall) and people do not hide one another: the racks are what a warehouse's sensors cannot see through,
+  and a tracker keeps a person who is briefly behind another;
+* **noise** (``people_sensor_noise`` [m]): each seen position gets independent Normal(0, σ²) noise per axis; the
+  velocities and radii are reported exactly (a tracker's estimates). The noise comes from a child of the episode's
+  generator (``Generator.spawn`` at the reset, which leaves the parent's draws as they were): the people, the robot
+  and every outcome are those of the noise-free episode, only what the robot sees differs;
+* **latency** (``people_sensor_latency`` [steps]): the observation at step t shows the people as sensed at step
+  t - L, from where the robot was then; before L steps have passed, as sensed at the reset. The robot's own state
+  is never late.
+
+**History is built from what was seen.** Each slot keeps the last T observed states of its person. A person not seen
+in the frame delivered now has their slot padded over the whole window (zeros, mask 0), and a person seen again
+starts a new history (their observed state repeated over the window, as at a reset): a history never bridges a gap,
+so a constant-velocity prediction is never made from a stale position. The mask says who is seen now.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from typing import Any, Protocol
+
+import numpy as np
+
+from sb3_crowdnav.sim.observation import HUMAN_DIM, Human
+
+
+class Occluder(Protocol):
+    """What hides people from the robot (the warehouse's racks: :class:`~sb3_crowdnav.sim.warehouse.sight.RackSight`)."""
+
+    def in_sight(self, x: float, y: float, positions: np.ndarray, radii: np.ndarray) -> np.ndarray:
+        """(n,) bool: whether a line of sight from (x, y) reaches each disc (``positions`` (n, 2), ``radii`` (n,))."""
+
+
+def sensing_on(scene: Any, occlusion: bool = False) -> bool:
+    """Whether ``scene`` (a :class:`~sb3_crowdnav.sim.config.SceneConfig`) with ``occlusion`` needs a sensor: some
+    setting hides or alters what the robot sees of the people."""
+    return bool(occlusion or scene.people_sensor_range is not None or scene.people_sensor_noise > 0
+                or scene.people_sensor_latency > 0)
+
+
+class PeopleSensor:
+    """The observed pedestrian history of one episode, built from the true state by the rules of this module.
+
+    :param scene: ``history_length``, ``max_humans`` and the ``people_sensor_*`` settings
+    :param occluder: what hides people (set per episode with :attr:`occluder`); None: nothing does
+    """
+
+    def __init__(self, scene: Any, occluder: Occluder | None = None) -> None:
+        self.range = scene.people_sensor_range
+        self.noise = float(scene.people_sensor_noise)
+        self.latency = int(scene.people_sensor_latency)
+        self.occluder = occluder
+        self.history = np.zeros((scene.history_length, scene.max_humans, HUMAN_DIM))
+        self.mask = np.zeros(scene.max_humans, dtype=bool)
+        self._frames: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=self.latency + 1)
+        self._rng: np.random.Generator | None = None
+
+    def reset(self, rng: np.random.Generator, x: float, y: float, row: np.ndarray, present: np.ndarray) -> None:
+        """Start an episode: sense the people (``row`` (max_humans, 5), the true newest states; ``present``
+        (max_humans,) bool) from the robot's centre (x, y); the observed history is that frame repeated."""
+        self._rng = rng.spawn(1)[0] if self.noise > 0 else None
+        self._frames.clear()
+        states, seen = self._sense(x, y, row, present)
+        self._frames.append((states, seen))
+        self.history[:] = np.where(seen[:, None], states, 0.0)[None]
+        self.mask = seen
+
+    def step(self, x: float, y: float, row: np.ndarray, present: np.ndarray) -> None:
+        """Sense after a step (as :meth:`reset`) and deliver the frame of ``latency`` steps ago into the history."""
+        self._frames.append(self._sense(x, y, row, present))
+        states, seen = self._frames[0]
+        hist = self.history
+        hist[:-1] = hist[1:]
+        hist[-1] = states
+        hist[:, ~seen] = 0.0  # not seen now: padded over the whole window
+        new = seen & ~self.mask
+        if new.any():  # seen again (or for the first time): a new history
+            hist[:, new] = states[new]
+        self.mask = seen
+
+    def _sense(self, x: float, y: float, row: np.ndarray, present: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """One frame: the observed states (max_humans, 5; zero where not seen) and who is seen (max_humans,)."""
+        seen = np.array(present, dtype=bool)
+        positions, radii = row[:, Human.POS], row[:, Human.RADIUS]
+        if self.range is not None and seen.any():
+            seen &= np.hypot(positions[:, 0] - x, positions[:, 1] - y) - radii <= self.range
+        if self.occluder is not None and seen.any():
+            idx = np.flatnonzero(seen)
+            seen[idx] = self.occluder.in_sight(x, y, np.ascontiguousarray(positions[idx]), np.ascontiguousarray(radii[idx]))
+        states = np.where(seen[:, None], row, 0.0)
+        if self._rng is not None and seen.any():
+            states[seen, Human.POS] += self._rng.normal(0.0, self.noise, (int(seen.sum()), 2))
+        return states, seen
+
+
+__all__ = ["Occluder", "PeopleSensor", "sensing_on"]

@@ -1,0 +1,45 @@
+"""The racks as what hides pickers from the robot: the occluder of :class:`~sb3_crowdnav.sim.sensing.PeopleSensor`."""
+
+from __future__ import annotations
+
+import numpy as np
+import shapely
+
+from sb3_crowdnav.sim.warehouse import kernels
+from sb3_crowdnav.sim.warehouse.layout import WarehouseLayout
+
+INTERIOR = 1e-9  # [m] a polygon rack's interior: shrunk by this, so that grazing a side or a corner does not block
+
+
+class RackSight:
+    """Lines of sight past a layout's racks (the rule of :mod:`sb3_crowdnav.sim.sensing`: three lines per disc).
+
+    Racks that are boxes (every generated layout's) are asked of :func:`~sb3_crowdnav.sim.warehouse.kernels.discs_in_sight`;
+    other racks of shapely (a line is blocked when it meets a rack shrunk by :data:`INTERIOR`).
+    """
+
+    def __init__(self, layout: WarehouseLayout) -> None:
+        self.layout = layout
+        self._boxes = layout.boxes
+        self._racks = None
+        if self._boxes is None:
+            racks = shapely.union_all([shapely.Polygon(p) for p in layout.rack_vertices]).buffer(-INTERIOR,
+                                                                                                  join_style="mitre")
+            shapely.prepare(racks)
+            self._racks = racks
+
+    def in_sight(self, x: float, y: float, positions: np.ndarray, radii: np.ndarray) -> np.ndarray:
+        """(n,) bool: whether a line of sight from (x, y) reaches each disc past the racks."""
+        if self._boxes is not None:
+            return kernels.discs_in_sight(x, y, positions, radii, self._boxes)
+        d = positions - np.array([x, y])
+        norm = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-12)
+        side = np.stack([-d[:, 1], d[:, 0]], axis=1) / norm[:, None] * radii[:, None]
+        seen = np.zeros(len(positions), dtype=bool)
+        for target in (positions, positions + side, positions - side):
+            lines = shapely.linestrings(np.stack([np.broadcast_to([x, y], target.shape), target], axis=1))
+            seen |= ~shapely.intersects(self._racks, lines)
+        return seen
+
+
+__all__ = ["RackSight"]
