@@ -13,7 +13,7 @@ import pytest
 from sb3_crowdnav import ENV_IDS, WAREHOUSE_ENV_IDS
 from sb3_crowdnav.sim.actions import STOP_ACTION
 from sb3_crowdnav.sim.observation import Robot
-from sb3_crowdnav.sim.warehouse.config import PICKERS_SEE_ROBOT, ROBOT_DEFAULTS
+from sb3_crowdnav.sim.warehouse.config import PEOPLE_SENSOR_RANGE, PICKERS_SEE_ROBOT, ROBOT_DEFAULTS
 
 ALL_IDS = [*ENV_IDS, *WAREHOUSE_ENV_IDS]
 LAYOUT_FILE = Path(__file__).resolve().parent.parent / "examples" / "warehouse_layout.yaml"
@@ -30,6 +30,7 @@ NON_DEFAULT = {
     "orca_neighbor_dist": 2.0, "orca_max_neighbors": 1, "orca_time_horizon": 1.0, "orca_time_horizon_obst": 0.5,
     "crowd": "linear", "crowd_kwargs": {"safety_space": 0.2}, "human_speed": "measured", "stop_probability": 0.5,
     "stop_duration": (0.5, 1.0), "actions": ("with_stop", "paper"), "max_acceleration": 0.5, "max_turn_rate": 0.8,
+    "people_sensor_range": 3.0, "people_sensor_noise": 0.1, "people_sensor_latency": 1,
     # RewardConfig and the env's own
     "reward": ("comfort", "crowdnav"), "gamma": 0.5, "render_mode": "rgb_array",
     "success_reward": 2.0, "collision_penalty": -1.0, "discomfort_dist": 0.5, "discomfort_factor": 2.0,
@@ -39,7 +40,7 @@ NON_DEFAULT = {
     "layout": str(LAYOUT_FILE), "layout_ranges": {"rows": (1, 2)}, "max_obstacles": 8, "sensor_range": 2.0,
     "num_waypoints": 2, "waypoint_radius": 0.3, "replan_distance": 0.2, "dwell_time": (0.5, 1.0),
     "min_route_distance": 4.0, "obstacle_collision_penalty": -1.0, "time_limit_factor": 1.0, "time_limit_slack": 5.0,
-    "progress_reward": 0.1,
+    "progress_reward": 0.1, "occlusion": False,
 }
 # the keywords each env refuses because its setting never reads them (with the non-default value above)
 OPEN_FLOOR_REFUSED = {"orca_time_horizon_obst", "stop_duration"}  # stop_duration: no one stops by default
@@ -55,7 +56,8 @@ REFUSED = {
 
 
 # defaults an env sets itself beyond its registered kwargs
-ENV_DEFAULTS = {"CrowdNavWarehouse-v0": {**ROBOT_DEFAULTS, "robot_visible": PICKERS_SEE_ROBOT}}
+ENV_DEFAULTS = {"CrowdNavWarehouse-v0": {**ROBOT_DEFAULTS, "robot_visible": PICKERS_SEE_ROBOT,
+                                         "people_sensor_range": PEOPLE_SENSOR_RANGE}}
 
 
 def _options(env_id: str) -> list[str]:

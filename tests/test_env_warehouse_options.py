@@ -9,6 +9,7 @@ import pytest
 import sb3_crowdnav  # noqa: F401  (registers the envs)
 from sb3_crowdnav.sim.config import SceneConfig
 from sb3_crowdnav.sim.crowd import RobotAgent
+from sb3_crowdnav.sim.warehouse.config import FULL_SIGHT
 from sb3_crowdnav.sim.warehouse.layout import layout_from_sizes
 from sb3_crowdnav.sim.warehouse.pickers import PickerCrowd, PickSlots
 
@@ -62,7 +63,7 @@ def test_a_picker_who_sees_the_robot_coming_head_on_steps_aside():
 def test_robot_visible_puts_the_robot_into_the_pickers_orca_and_changes_their_paths():
     paths = {}
     for visible in (False, True):
-        env = gym.make("CrowdNavWarehouse-v0", robot_visible=visible)
+        env = gym.make("CrowdNavWarehouse-v0", robot_visible=visible, **FULL_SIGHT)  # (every picker observed)
         obs, _ = env.reset(seed=3)
         assert (env.unwrapped.sim.pickers.crowd.crowds[0].robot_id is not None) == visible
         humans = [obs["humans"]]

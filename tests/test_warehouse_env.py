@@ -16,6 +16,7 @@ from shapely.geometry import Point, Polygon
 import sb3_crowdnav  # noqa: F401
 from sb3_crowdnav.sim.geometry import segment_distance, swept_clearance
 from sb3_crowdnav.sim.observation import ObservationSchema, Robot
+from sb3_crowdnav.sim.warehouse.config import FULL_SIGHT
 from sb3_crowdnav.sim.warehouse.simulator import next_waypoints
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "warehouse_layout.yaml"
@@ -168,8 +169,9 @@ def test_rendering_draws_the_layout():
 
 
 def test_pickers_move_continuously_from_where_the_observation_shows_them():
-    """Each picker's first step starts where the reset observation put it (no jump of more than v_pref·Δt)."""
-    env = gym.make("CrowdNavWarehouse-v0", num_humans=8)
+    """Each picker's first step starts where the reset observation put it (no jump of more than v_pref·Δt); seen
+    through racks (occlusion zeroes a hidden picker's slot)."""
+    env = gym.make("CrowdNavWarehouse-v0", num_humans=8, **FULL_SIGHT)
     for seed in range(10):
         obs, _ = env.reset(seed=seed)
         before = obs["humans"].reshape(5, -1, 5)[-1, :, :2]

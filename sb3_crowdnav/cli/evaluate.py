@@ -36,6 +36,19 @@ def _run_options(p: argparse.ArgumentParser, default_episodes: int = 500) -> Non
     g.add_argument("--allow-env-mismatch", action="store_true",
                    help="evaluate a model in another world (time step, kinematics, rotation range) than it was trained "
                         "for; refused otherwise")
+    g.add_argument("--protective-field", type=_protective_field, metavar="D,CAP[,DEG]",
+                   help="wrap every policy in a protective field: while an observed person's disc is within D m of the "
+                        "robot's (within DEG degrees of its heading; default all around), commands faster than CAP m/s "
+                        "are capped (sb3_crowdnav.safety)")
+
+
+def _protective_field(text: str) -> Any:
+    from sb3_crowdnav.safety import ProtectiveField
+
+    try:
+        return ProtectiveField.parse(text, name="value")
+    except (TypeError, ValueError) as exc:
+        raise argparse.ArgumentTypeError(str(exc).removeprefix("value must be ")) from None
 
 
 def add_parsers(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
@@ -176,7 +189,7 @@ def _run(args: argparse.Namespace, spec: PolicySpec, env_kwargs: dict[str, Any],
     from sb3_crowdnav.evaluation.runner import run_episodes
 
     return run_episodes(spec, args.episodes, env_kwargs, env_id=args.env, seed_offset=args.seed_offset,
-                        allow_env_mismatch=args.allow_env_mismatch,
+                        allow_env_mismatch=args.allow_env_mismatch, protective_field=args.protective_field,
                         workers=args.workers, deterministic=not args.stochastic, progress=progress_enabled(args),
                         torch_threads=args.threads, **kwargs)
 
@@ -186,7 +199,8 @@ def _write_meta(out: Path, args: argparse.Namespace, env_kwargs: dict[str, Any],
 
     meta = {"command": args.command, "env": args.env, "env_kwargs": env_kwargs, "episodes": args.episodes,
             "seeds": [args.seed_offset, args.seed_offset + args.episodes - 1], "deterministic": not args.stochastic,
-            "confidence_intervals": "Wilson score, 95 %", "sb3_crowdnav": __version__, **extra}
+            "confidence_intervals": "Wilson score, 95 %", "sb3_crowdnav": __version__,
+            "protective_field": str(args.protective_field) if args.protective_field else None, **extra}
     (out / "meta.json").write_text(json.dumps(meta, indent=2, default=str) + "\n")
 
 
@@ -207,6 +221,8 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     print(table.to_markdown(), end="")
     print(f"\n{args.episodes} episodes (seeds {args.seed_offset}-{args.seed_offset + args.episodes - 1}) "
           f"in {time.perf_counter() - start:.1f} s")
+    if args.protective_field is not None:
+        print(f"every policy behind a {args.protective_field}")
     if args.out is not None:
         table.save(args.out / "results")
         write_records_csv(records, args.out / "episodes.csv")
@@ -218,7 +234,7 @@ def _figure_episodes(args, specs, labels, env_kwargs, seed):
     from sb3_crowdnav.evaluation.runner import run_episodes
 
     return {label: run_episodes(spec, seeds=[seed], env_kwargs=env_kwargs, env_id=args.env,
-                                allow_env_mismatch=args.allow_env_mismatch,
+                                allow_env_mismatch=args.allow_env_mismatch, protective_field=args.protective_field,
                                 deterministic=not args.stochastic, keep_trajectories=True,
                                 torch_threads=args.threads)[0]
             for spec, label in zip(specs, labels, strict=True)}
@@ -283,6 +299,8 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
     print(table.to_markdown(), end="")
     print(f"\n{args.episodes} episodes per policy (seeds {args.seed_offset}-{args.seed_offset + args.episodes - 1}) "
           f"in {time.perf_counter() - start:.1f} s")
+    if args.protective_field is not None:
+        print(f"every policy behind a {args.protective_field}")
 
     written = [out / "results.md", out / "results.csv", *(out / f"episodes_{_slug(label)}.csv" for label in labels)]
     seed = args.seed_offset if args.figure_seed is None else args.figure_seed
@@ -348,6 +366,8 @@ def _crowd_benchmark(args: argparse.Namespace) -> int:
     print(table.to_markdown(), end="")
     print(f"\n{args.episodes} episodes per policy and crowd (seeds {args.seed_offset}-"
           f"{args.seed_offset + args.episodes - 1}) in {time.perf_counter() - start:.1f} s")
+    if args.protective_field is not None:
+        print(f"every policy behind a {args.protective_field}")
     _write_meta(out, args, env_kwargs, policies=dict(zip(labels, map(str, specs), strict=True)),
                 crowds={label: str(crowd) for label, crowd in zip(crowd_kwargs, crowds, strict=True)})
     print(f"\nwrote {', '.join(p.name for p in written)} and meta.json in {out}")

@@ -73,7 +73,8 @@ def policy_label(spec: Any) -> str:
     return PolicySpec.parse(spec).label if is_spec(spec) else type(spec).__name__
 
 
-def make_policy(spec: Any, env: gym.Env | None = None, allow_env_mismatch: bool = False) -> Any:
+def make_policy(spec: Any, env: gym.Env | None = None, allow_env_mismatch: bool = False,
+                protective_field: Any = None) -> Any:
     """Turn a spec (see :class:`PolicySpec`) into an object with ``predict``; objects with ``predict`` pass through.
 
     ``"orca"`` → :class:`~sb3_crowdnav.sim.orca.OrcaPolicy` built from ``env`` (nearest-action
@@ -81,8 +82,21 @@ def make_policy(spec: Any, env: gym.Env | None = None, allow_env_mismatch: bool 
     ``"random"`` or ``"random:SEED"`` → :class:`RandomPolicy`; ``"pretrained:NAME"`` → a model
     shipped with the package (:func:`sb3_crowdnav.pretrained`); any other string → a saved model
     loaded with :func:`~sb3_crowdnav.models.load_model`. A model trained in another world than ``env`` (time step,
-    kinematics, rotation range) is refused unless ``allow_env_mismatch``.
+    kinematics, rotation range) is refused unless ``allow_env_mismatch``. A
+    :class:`~sb3_crowdnav.safety.ProtectiveField` wraps the policy in a
+    :class:`~sb3_crowdnav.safety.ProtectedPolicy` (it needs ``env``).
     """
+    policy = _make_policy(spec, env, allow_env_mismatch)
+    if protective_field is None:
+        return policy
+    from sb3_crowdnav.safety import ProtectedPolicy
+
+    if env is None:
+        raise ValueError("protective_field needs the env the policy acts in (its action table)")
+    return ProtectedPolicy(policy, protective_field, env)
+
+
+def _make_policy(spec: Any, env: gym.Env | None, allow_env_mismatch: bool) -> Any:
     if not is_spec(spec):
         if not hasattr(spec, "predict"):
             raise TypeError(f"policy must be a spec string or have predict(observation, deterministic=...), "
@@ -197,11 +211,13 @@ def _set_torch_threads(n: int | None) -> None:
         sys.modules["torch"].set_num_threads(n)
 
 
-def _init_worker(spec: PolicySpec, env_id: str, env_kwargs: dict[str, Any], torch_threads: int | None) -> None:
+def _init_worker(spec: PolicySpec, env_id: str, env_kwargs: dict[str, Any], torch_threads: int | None,
+                 protective_field: Any = None) -> None:
     _set_torch_threads(torch_threads)
     env = make_env(env_id, env_kwargs)
     _WORKER["env"] = env
-    _WORKER["policy"] = make_policy(spec, env, allow_env_mismatch=True)  # the parent checked it
+    _WORKER["policy"] = make_policy(spec, env, allow_env_mismatch=True,  # the parent checked it
+                                    protective_field=protective_field)
     _set_torch_threads(torch_threads)
 
 
@@ -230,6 +246,7 @@ def run_episodes(
     desc: str | None = None,
     torch_threads: int | None = 1,
     allow_env_mismatch: bool = False,
+    protective_field: Any = None,
 ) -> list[EpisodeRecord]:
     """Evaluate ``policy`` on test episodes and return one :class:`EpisodeRecord` per episode, in seed order.
 
@@ -243,6 +260,7 @@ def run_episodes(
     :param progress: show a tqdm progress bar
     :param torch_threads: torch threads in each worker (``None``: leave as is)
     :param allow_env_mismatch: evaluate a model in another world than it was trained for (see :func:`make_policy`)
+    :param protective_field: a :class:`~sb3_crowdnav.safety.ProtectiveField` around the policy; None: none
     """
     if seeds is None:
         if n_episodes is None:
@@ -260,7 +278,7 @@ def run_episodes(
         if workers == 1:
             env = make_env(env_id, env_kwargs)
             try:
-                pol = make_policy(policy, env, allow_env_mismatch)
+                pol = make_policy(policy, env, allow_env_mismatch, protective_field)
                 records = []
                 for s in seeds:
                     records.append(run_episode(env, pol, s, deterministic, keep_trajectories))
@@ -274,13 +292,14 @@ def run_episodes(
         # fail here, not in the workers: a Pool restarts workers whose initializer raises, forever
         env = make_env(env_id, env_kwargs)
         try:
-            make_policy(policy, env, allow_env_mismatch)
+            make_policy(policy, env, allow_env_mismatch, protective_field)
         finally:
             env.close()
         ctx = mp.get_context("spawn")
         tasks = [(s, deterministic, keep_trajectories) for s in seeds]
         chunk = max(1, min(16, len(seeds) // (workers * 8)))
-        with ctx.Pool(workers, initializer=_init_worker, initargs=(policy, env_id, env_kwargs, torch_threads)) as pool:
+        initargs = (policy, env_id, env_kwargs, torch_threads, protective_field)
+        with ctx.Pool(workers, initializer=_init_worker, initargs=initargs) as pool:
             records = []
             for rec in pool.imap(_worker_episode, tasks, chunksize=chunk):
                 records.append(rec)
