@@ -19,7 +19,10 @@ from sb3_crowdnav.sim.observation import Human, Robot
 REWARD_KEYS = ("reward_success", "reward_collision", "reward_discomfort", "reward_social", "reward_angular")
 STATS_KEYS = ("outcome", "navigation_time", "path_length", "min_separation", "discomfort_frequency",
               "comfort_zone_time", "heading_change", "discounted_return", "num_humans",
-              "discomfort_separation", "comfort_zone_separation", "sharp_turns")
+              "discomfort_separation", "comfort_zone_separation", "sharp_turns",
+              # the safety figures
+              "min_time_to_collision", "near_misses", "steps_near_people", "speed_near_people", "peak_acceleration",
+              "peak_turn_rate")
 
 
 @pytest.mark.parametrize("env_id", sorted(ENV_IDS))
@@ -315,18 +318,20 @@ def test_episode_statistics_accumulate_every_step_and_forget_at_reset():
         state[0], state[1], state[Robot.HEADING] = x, y, heading
         return state
 
+    no_one = (np.zeros((3, 5)), np.zeros(3, dtype=bool))  # the people's state (the safety figures' input)
     stats = EpisodeStatistics(RewardConfig(), gamma=0.5, time_step=0.25, v_pref=2.0)
-    stats.update(robot(0, 0, 0), robot(3, 4, math.pi / 2), terms(0.1, False), 1.0)  # within discomfort_dist (0.2)
-    stats.update(robot(3, 4, math.pi / 2), robot(3, 4, -math.pi / 2), terms(0.5, True), 2.0)  # in a comfort zone
+    stats.update(robot(0, 0, 0), robot(3, 4, math.pi / 2), terms(0.1, False), 1.0, *no_one)  # within discomfort_dist
+    stats.update(robot(3, 4, math.pi / 2), robot(3, 4, -math.pi / 2), terms(0.5, True), 2.0, *no_one)  # comfort zone
     summary = stats.summary("timeout", 3)
-    assert summary == pytest.approx({
+    expected = {
         "outcome": "timeout", "navigation_time": 0.5, "path_length": 5.0, "min_separation": 0.1,
         "discomfort_frequency": 0.5, "comfort_zone_time": 0.25, "discomfort_separation": 0.1,
         "comfort_zone_separation": 0.5, "heading_change": 1.5 * math.pi, "sharp_turns": 2,
         "discounted_return": 1.0 + 2.0 * 0.5 ** (0.25 * 2.0), "num_humans": 3,
-    })
+    }  # (the safety figures: tests/test_safety_figures.py)
+    assert {k: summary[k] for k in expected} == pytest.approx(expected)
     stats.reset()
-    stats.update(robot(0, 0, 0), robot(0, 1, 0), terms(1.0, False), 0.0)
+    stats.update(robot(0, 0, 0), robot(0, 1, 0), terms(1.0, False), 0.0, *no_one)
     summary = stats.summary("running", 3)
     assert summary["path_length"] == 1.0 and summary["sharp_turns"] == 0
     assert math.isnan(summary["discomfort_separation"]) and math.isnan(summary["comfort_zone_separation"])

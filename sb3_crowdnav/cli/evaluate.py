@@ -24,6 +24,8 @@ from sb3_crowdnav.cli.common import (
 from sb3_crowdnav.evaluation.policy_spec import GRAMMAR, PolicySpec
 from sb3_crowdnav.evaluation.runner import TEST_SEED_OFFSET
 
+SAFETY_TITLE = "safety (the people's true state; min TTC capped at 10 s; see docs/evaluation.md):"
+
 
 def _run_options(p: argparse.ArgumentParser, default_episodes: int = 500) -> None:
     g = p.add_argument_group("evaluation")
@@ -58,7 +60,8 @@ def add_parsers(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
                                    "(rates with Wilson 95 % intervals).")
     p.add_argument("--policy", required=True, help=GRAMMAR)
     _run_options(p)
-    p.add_argument("--out", type=Path, metavar="DIR", help="also write results.md, results.csv and episodes.csv here")
+    p.add_argument("--out", type=Path, metavar="DIR",
+                   help="also write results.md, results_safety.md, results.csv and episodes.csv here")
     p.set_defaults(func=_cmd_evaluate)
 
     p = sub.add_parser("benchmark", parents=parents, help="evaluate several policies: table + figures",
@@ -219,6 +222,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     records = _run(args, spec, env_kwargs)
     table = results_table({label: summarize(records)})
     print(table.to_markdown(), end="")
+    print(f"\n{SAFETY_TITLE}\n\n{table.to_safety_markdown()}", end="")
     print(f"\n{args.episodes} episodes (seeds {args.seed_offset}-{args.seed_offset + args.episodes - 1}) "
           f"in {time.perf_counter() - start:.1f} s")
     if args.protective_field is not None:
@@ -297,12 +301,14 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
     table = results_table(summaries)
     table.save(out / "results")
     print(table.to_markdown(), end="")
+    print(f"\n{SAFETY_TITLE}\n\n{table.to_safety_markdown()}", end="")
     print(f"\n{args.episodes} episodes per policy (seeds {args.seed_offset}-{args.seed_offset + args.episodes - 1}) "
           f"in {time.perf_counter() - start:.1f} s")
     if args.protective_field is not None:
         print(f"every policy behind a {args.protective_field}")
 
-    written = [out / "results.md", out / "results.csv", *(out / f"episodes_{_slug(label)}.csv" for label in labels)]
+    written = [out / "results.md", out / "results.csv", out / "results_safety.md",
+               *(out / f"episodes_{_slug(label)}.csv" for label in labels)]
     seed = args.seed_offset if args.figure_seed is None else args.figure_seed
     episodes = _figure_episodes(args, specs, labels, env_kwargs, seed)
     written.append(plot_trajectories(episodes, out / "trajectories.png", title=f"test episode seed {seed}"))

@@ -184,7 +184,7 @@ class CrowdEnvBase(gym.Env):
         before = sim.robot.tolist()
         terms = sim.step(int(action))  # simulate
         reward = float(terms.reward)  # reward
-        self.stats.update(before, sim.robot.tolist(), terms, reward)
+        self.stats.update(before, sim.robot.tolist(), terms, reward, sim.history[-1], sim.mask)  # the true people
         self._record()
         success, collision = bool(terms.success), bool(terms.collision)  # end
         terminated = success or collision

@@ -111,7 +111,9 @@ class CrowdNavWarehouseEnv(CrowdEnvBase):
     ``"obstacle"`` (a rack or a wall). Truncated ("timeout") after
     ``time_limit_slack + time_limit_factor x`` (route length / v_pref) seconds (10 s + twice the route time), or,
     when ``time_limit`` is given, after ``time_limit`` seconds whatever the route; the reset's ``info["time_limit"]``
-    says which [s]. ``info["episode_stats"]`` as ``CrowdNav-v0``'s, plus ``route_length`` [m] and ``replans``.
+    says which [s]. ``info["episode_stats"]`` as ``CrowdNav-v0``'s, plus ``route_length`` [m], ``replans`` and
+    ``min_clearance`` [m] (the smallest distance from the robot's disc to a rack or wall over the episode's swept
+    steps; below 0 after an obstacle collision).
 
     ## Arguments
 
@@ -229,7 +231,7 @@ class CrowdNavWarehouseEnv(CrowdEnvBase):
         return {"reward_progress": self.sim.progress_term}
 
     def _extra_stats(self) -> dict[str, Any]:
-        return {"route_length": self.sim.route_length, "replans": self.sim.replans}
+        return {"route_length": self.sim.route_length, "replans": self.sim.replans, "min_clearance": self.sim.min_clearance}
 
     def _render_extras(self) -> dict[str, Any]:
         return {"obstacles": self.sim.layout.polygons, "route": self.sim.route, "standing": self.sim.standing}

@@ -23,6 +23,15 @@ minimum surface distance over all steps closer than the discomfort distance (0.2
 for APG_RL, 0.64 / 0.50 m for the comfort variants) is consistent with these in-zone averages
 (0.14 < 0.2 m; 0.64 and 0.50 fit inside the 0.7 m-wide comfort zone) and not with an
 episode minimum, which is why the tables report both next to ``min_separation``.
+
+The safety figures (the records' ``min_time_to_collision`` and the rest, from the people's true state) are averaged
+over the episodes that carry them (every episode an env ran; a record built without them has a ``nan`` time-to-collision
+and is left out of all of them): the minimum time-to-collision (each episode's capped at 10 s, so an episode
+without anyone on a collision course counts as 10 s) and the share of episodes whose minimum is below 1 s; near misses
+per episode; the peak acceleration and turn rate as the mean of the episodes' peaks and their maximum. The speed near
+people is pooled over **steps** like the separations above (Σ speeds / Σ steps with a person within 1 m, ``nan`` when
+no episode has one). The clearance to racks and walls (the warehouse's episodes only) is the mean of the episodes'
+minima and the smallest of them.
 """
 
 from __future__ import annotations
@@ -35,6 +44,7 @@ from typing import Any
 
 import numpy as np
 
+from sb3_crowdnav.sim.proximity import SHORT_TTC
 from sb3_crowdnav.sim.validation import check_range
 
 OUTCOMES = ("success", "collision", "timeout")
@@ -102,6 +112,17 @@ class Summary:
     obstacle_collision_rate: float = math.nan
     obstacle_collision_ci: tuple[float, float] = (math.nan, math.nan)
     route_ratio: float = math.nan  # mean path length / route length, successful episodes
+    # the safety figures (see the module docstring)
+    min_time_to_collision: float = math.nan  # [s] mean of the episodes' minima, each capped at 10 s
+    short_ttc_rate: float = math.nan  # share of the episodes whose minimum time-to-collision is below 1 s
+    near_misses: float = math.nan  # per episode: steps closer than 0.2 m to a person without touching
+    speed_near_people: float = math.nan  # [m/s] the robot's mean speed over all steps with a person within 1 m
+    peak_acceleration: float = math.nan  # [m/s²] mean of the episodes' peaks
+    peak_acceleration_max: float = math.nan  # [m/s²] the largest peak
+    peak_turn_rate: float = math.nan  # [rad/s] mean of the episodes' peaks
+    peak_turn_rate_max: float = math.nan  # [rad/s] the largest peak
+    min_clearance: float = math.nan  # [m] to racks and walls: mean of the episodes' minima (the warehouse)
+    min_clearance_worst: float = math.nan  # [m] the smallest of them
 
     @property
     def has_obstacles(self) -> bool:
@@ -156,6 +177,7 @@ def summarize(records: Sequence[Any], confidence: float = 0.95) -> Summary:
                                         [r.comfort_zone_time for r in records]),
         sharp_turns=_mean([r.sharp_turns for r in records]),
         **_obstacle_metrics(records, confidence),
+        **_safety_metrics(records),
     )
 
 
@@ -171,6 +193,26 @@ def _obstacle_metrics(records: Sequence[Any], confidence: float) -> dict[str, An
     return {"human_collision_rate": hits["human"] / n, "human_collision_ci": wilson_interval(hits["human"], n, confidence),
             "obstacle_collision_rate": hits["obstacle"] / n,
             "obstacle_collision_ci": wilson_interval(hits["obstacle"], n, confidence), "route_ratio": _mean(ratios)}
+
+
+def _safety_metrics(records: Sequence[Any]) -> dict[str, Any]:
+    """The safety figures of the records that carry them (none: all ``nan``); the clearance of warehouse episodes."""
+    safe = [r for r in records if math.isfinite(getattr(r, "min_time_to_collision", math.nan))]
+    out: dict[str, Any] = {}
+    if safe:
+        ttc = [r.min_time_to_collision for r in safe]
+        acc, turn = [r.peak_acceleration for r in safe], [r.peak_turn_rate for r in safe]
+        out.update(
+            min_time_to_collision=_mean(ttc), short_ttc_rate=sum(t < SHORT_TTC for t in ttc) / len(safe),
+            near_misses=_mean([r.near_misses for r in safe]),
+            speed_near_people=_pooled([r.speed_near_people for r in safe], [r.steps_near_people for r in safe]),
+            peak_acceleration=_mean(acc), peak_acceleration_max=max(acc),
+            peak_turn_rate=_mean(turn), peak_turn_rate_max=max(turn),
+        )
+    clearances = [r.min_clearance for r in records if math.isfinite(getattr(r, "min_clearance", math.nan))]
+    if clearances:
+        out.update(min_clearance=_mean(clearances), min_clearance_worst=min(clearances))
+    return out
 
 
 __all__ = ["OUTCOMES", "Summary", "discounted_return", "summarize", "wilson_interval", "z_value"]

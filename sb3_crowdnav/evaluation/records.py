@@ -60,6 +60,16 @@ class EpisodeRecord:
     first is the field's "average min separate distance in danger". ``sharp_turns`` counts the
     steps whose heading change reaches the env's ``angular_penalty_threshold`` (π/2 by default; the
     turns Eq. 13 penalises), whatever reward the episode ran under.
+
+    The safety figures come from the people's true state, whatever the robot observed
+    (:meth:`~sb3_crowdnav.envs.statistics.EpisodeStatistics.summary`): ``min_time_to_collision``
+    the smallest constant-velocity time-to-collision at the steps' end states, capped at 10 s (the cap
+    without anyone on a collision course); ``near_misses`` the steps whose minimum surface distance
+    to a person lies in (0, 0.2) m; ``speed_near_people`` the robot's mean speed over its
+    ``steps_near_people`` (a person's surface within 1 m); ``peak_acceleration`` and
+    ``peak_turn_rate`` the largest change of the velocity vector and of the heading per second;
+    ``min_clearance`` (the warehouse) the smallest distance from the robot's disc to a rack or wall,
+    its steps swept (below 0 after an obstacle collision).
     """
 
     seed: int
@@ -79,6 +89,14 @@ class EpisodeRecord:
     sharp_turns: int = 0
     collision_with: str = ""  # "human" or "obstacle" (a rack or wall, in the warehouse) after a collision
     route_length: float = math.nan  # [m] the warehouse robot's planned route from start to goal
+    # the safety figures (nan: not recorded, e.g. a record built by hand)
+    min_time_to_collision: float = math.nan  # [s] capped at TTC_HORIZON (10 s), 0 after touching a person
+    near_misses: int = 0  # steps with 0 < surface distance to a person < 0.2 m
+    steps_near_people: int = 0  # steps with a person's surface within 1 m
+    speed_near_people: float = math.nan  # [m/s] the robot's mean speed over those steps (nan: none)
+    peak_acceleration: float = math.nan  # [m/s²] max |v_t - v_{t-1}| / Δt
+    peak_turn_rate: float = math.nan  # [rad/s] max |wrap(θ_t - θ_{t-1})| / Δt
+    min_clearance: float = math.nan  # [m] to racks and walls (the warehouse; nan on the open floor)
     trajectory: Trajectory | None = field(default=None, repr=False)
 
     def to_dict(self) -> dict[str, Any]:

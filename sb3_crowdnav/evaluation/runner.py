@@ -198,6 +198,13 @@ def run_episode(env: gym.Env, policy: Any, seed: int, deterministic: bool = True
         sharp_turns=int(stats["sharp_turns"]),
         collision_with=str(stats.get("collision_with", "")),
         route_length=float(stats.get("route_length", math.nan)),
+        min_time_to_collision=float(stats["min_time_to_collision"]),
+        near_misses=int(stats["near_misses"]),
+        steps_near_people=int(stats["steps_near_people"]),
+        speed_near_people=float(stats["speed_near_people"]),
+        peak_acceleration=float(stats["peak_acceleration"]),
+        peak_turn_rate=float(stats["peak_turn_rate"]),
+        min_clearance=float(stats.get("min_clearance", math.nan)),
         trajectory=_trajectory(env) if keep_trajectory else None,
     )
 

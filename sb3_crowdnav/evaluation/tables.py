@@ -9,6 +9,13 @@ Markdown a rate is printed with its Wilson 95 % interval, ``0.990 [0.977, 0.996]
 ``*_ci_high`` columns and full precision. The policy x crowd table (:class:`CrowdTable`, ``benchmark --crowd``) has one
 Markdown row per policy and one column per crowd, each cell the success rate with its interval, the collision rate and
 the time; its CSV has one row per (policy, crowd) with every column of Table 3.
+
+The safety figures (:data:`SAFETY_COLUMNS`, see :mod:`sb3_crowdnav.evaluation.metrics`) are the last columns of every
+CSV; in Markdown they are a second table (:meth:`ResultsTable.to_safety_markdown`, one row per policy: minimum
+time-to-collision (s), the share of episodes with one below 1 s, near misses per episode, the speed near people (m/s),
+the peak acceleration (m/s²) and turn rate (rad/s) as "mean / max" over the episodes, and with warehouse episodes the
+clearance to racks and walls (m) as "mean / min"), which :meth:`ResultsTable.save` writes beside the main one as
+``stem_safety.md`` and ``evaluate`` / ``benchmark`` print under it: the main table keeps its width.
 """
 
 from __future__ import annotations
@@ -22,6 +29,8 @@ from typing import Any
 
 from sb3_crowdnav.evaluation.metrics import Summary
 
+SAFETY_COLUMNS = ("min_ttc", "short_ttc", "near_misses", "speed_near_people", "peak_acceleration",
+                  "peak_acceleration_max", "peak_turn_rate", "peak_turn_rate_max", "min_clearance", "min_clearance_worst")
 CSV_COLUMNS = (
     "success", "success_ci_low", "success_ci_high",
     "collision", "collision_ci_low", "collision_ci_high",
@@ -31,11 +40,15 @@ CSV_COLUMNS = (
     "discomfort_gap", "comfort_gap", "sharp_turns",
     "human_collision", "human_collision_ci_low", "human_collision_ci_high",
     "obstacle_collision", "obstacle_collision_ci_low", "obstacle_collision_ci_high", "route_ratio",
+    *SAFETY_COLUMNS,
 )
 MARKDOWN_HEADERS = ("success", "collision", "time (s)", "return", "timeout", "gap (m)", "discomfort",
                     "comfort (s)", "heading (rad)", "path (m)", "episodes", "gap in discomfort (m)",
                     "gap in comfort zones (m)", "sharp turns")
 OBSTACLE_HEADERS = ("human collision", "obstacle collision", "path / route")  # tables of warehouse episodes
+SAFETY_HEADERS = ("min TTC (s)", "TTC < 1 s", "near misses", "speed near people (m/s)", "peak accel. (m/s²)",
+                  "peak turn rate (rad/s)")
+CLEARANCE_HEADER = "clearance to racks (m)"  # safety tables of warehouse episodes
 
 
 def summary_row(summary: Summary) -> dict[str, Any]:
@@ -55,6 +68,11 @@ def summary_row(summary: Summary) -> dict[str, Any]:
         "human_collision_ci_high": s.human_collision_ci[1],
         "obstacle_collision": s.obstacle_collision_rate, "obstacle_collision_ci_low": s.obstacle_collision_ci[0],
         "obstacle_collision_ci_high": s.obstacle_collision_ci[1], "route_ratio": s.route_ratio,
+        "min_ttc": s.min_time_to_collision, "short_ttc": s.short_ttc_rate, "near_misses": s.near_misses,
+        "speed_near_people": s.speed_near_people, "peak_acceleration": s.peak_acceleration,
+        "peak_acceleration_max": s.peak_acceleration_max, "peak_turn_rate": s.peak_turn_rate,
+        "peak_turn_rate_max": s.peak_turn_rate_max, "min_clearance": s.min_clearance,
+        "min_clearance_worst": s.min_clearance_worst,
     }
 
 
@@ -81,6 +99,18 @@ def _obstacle_cells(s: Summary) -> list[str]:
             _num(s.route_ratio, 3)]
 
 
+def _pair(mean: float, extreme: float, digits: int) -> str:
+    """``mean / extreme`` (``-`` when there is no mean)."""
+    return "-" if math.isnan(mean) else f"{_num(mean, digits)} / {_num(extreme, digits)}"
+
+
+def _safety_cells(s: Summary, clearance: bool) -> list[str]:
+    cells = [_num(s.min_time_to_collision, 2), _num(s.short_ttc_rate, 3), _num(s.near_misses, 2),
+             _num(s.speed_near_people, 2), _pair(s.peak_acceleration, s.peak_acceleration_max, 2),
+             _pair(s.peak_turn_rate, s.peak_turn_rate_max, 2)]
+    return [*cells, _pair(s.min_clearance, s.min_clearance_worst, 3)] if clearance else cells
+
+
 class ResultsTable:
     """Rows of ``(key, Summary)``; ``key_name`` is ``"method"`` (Table 3) or ``"humans"`` (Table 4)."""
 
@@ -105,16 +135,26 @@ class ResultsTable:
             lines.append("| " + " | ".join(cells) + " |")
         return "\n".join(lines) + "\n"
 
+    def to_safety_markdown(self) -> str:
+        """The safety table in Markdown (the module docstring's columns); with warehouse episodes also the clearance."""
+        clearance = any(not math.isnan(s.min_clearance) for s in self.summaries.values())
+        headers = (self.key_name, *SAFETY_HEADERS, *((CLEARANCE_HEADER,) if clearance else ()))
+        lines = ["| " + " | ".join(headers) + " |", "|" + "|".join("---" for _ in headers) + "|"]
+        for key, s in self.summaries.items():
+            lines.append("| " + " | ".join([str(key), *_safety_cells(s, clearance)]) + " |")
+        return "\n".join(lines) + "\n"
+
     def to_csv(self, path: str | Path | None = None) -> str:
-        """The CSV text; also written to ``path`` when given."""
+        """The CSV text (every column, the safety figures last); also written to ``path`` when given."""
         return _write_csv(self.rows, [self.key_name, *CSV_COLUMNS], path)
 
     def save(self, stem: str | Path) -> tuple[Path, Path]:
-        """Write ``stem.md`` and ``stem.csv``; return both paths."""
+        """Write ``stem.md``, ``stem.csv`` and the safety table ``stem_safety.md``; return the first two paths."""
         stem = Path(stem)
         stem.parent.mkdir(parents=True, exist_ok=True)
         md, csv_path = stem.with_suffix(".md"), stem.with_suffix(".csv")
         md.write_text(self.to_markdown())
+        stem.with_name(stem.name + "_safety.md").write_text(self.to_safety_markdown())
         self.to_csv(csv_path)
         return md, csv_path
 
@@ -163,8 +203,10 @@ class CrowdTable:
     def read_csv(cls, path: str | Path) -> CrowdTable:
         """A table written by :meth:`to_csv` (numbers as floats again, ``episodes`` as an int)."""
         with Path(path).open(newline="") as f:
+            # a file written before the safety figures has none of their columns (read as nan)
             rows = [{"method": row["method"], "crowd": row["crowd"],
-                     **{k: int(row[k]) if k == "episodes" else _float(row[k]) for k in CSV_COLUMNS}}
+                     **{k: int(row[k]) if k == "episodes" else _float(row.get(k) if k in SAFETY_COLUMNS else row[k])
+                        for k in CSV_COLUMNS}}
                     for row in csv.DictReader(f)]
         return cls(rows)
 
@@ -245,5 +287,5 @@ def write_records_csv(records, path: str | Path) -> Path:
     return path
 
 
-__all__ = ["CROWD_CELL", "CSV_COLUMNS", "CrowdTable", "ResultsTable", "crowd_table", "results_table", "summary_row",
-           "sweep_table", "write_records_csv"]
+__all__ = ["CROWD_CELL", "CSV_COLUMNS", "SAFETY_COLUMNS", "CrowdTable", "ResultsTable", "crowd_table", "results_table",
+           "summary_row", "sweep_table", "write_records_csv"]

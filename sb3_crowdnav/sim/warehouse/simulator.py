@@ -71,6 +71,9 @@ class WarehouseSimulator(CrowdSimulator):
         self._seg_order = np.zeros(0, dtype=np.int64)  # their stable order
         self._observed = [np.zeros((config.max_obstacles, SEGMENT_DIM)), np.zeros(config.max_obstacles, dtype=bool)]
         self.hit_obstacle = False
+        # [m] the smallest distance from the robot's disc to a rack or wall this episode (its steps swept: below 0 exactly
+        # when the robot hit one); the start's at reset
+        self.min_clearance = math.inf
         self.layout: WarehouseLayout | None = config.layout
         self._fixed: tuple[Roadmap, PickSlots] | None = None
         self.route = np.zeros((1, 2))
@@ -141,6 +144,7 @@ class WarehouseSimulator(CrowdSimulator):
         self._walk_age = [s.history_length] * self.num_humans
         self.steps = 0
         self._sense_obstacles(*start.tolist())
+        self.min_clearance = float(self._seg_dist.min()) - s.robot_radius if len(self._seg_dist) else math.inf
         if self.sensor is not None:
             self._sense_people(rng)
 
@@ -250,6 +254,8 @@ class WarehouseSimulator(CrowdSimulator):
             self.segments, x0, y0, x1, y1, radius + math.dist(p0, p1), radius, cfg.sensor_range,
             cfg.max_obstacles, self._seg_dist, self._seg_order, self.route, self.route_index, cfg.waypoint_radius,
             cfg.replan_distance, self._boxes, self.layout.width / 2, self.layout.height / 2)
+        self.min_clearance = min(self.min_clearance, kernels.swept_segment_distance(
+            self.segments, x0, y0, x1, y1, self._seg_dist, self._seg_order) - radius)
         if hit:  # (without a hit, with_obstacle_collision returns the terms unchanged)
             terms = with_obstacle_collision(terms, np.bool_(hit), self.config.obstacle_collision_penalty)
         self.hit_obstacle = hit and not bool(terms.min_distance < 0)

@@ -37,6 +37,7 @@ from sb3_crowdnav.sim.warehouse.kernels.robot import (
     sense,
     sense_and_follow,
     separated,
+    swept_segment_distance,
 )
 
 __all__ = [
@@ -66,4 +67,5 @@ __all__ = [
     "separated",
     "slot_points",
     "spread",
+    "swept_segment_distance",
 ]

@@ -135,6 +135,22 @@ def sense_and_follow(segments, p0x, p0y, p1x, p1y, reach, radius, sensor_range, 
 
 
 @njit(**JIT)
+def swept_segment_distance(segments, p0x, p0y, p1x, p1y, dist, order):  # pragma: no cover  (compiled)
+    """The smallest distance [m] between the path p0-p1 of the robot's centre and the segments (S, 4), given
+    :func:`sense`'s ``dist`` (S,) from p1 and its ``order``: a segment farther from p1 than the best so far + the
+    step's length cannot be nearer the path, so the loop stops there (``inf`` without segments). Below the robot's
+    radius exactly when :func:`sense` reports a hit."""
+    step = math.hypot(p1x - p0x, p1y - p0y)
+    best = np.inf
+    for k in order:
+        if dist[k] - step >= best:
+            break
+        best = min(best, segment_to_segment(p0x, p0y, p1x, p1y, segments[k, 0], segments[k, 1], segments[k, 2],
+                                            segments[k, 3]))
+    return best
+
+
+@njit(**JIT)
 def bitangent_edges(corners, sides, first, boxes):  # pragma: no cover  (compiled)
     """The edges of a box roadmap's visibility graph: every pair of corners i < j from ``first`` on, in the order of
     ``np.triu_indices``, that passes both ends on the outside of their racks
