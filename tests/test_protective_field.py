@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -124,7 +125,7 @@ def test_infeasible_fields_are_refused_at_construction(kwargs, error, match):
 
 
 def test_a_cap_no_action_can_follow_is_refused_and_the_cli_answers_bad_fields_with_exit_2(capsys):
-    with pytest.raises(ValueError, match="speed_cap: 0.1 m/s is below the slowest action's 0.2 m/s"):
+    with pytest.raises(ValueError, match=r"speed_cap: 0\.1 m/s is below the slowest action.s 0\.2 m/s"):
         ProtectedPolicy(Fixed(0), ProtectiveField(0.5, 0.1), gym.make("CrowdNav-v0"))
     ProtectedPolicy(Fixed(0), ProtectiveField(0.5, 0.1), gym.make("CrowdNav-v0", actions="with_stop"))  # the stop
     for bad in ("0.5", "0.5,x", "-1,0.3", "0.5,0.3,0"):
