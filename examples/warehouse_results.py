@@ -1,9 +1,21 @@
 """Regenerate the warehouse results of the README: ORCA, PPO and APG in ``CrowdNavWarehouse-v0``.
 
-    python examples/warehouse_results.py [--episodes 500] [--out paper_results/warehouse] [--workers 2]
+    python examples/warehouse_results.py [--episodes 500] [--out paper_results/warehouse] [--workers 2] \
+        [--world both|today|paper] [--protective-field 0.5,0.3]
 
-Three ``sb3-crowdnav benchmark`` runs on the test seeds (1,000,000 + i: layouts the generator never drew in
-training, which used the env's own stream from seed 0, nor in validation, seeds 2,000,000 + i):
+``sb3-crowdnav benchmark`` runs on the test seeds (1,000,000 + i: layouts the generator never drew in training,
+which used the env's own stream from seed 0, nor in validation, seeds 2,000,000 + i). ``--world today`` runs the
+warehouse as it is by default (a warehouse AMR with a stop and limits, racks that hide pickers, pickers who see the
+robot):
+
+* ``OUT/today``: the shipped models (trained in the paper's world, so evaluated with ``--allow-env-mismatch``: they
+  choose among their 80 actions, their lookahead predicting the paper's robot, and the env clips each command to the
+  AMR's limits) and the ORCA robot (both mappings), generated layouts, 6 pickers;
+* ``OUT/protective_field``: the same policies behind a protective field (``--protective-field``, default
+  ``0.5,0.3``: 0.5 m around the robot, commands capped at 0.3 m/s).
+
+``--world paper`` runs the world the shipped models were trained in (``sim.warehouse.config.PAPER_WAREHOUSE``: the
+paper's robot, pickers who never see it, every picker seen through racks):
 
 * ``OUT/generated``: generated layouts, 6 pickers: ``pretrained:apg_warehouse``, ``pretrained:ppo_warehouse``,
   the ORCA robot (``orca``, and ``orca-constrained``: ORCA's velocity mapped onto the robot's 80 actions), with
@@ -12,7 +24,9 @@ training, which used the env's own stream from seed 0, nor in validation, seeds 
 * ``OUT/layout_file``: the same policies in the fixed layout of ``examples/warehouse_layout.yaml``;
 * ``OUT/unshaped``: with ``--unshaped ZIP``, a model trained without the route-progress shaping.
 
-``OUT/summary.md`` collects the tables (the README's warehouse section is copied from it) and the training wall
+``--world both`` (the default) runs both. Every table has its safety figures beside it (minimum time-to-collision,
+near misses, speed near people, peak acceleration and turn rate, clearance to racks). ``OUT/summary.md`` collects the
+tables of every world run so far (the README's warehouse section is copied from it) and the training wall
 times. These are read from run folders: ``--runs DIR`` times ``DIR/apg_warehouse`` and ``DIR/ppo_warehouse``, and
 ``--time-run NAME=FOLDER[:N]`` any run (to the validation of its checkpoint N, else of its ``best.zip``). Each is
 recorded in ``OUT/wall_times.json``, which keeps the times of runs whose folders are no longer on this machine; the
@@ -66,6 +80,25 @@ def compact(results_csv: Path, key: str = "method") -> str:
     return "\n".join(lines)
 
 
+def compact_safety(results_csv: Path, key: str = "method") -> str:
+    """The safety figures of a ``results.csv``: min TTC (mean over episodes, s), the share of episodes with one below
+    1 s, near misses per episode, speed near people (m/s), peak acceleration and turn rate (mean / max), clearance to
+    racks (mean / worst, m)."""
+    def number(row, name, digits=2):
+        return "–" if row.get(name, "") in ("", "nan") else f"{float(row[name]):.{digits}f}"
+
+    lines = [f"| {key} | min TTC [s] | TTC < 1 s | near misses | speed near people [m/s] | peak accel. [m/s²] | "
+             "peak turn rate [rad/s] | clearance to racks [m] |", "|---|---|---|---|---|---|---|---|"]
+    with results_csv.open() as f:
+        for row in csv.DictReader(f):
+            lines.append(f"| {row[key]} | {number(row, 'min_ttc')} | {number(row, 'short_ttc', 3)} | "
+                         f"{number(row, 'near_misses')} | {number(row, 'speed_near_people')} | "
+                         f"{number(row, 'peak_acceleration')} / {number(row, 'peak_acceleration_max')} | "
+                         f"{number(row, 'peak_turn_rate')} / {number(row, 'peak_turn_rate_max')} | "
+                         f"{number(row, 'min_clearance', 3)} / {number(row, 'min_clearance_worst', 3)} |")
+    return "\n".join(lines)
+
+
 def run_wall_time(folder: Path, episodes: int | None = None) -> str:
     """The wall time of a run folder: from ``config.json``, written at its start, to the validation of the checkpoint
     of ``episodes`` RL episodes (the last one a shipped average used) or else of its ``best.zip`` (the shipped
@@ -115,28 +148,45 @@ def main(argv: list[str] | None = None) -> None:
                    help="record the wall time of this run folder as NAME (to its checkpoint N; repeatable)")
     p.add_argument("--sweep", type=int, nargs="+", default=SWEEP, help="pickers of the sweep (default: 2 4 6 8 10)")
     p.add_argument("--gif", action=argparse.BooleanOptionalAction, default=True, help="a GIF per policy")
+    p.add_argument("--world", choices=("both", "today", "paper"), default="both",
+                   help="the default warehouse (today), the shipped models' world (paper) or both")
+    p.add_argument("--protective-field", default="0.5,0.3", metavar="D,CAP[,DEG]",
+                   help="the field of OUT/protective_field (default: %(default)s)")
     args = p.parse_args(argv)
     timed = [parse_time_run(p, spec) for spec in args.time_run]  # (bad input refused before any episode runs)
     if args.runs:
         timed = [("apg_warehouse", args.runs / "apg_warehouse", args.apg_episodes),
                  ("ppo_warehouse", args.runs / "ppo_warehouse", None), *timed]
 
-    benchmark(args.out / "generated", POLICIES, args.episodes, args.workers,
-              ["--env-kwargs", f"dict({PAPER_ROBOT})", "--sweep", *map(str, args.sweep),
-               *([] if args.gif else ["--no-gif"])])
-    benchmark(args.out / "layout_file", POLICIES, args.episodes, args.workers,
-              ["--env-kwargs", f"dict(layout={str(LAYOUT_FILE)!r}, {PAPER_ROBOT})", "--no-gif"])
-    sections = [("Generated layouts, 6 pickers", args.out / "generated" / "results.csv", "method"),
+    if args.world in ("both", "today"):
+        benchmark(args.out / "today", POLICIES, args.episodes, args.workers, ["--allow-env-mismatch", "--no-gif"])
+        benchmark(args.out / "protective_field", POLICIES, args.episodes, args.workers,
+                  ["--allow-env-mismatch", "--protective-field", args.protective_field, "--no-gif"])
+    if args.world in ("both", "paper"):
+        benchmark(args.out / "generated", POLICIES, args.episodes, args.workers,
+                  ["--env-kwargs", f"dict({PAPER_ROBOT})", "--sweep", *map(str, args.sweep),
+                   *([] if args.gif else ["--no-gif"])])
+        benchmark(args.out / "layout_file", POLICIES, args.episodes, args.workers,
+                  ["--env-kwargs", f"dict(layout={str(LAYOUT_FILE)!r}, {PAPER_ROBOT})", "--no-gif"])
+    field = json.loads((args.out / "protective_field" / "meta.json").read_text())["protective_field"] \
+        if (args.out / "protective_field" / "meta.json").is_file() else None
+    sections = [("Today's defaults (a warehouse AMR, racks that hide pickers, pickers who see the robot), generated "
+                 "layouts, 6 pickers", args.out / "today" / "results.csv", "method"),
+                (f"The same behind a {field}", args.out / "protective_field" / "results.csv", "method"),
+                ("As trained (the paper's robot, blind pickers, seen through racks), generated layouts, 6 pickers",
+                 args.out / "generated" / "results.csv", "method"),
                 (f"apg_warehouse with {', '.join(map(str, args.sweep))} pickers", args.out / "generated" / "sweep.csv",
                  "humans"),
                 (f"The layout file {LAYOUT_FILE.name}, 6 pickers", args.out / "layout_file" / "results.csv", "method")]
+    sections = [(title, path, key) for title, path, key in sections if path.is_file()]
     if args.unshaped:
         benchmark(args.out / "unshaped", [args.unshaped], args.episodes, args.workers,
                   ["--env-kwargs", f"dict({PAPER_ROBOT})", "--no-gif"])
     if (args.out / "unshaped" / "results.csv").is_file():
         sections.append(("Trained without the progress shaping", args.out / "unshaped" / "results.csv", "method"))
     text = [f"# CrowdNavWarehouse-v0, {args.episodes} test episodes per row (seeds 1,000,000 + i)\n"]
-    text += [f"## {title}\n\n{compact(path, key)}\n" for title, path, key in sections]
+    text += [f"## {title}\n\n{compact(path, key)}\n\nSafety:\n\n{compact_safety(path, key)}\n"
+             for title, path, key in sections]
     times_file = args.out / "wall_times.json"
     times = json.loads(times_file.read_text()) if times_file.is_file() else {}
     times.update({name: run_wall_time(folder, episodes) for name, folder, episodes in timed})

@@ -34,8 +34,16 @@ def test_the_script_writes_every_table(tmp_path):
     summary = (out / "summary.md").read_text()
     assert "- earlier run: 67 min" in summary and "- second run: 10 min (to the validation of checkpoint 500)" in summary
     assert json.loads((out / "wall_times.json").read_text())["second run"].startswith("10 min")
-    for title in ("Generated layouts, 6 pickers", "apg_warehouse with 2 pickers", "warehouse_layout.yaml"):
+    for title in ("Today's defaults", "The same behind a protective field 0.5 m, cap 0.3 m/s", "As trained",
+                  "apg_warehouse with 2 pickers", "warehouse_layout.yaml"):
         assert title in summary
+    assert summary.count("| min TTC [s] |") == 5  # every table has its safety figures
+    for world in ("today", "protective_field"):
+        table = (out / world / "results.md").read_text()
+        assert all(f"| {row} |" in table for row in ("APG_WAREHOUSE", "PPO_WAREHOUSE", "ORCA", "ORCA-constrained"))
+    meta = json.loads((out / "today" / "meta.json").read_text())
+    assert meta["env_kwargs"] == {} and meta["protective_field"] is None  # today's defaults, no field
+    assert json.loads((out / "protective_field" / "meta.json").read_text())["protective_field"]
     generated = (out / "generated" / "results.md").read_text()
     for row in ("APG_WAREHOUSE", "PPO_WAREHOUSE", "ORCA", "ORCA-constrained"):
         assert f"| {row} |" in generated
