@@ -67,6 +67,14 @@ def test_rack_sight_is_the_same_with_the_box_kernel_and_with_shapely():
         positions = rng.uniform((-w, -h), (w, h), (20, 2))
         radii = np.full(20, 0.3)
         np.testing.assert_array_equal(boxes.in_sight(x, y, positions, radii), polygons.in_sight(x, y, positions, radii))
+        row = np.concatenate([positions, rng.normal(size=(20, 2)), radii[:, None]], axis=1)
+        present = rng.random(20) < 0.8
+        for sensor_range in (None, 3.0):  # the compiled frame (boxes) and the general one agree
+            (s1, m1), (s2, m2) = boxes.frame(x, y, row, present, sensor_range), polygons.frame(x, y, row, present,
+                                                                                               sensor_range)
+            np.testing.assert_array_equal(m1, m2)
+            np.testing.assert_array_equal(s1, s2)
+            assert not (m1 & ~present).any() and not s1[~m1].any()
 
 
 def test_the_range_keeps_people_whose_disc_is_within_it():

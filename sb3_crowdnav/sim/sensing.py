@@ -32,15 +32,37 @@ from collections import deque
 from typing import Any, Protocol
 
 import numpy as np
+from numba import njit
 
+from sb3_crowdnav.sim.geometry import JIT
 from sb3_crowdnav.sim.observation import HUMAN_DIM, Human
 
 
 class Occluder(Protocol):
     """What hides people from the robot (the warehouse's racks: :class:`~sb3_crowdnav.sim.warehouse.sight.RackSight`)."""
 
-    def in_sight(self, x: float, y: float, positions: np.ndarray, radii: np.ndarray) -> np.ndarray:
-        """(n,) bool: whether a line of sight from (x, y) reaches each disc (``positions`` (n, 2), ``radii`` (n,))."""
+    def frame(self, x: float, y: float, row: np.ndarray, present: np.ndarray,
+              sensor_range: float | None) -> tuple[np.ndarray, np.ndarray]:
+        """One frame of this module's rules without noise: the states (M, 5) of the people of ``row`` (M, 5) seen
+        from (x, y) (zeros for the others) and who is seen (M,), of those ``present`` within ``sensor_range``."""
+
+
+@njit(**JIT)
+def _deliver(history, mask, states, seen):  # pragma: no cover  (compiled)
+    """Shift the observed history (T, M, 5) by one step and put the frame (``states`` (M, 5), ``seen`` (M,)) in it by
+    the module's rules; ``mask`` (M,) becomes ``seen``."""
+    t_len, m = history.shape[0], history.shape[1]
+    for t in range(t_len - 1):
+        history[t] = history[t + 1]
+    for i in range(m):
+        if not seen[i]:
+            history[:, i] = 0.0  # not seen now: padded over the whole window
+        elif not mask[i]:
+            for t in range(t_len):  # seen again (or for the first time): a new history
+                history[t, i] = states[i]
+        else:
+            history[t_len - 1, i] = states[i]
+        mask[i] = seen[i]
 
 
 def sensing_on(scene: Any, occlusion: bool = False) -> bool:
@@ -74,35 +96,32 @@ class PeopleSensor:
         self._frames.clear()
         states, seen = self._sense(x, y, row, present)
         self._frames.append((states, seen))
-        self.history[:] = np.where(seen[:, None], states, 0.0)[None]
-        self.mask = seen
+        self.history[:] = states[None]
+        self.mask = seen.copy()
 
     def step(self, x: float, y: float, row: np.ndarray, present: np.ndarray) -> None:
         """Sense after a step (as :meth:`reset`) and deliver the frame of ``latency`` steps ago into the history."""
         self._frames.append(self._sense(x, y, row, present))
-        states, seen = self._frames[0]
-        hist = self.history
-        hist[:-1] = hist[1:]
-        hist[-1] = states
-        hist[:, ~seen] = 0.0  # not seen now: padded over the whole window
-        new = seen & ~self.mask
-        if new.any():  # seen again (or for the first time): a new history
-            hist[:, new] = states[new]
-        self.mask = seen
+        _deliver(self.history, self.mask, *self._frames[0])
 
     def _sense(self, x: float, y: float, row: np.ndarray, present: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """One frame: the observed states (max_humans, 5; zero where not seen) and who is seen (max_humans,)."""
-        seen = np.array(present, dtype=bool)
-        positions, radii = row[:, Human.POS], row[:, Human.RADIUS]
-        if self.range is not None and seen.any():
-            seen &= np.hypot(positions[:, 0] - x, positions[:, 1] - y) - radii <= self.range
-        if self.occluder is not None and seen.any():
-            idx = np.flatnonzero(seen)
-            seen[idx] = self.occluder.in_sight(x, y, np.ascontiguousarray(positions[idx]), np.ascontiguousarray(radii[idx]))
-        states = np.where(seen[:, None], row, 0.0)
+        if self.occluder is not None:
+            states, seen = self.occluder.frame(x, y, row, present, self.range)
+        else:
+            states, seen = open_frame(x, y, row, present, self.range)
         if self._rng is not None and seen.any():
             states[seen, Human.POS] += self._rng.normal(0.0, self.noise, (int(seen.sum()), 2))
         return states, seen
 
 
-__all__ = ["Occluder", "PeopleSensor", "sensing_on"]
+def open_frame(x: float, y: float, row: np.ndarray, present: np.ndarray,
+               sensor_range: float | None) -> tuple[np.ndarray, np.ndarray]:
+    """A frame with nothing to hide anyone (:meth:`Occluder.frame`'s form): the range alone."""
+    seen = np.array(present, dtype=bool)
+    if sensor_range is not None and seen.any():
+        seen &= np.hypot(row[:, 0] - x, row[:, 1] - y) - row[:, Human.RADIUS] <= sensor_range
+    return np.where(seen[:, None], row, 0.0), seen
+
+
+__all__ = ["Occluder", "PeopleSensor", "open_frame", "sensing_on"]

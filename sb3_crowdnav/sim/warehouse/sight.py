@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import shapely
 
+from sb3_crowdnav.sim.sensing import open_frame
 from sb3_crowdnav.sim.warehouse import kernels
 from sb3_crowdnav.sim.warehouse.layout import WarehouseLayout
 
@@ -28,10 +29,27 @@ class RackSight:
             shapely.prepare(racks)
             self._racks = racks
 
+    def frame(self, x: float, y: float, row: np.ndarray, present: np.ndarray,
+              sensor_range: float | None) -> tuple[np.ndarray, np.ndarray]:
+        """One frame of the people sensor past the racks (:class:`~sb3_crowdnav.sim.sensing.Occluder`); compiled in
+        one call with boxes for racks (:func:`~sb3_crowdnav.sim.warehouse.kernels.people_frame`)."""
+        if self._boxes is not None:
+            states, seen = np.empty_like(row), np.empty(len(row), dtype=bool)
+            kernels.people_frame(x, y, row, present, -1.0 if sensor_range is None else sensor_range, self._boxes,
+                                 states, seen)
+            return states, seen
+        states, seen = open_frame(x, y, row, present, sensor_range)
+        if seen.any():
+            idx = np.flatnonzero(seen)
+            seen[idx] = self.in_sight(x, y, row[idx, :2], row[idx, 4])
+            states[~seen] = 0.0
+        return states, seen
+
     def in_sight(self, x: float, y: float, positions: np.ndarray, radii: np.ndarray) -> np.ndarray:
         """(n,) bool: whether a line of sight from (x, y) reaches each disc past the racks."""
         if self._boxes is not None:
-            return kernels.discs_in_sight(x, y, positions, radii, self._boxes)
+            return kernels.discs_in_sight(x, y, np.ascontiguousarray(positions, dtype=np.float64),
+                                          np.ascontiguousarray(radii, dtype=np.float64), self._boxes)
         d = positions - np.array([x, y])
         norm = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-12)
         side = np.stack([-d[:, 1], d[:, 0]], axis=1) / norm[:, None] * radii[:, None]

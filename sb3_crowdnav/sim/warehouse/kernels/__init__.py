@@ -11,7 +11,14 @@ process loads them in well under a second (where that folder is read-only, numba
 user's, or in ``NUMBA_CACHE_DIR``).
 """
 
-from sb3_crowdnav.sim.warehouse.kernels.base import discs_in_sight, misses_boxes, point_clearance, segment_clearance
+from sb3_crowdnav.sim.warehouse.kernels.base import (
+    disc_in_sight,
+    discs_in_sight,
+    misses_boxes,
+    people_frame,
+    point_clearance,
+    segment_clearance,
+)
 from sb3_crowdnav.sim.warehouse.kernels.pickers import (
     AfterStep,
     far_from_both,
@@ -48,12 +55,14 @@ __all__ = [
     "SensingAndRoute",
     "bitangent_edges",
     "box_roadmap",
+    "disc_in_sight",
     "discs_in_sight",
     "distances_to",
     "far_from_both",
     "free_points",
     "joins",
     "misses_boxes",
+    "people_frame",
     "picker_after_step",
     "picker_preferences",
     "picker_progress",

@@ -90,20 +90,41 @@ def segment_clearance(ax, ay, bx, by, boxes, w, h, cap):  # pragma: no cover  (c
 
 
 @njit(**JIT)
+def disc_in_sight(ox, oy, cx, cy, r, boxes):  # pragma: no cover  (compiled)
+    """Whether a line of sight from (ox, oy) reaches the disc of centre (cx, cy) and radius ``r`` past ``boxes`` (B, 4):
+    one of three lines, to the centre and to the disc's two sides across the line of sight (centre ± r, perpendicular
+    to it), enters the open interior of no box (:func:`misses_boxes`: grazing a side or a corner does not block)."""
+    if misses_boxes(ox, oy, cx, cy, boxes):
+        return True
+    dx, dy = cx - ox, cy - oy
+    d = math.hypot(dx, dy)
+    if d <= 1e-12:
+        return False
+    px, py = -dy / d * r, dx / d * r
+    return misses_boxes(ox, oy, cx + px, cy + py, boxes) or misses_boxes(ox, oy, cx - px, cy - py, boxes)
+
+
+@njit(**JIT)
 def discs_in_sight(ox, oy, positions, radii, boxes):  # pragma: no cover  (compiled)
-    """(n,) bool: whether a line of sight from (ox, oy) reaches each disc (``positions`` (n, 2), ``radii`` (n,)) past
-    ``boxes`` (B, 4): one of three lines, to the disc's centre and to its two sides across the line of sight (centre
-    ± radius, perpendicular to it), enters the open interior of no box (:func:`misses_boxes`: grazing a side or a corner
-    does not block)."""
-    n = positions.shape[0]
-    out = np.zeros(n, dtype=np.bool_)
-    for i in range(n):
-        cx, cy, r = positions[i, 0], positions[i, 1], radii[i]
-        dx, dy = cx - ox, cy - oy
-        d = math.hypot(dx, dy)
-        if misses_boxes(ox, oy, cx, cy, boxes):
-            out[i] = True
-        elif d > 1e-12:
-            px, py = -dy / d * r, dx / d * r
-            out[i] = misses_boxes(ox, oy, cx + px, cy + py, boxes) or misses_boxes(ox, oy, cx - px, cy - py, boxes)
+    """(n,) bool: :func:`disc_in_sight` of each disc (``positions`` (n, 2), ``radii`` (n,))."""
+    out = np.zeros(positions.shape[0], dtype=np.bool_)
+    for i in range(positions.shape[0]):
+        out[i] = disc_in_sight(ox, oy, positions[i, 0], positions[i, 1], radii[i], boxes)
     return out
+
+
+@njit(**JIT)
+def people_frame(ox, oy, row, present, sensor_range, boxes, states, seen):  # pragma: no cover  (compiled)
+    """One frame of the people sensor (:mod:`sb3_crowdnav.sim.sensing`'s rules) into ``states`` (M, 5) and ``seen``
+    (M,): a person of ``row`` (M, 5: x, y, vx, vy, radius) is seen when ``present``, their disc within
+    ``sensor_range`` of (ox, oy) (< 0: unlimited) and :func:`disc_in_sight` past ``boxes``; their state is copied,
+    zeros otherwise."""
+    for i in range(row.shape[0]):
+        s = present[i]
+        if s and sensor_range >= 0.0:
+            s = math.hypot(row[i, 0] - ox, row[i, 1] - oy) - row[i, 4] <= sensor_range
+        if s:
+            s = disc_in_sight(ox, oy, row[i, 0], row[i, 1], row[i, 4], boxes)
+        seen[i] = s
+        for k in range(row.shape[1]):
+            states[i, k] = row[i, k] if s else 0.0
