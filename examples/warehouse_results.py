@@ -146,7 +146,8 @@ def main(argv: list[str] | None = None) -> None:
                         "default: its best.zip)")
     p.add_argument("--time-run", action="append", default=[], metavar="NAME=FOLDER[:N]",
                    help="record the wall time of this run folder as NAME (to its checkpoint N; repeatable)")
-    p.add_argument("--sweep", type=int, nargs="+", default=SWEEP, help="pickers of the sweep (default: 2 4 6 8 10)")
+    p.add_argument("--sweep", type=int, nargs="*", default=SWEEP,
+                   help="pickers of the sweep (default: 2 4 6 8 10; none: no sweep, an earlier sweep table is kept)")
     p.add_argument("--gif", action=argparse.BooleanOptionalAction, default=True, help="a GIF per policy")
     p.add_argument("--world", choices=("both", "today", "paper"), default="both",
                    help="the default warehouse (today), the shipped models' world (paper) or both")
@@ -164,7 +165,7 @@ def main(argv: list[str] | None = None) -> None:
                   ["--allow-env-mismatch", "--protective-field", args.protective_field, "--no-gif"])
     if args.world in ("both", "paper"):
         benchmark(args.out / "generated", POLICIES, args.episodes, args.workers,
-                  ["--env-kwargs", f"dict({PAPER_ROBOT})", "--sweep", *map(str, args.sweep),
+                  ["--env-kwargs", f"dict({PAPER_ROBOT})", *(["--sweep", *map(str, args.sweep)] if args.sweep else []),
                    *([] if args.gif else ["--no-gif"])])
         benchmark(args.out / "layout_file", POLICIES, args.episodes, args.workers,
                   ["--env-kwargs", f"dict(layout={str(LAYOUT_FILE)!r}, {PAPER_ROBOT})", "--no-gif"])
@@ -175,8 +176,8 @@ def main(argv: list[str] | None = None) -> None:
                 (f"The same behind a {field}", args.out / "protective_field" / "results.csv", "method"),
                 ("As trained (the paper's robot, blind pickers, seen through racks), generated layouts, 6 pickers",
                  args.out / "generated" / "results.csv", "method"),
-                (f"apg_warehouse with {', '.join(map(str, args.sweep))} pickers", args.out / "generated" / "sweep.csv",
-                 "humans"),
+                (f"apg_warehouse with {', '.join(map(str, args.sweep or SWEEP))} pickers",
+                 args.out / "generated" / "sweep.csv", "humans"),
                 (f"The layout file {LAYOUT_FILE.name}, 6 pickers", args.out / "layout_file" / "results.csv", "method")]
     sections = [(title, path, key) for title, path, key in sections if path.is_file()]
     if args.unshaped:

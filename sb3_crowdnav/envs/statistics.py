@@ -109,7 +109,7 @@ class EpisodeStatistics:
         velocity, capped at ``TTC_HORIZON`` = 10 s, 0 once the robot touched a person), ``near_misses`` (steps closer
         than 0.2 m to a person's surface without touching), ``speed_near_people`` [m/s] (the robot's mean speed over
         the ``steps_near_people``, those with a person's surface within 1 m), ``peak_acceleration`` [m/s²] (the largest
-        |v_t - v_{t-1}| / Δt, velocity vectors) and ``peak_turn_rate`` [rad/s] (the largest |heading change| / Δt).
+        ``|v_t - v_{t-1}| / Δt``, velocity vectors) and ``peak_turn_rate`` [rad/s] (the largest ``|heading change| / Δt``).
         """
         return {
             "outcome": outcome,

@@ -85,10 +85,12 @@ class CrowdNavWarehouseEnv(CrowdEnvBase):
     ==================  =====================  ==============================================================================
 
     (1) the ``max_obstacles`` (16) segments nearest the robot within ``sensor_range`` (4 m), nearest first.
-    (2) the robot sees a picker when a line of sight reaches their disc past the racks (``occlusion``) and the disc is
-    within ``people_sensor_range`` (8 m), with optional ``people_sensor_noise`` and ``people_sensor_latency``
-    (:mod:`sb3_crowdnav.sim.sensing`); an unseen picker's slot is zeros over the window, one seen again starts a new
-    history. Positions are bounded by ± (the largest hall's half diagonal + 1 m).
+    Positions are bounded by ± (the largest hall's half diagonal + 1 m).
+
+    (2) the robot sees a picker when a line of sight reaches their disc past the racks (``occlusion``) and the disc
+    is within ``people_sensor_range`` (8 m), with optional ``people_sensor_noise`` and ``people_sensor_latency``
+    (:mod:`sb3_crowdnav.sim.sensing`); an unseen picker's slot is zeros over the window, one seen again starts a
+    new history.
 
     ## Rewards
 
