@@ -24,7 +24,7 @@ paper's robot, pickers who never see it, every picker seen through racks):
 * ``OUT/layout_file``: the same policies in the fixed layout of ``examples/warehouse_layout.yaml``;
 * ``OUT/unshaped``: with ``--unshaped ZIP``, a model trained without the route-progress shaping.
 
-``--world both`` (the default) runs both. Every table has its safety figures beside it (minimum time-to-collision,
+``--world both`` (the default) runs both, ``--world none`` neither (the summary only). Every table has its safety figures beside it (minimum time-to-collision,
 near misses, speed near people, peak acceleration and turn rate, clearance to racks). ``OUT/summary.md`` collects the
 tables of every world run so far (the README's warehouse section is copied from it) and the training wall
 times. These are read from run folders: ``--runs DIR`` times ``DIR/apg_warehouse`` and ``DIR/ppo_warehouse``, and
@@ -149,8 +149,9 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--sweep", type=int, nargs="*", default=SWEEP,
                    help="pickers of the sweep (default: 2 4 6 8 10; none: no sweep, an earlier sweep table is kept)")
     p.add_argument("--gif", action=argparse.BooleanOptionalAction, default=True, help="a GIF per policy")
-    p.add_argument("--world", choices=("both", "today", "paper"), default="both",
-                   help="the default warehouse (today), the shipped models' world (paper) or both")
+    p.add_argument("--world", choices=("both", "today", "paper", "none"), default="both",
+                   help="the default warehouse (today), the shipped models' world (paper), both, or none (only "
+                        "rebuild OUT/summary.md from the tables there)")
     p.add_argument("--protective-field", default="0.5,0.3", metavar="D,CAP[,DEG]",
                    help="the field of OUT/protective_field (default: %(default)s)")
     args = p.parse_args(argv)
