@@ -24,8 +24,9 @@ paper's robot, pickers who never see it, every picker seen through racks):
 * ``OUT/layout_file``: the same policies in the fixed layout of ``examples/warehouse_layout.yaml``;
 * ``OUT/unshaped``: with ``--unshaped ZIP``, a model trained without the route-progress shaping.
 
-``--world both`` (the default) runs both, ``--world none`` neither (the summary only). Every table has its safety figures beside it (minimum time-to-collision,
-near misses, speed near people, peak acceleration and turn rate, clearance to racks). ``OUT/summary.md`` collects the
+``--world both`` (the default) runs both, ``--world none`` neither (the summary only). Every table has its safety
+figures beside it (minimum time-to-collision, near misses, speed near people, peak acceleration and turn rate,
+clearance to racks). ``OUT/summary.md`` collects the
 tables of every world run so far (the README's warehouse section is copied from it) and the training wall
 times. These are read from run folders: ``--runs DIR`` times ``DIR/apg_warehouse`` and ``DIR/ppo_warehouse``, and
 ``--time-run NAME=FOLDER[:N]`` any run (to the validation of its checkpoint N, else of its ``best.zip``). Each is
