@@ -13,7 +13,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "sb3_crowdnav"
 # floor of each top-level part of the package; a module may import its own part or a strictly lower floor
 FLOORS = {
     "sim": 0, "version": 0,
-    "envs": 1, "nn": 1, "serialization": 1,
+    "envs": 1, "nn": 1, "serialization": 1, "safety": 1,
     "imitation": 2,
     "apg_value": 3,
     "models": 4,
