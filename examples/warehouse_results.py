@@ -63,13 +63,15 @@ def benchmark(out: Path, policies, episodes: int, workers: int, extra=()) -> Non
         raise SystemExit(f"sb3-crowdnav {' '.join(args)} exited with {code}")
 
 
+def number(row: dict[str, str], name: str, digits: int = 2) -> str:
+    """A CSV cell rounded for a table; "–" when it is empty, nan or missing (an older CSV)."""
+    return "–" if row.get(name, "") in ("", "nan") else f"{float(row[name]):.{digits}f}"
+
+
 def compact(results_csv: Path, key: str = "method") -> str:
     """The README's columns of a ``results.csv``: rates with their 95 % intervals, time, path / route, gap."""
     def rate(row, name):
         return f"{float(row[name]):.3f} [{float(row[name + '_ci_low']):.3f}, {float(row[name + '_ci_high']):.3f}]"
-
-    def number(row, name, digits=2):
-        return "–" if row[name] in ("", "nan") else f"{float(row[name]):.{digits}f}"
 
     lines = [f"| {key} | success | picker collision | obstacle collision | timeout | time [s] | path / route | "
              "gap [m] |", "|---|---|---|---|---|---|---|---|"]
@@ -85,9 +87,6 @@ def compact_safety(results_csv: Path, key: str = "method") -> str:
     """The safety figures of a ``results.csv``: min TTC (mean over episodes, s), the share of episodes with one below
     1 s, near misses per episode, speed near people (m/s), peak acceleration and turn rate (mean / max), clearance to
     racks (mean / worst, m)."""
-    def number(row, name, digits=2):
-        return "–" if row.get(name, "") in ("", "nan") else f"{float(row[name]):.{digits}f}"
-
     lines = [f"| {key} | min TTC [s] | TTC < 1 s | near misses | speed near people [m/s] | peak accel. [m/s²] | "
              "peak turn rate [rad/s] | clearance to racks [m] |", "|---|---|---|---|---|---|---|---|"]
     with results_csv.open() as f:
