@@ -107,7 +107,9 @@ class OrcaCrowdModel:
     the others ignore it. With everyone on one side, one RVO2 simulator runs (with or without the robot); with a
     mixed crowd, two (with and without the robot), both put in the people's actual state before each step, each
     person taking its new state from the simulator of its side: ORCA computes a person's velocity from its
-    neighbours' current states only, so this is each person avoiding exactly the agents it sees.
+    neighbours' current states only, so this is each person avoiding exactly the agents it sees. In each simulator
+    the other side's people are passive (:class:`~sb3_crowdnav.sim.orca.OrcaCrowd`): RVO2 computes no velocity for
+    them there.
     """
 
     def __init__(self, scene: SceneConfig) -> None:
@@ -120,23 +122,29 @@ class OrcaCrowdModel:
         radii = people.radii + self.settings.safety_space
         robot_agent = (np.array(robot.position), np.array(robot.velocity), robot.radius)
         self.seeing = people.sees_robot.copy()
-        sides = [bool(s) for s in np.unique(self.seeing)]  # [False], [True] or [False, True]
+        seeing = np.flatnonzero(self.seeing).tolist()
+        blind = np.flatnonzero(~self.seeing).tolist()
+        self.sides = [side for side in (blind, seeing) if side]  # the people of each simulator, in order
         obstacles = walls.rvo_polygons() if walls is not None else None
-        self.crowds = [OrcaCrowd(self.scene, people.starts, radii, people.v_prefs, robot_agent if side else None,
-                                 obstacles) for side in sides]
+        # each simulator computes its side's people, the other side's passive in it (OrcaCrowd)
+        self.crowds = [OrcaCrowd(self.scene, people.starts, radii, people.v_prefs, robot_agent if side is seeing else None,
+                                 obstacles, passive=blind if side is seeing else seeing) for side in self.sides]
 
     def step(self, preferred: list[tuple[float, float]], robot: RobotAgent) -> tuple[np.ndarray, np.ndarray]:
         robot_state = (robot.position, robot.velocity)
+        if not self.crowds:  # nobody
+            return np.zeros((0, 2)), np.zeros((0, 2))
         if len(self.crowds) == 1:
             return self.crowds[0].step(preferred, robot_state)
-        blind, seeing = self.crowds
-        pos_b, vel_b = blind.step(preferred)
-        pos_s, vel_s = seeing.step(preferred, robot_state)
-        side = self.seeing[:, None]
-        positions, velocities = np.where(side, pos_s, pos_b), np.where(side, vel_s, vel_b)
         for crowd in self.crowds:
-            crowd.set_agents(positions, velocities)
-        return positions, velocities
+            crowd.advance(preferred, robot_state)
+        (blind, seeing), (blind_sim, seeing_sim) = self.sides, self.crowds
+        blind_rows, seeing_rows = blind_sim.rows(blind), seeing_sim.rows(seeing)
+        blind_sim.put(seeing, seeing_rows)  # each simulator gets the other side's new states
+        seeing_sim.put(blind, blind_rows)
+        state = np.empty((len(self.seeing), 4))
+        state[blind], state[seeing] = blind_rows, seeing_rows
+        return state[:, :2], state[:, 2:]
 
     def move_person(self, i: int, position: np.ndarray) -> None:
         """Put person ``i`` at ``position`` (2,) (the warehouse pushes a person pressed into a rack back out)."""

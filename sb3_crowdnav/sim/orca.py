@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 import pyrvo
@@ -39,11 +40,18 @@ def make_simulator(cfg: SceneConfig, max_speed: float) -> pyrvo.RVOSimulator:
 
 
 class OrcaCrowd:
-    """Pedestrians driven by ORCA; optionally the robot as an agent they avoid."""
+    """Pedestrians driven by ORCA; optionally the robot as an agent they avoid.
+
+    An agent of ``passive`` (and the robot's) is one whose new state this simulator is not asked for: it looks at no
+    neighbour and (nearly) no obstacle, so RVO2 spends nothing on its velocity, and the others see it where it is put
+    (RVO2 computes an agent's velocity from the others' current position, velocity and radius only). The robot is put
+    at its actual state before each step; a passive pedestrian by the caller (:meth:`put`), from where another
+    simulator moved it.
+    """
 
     def __init__(self, cfg: SceneConfig, positions: np.ndarray, radii: np.ndarray, v_prefs: np.ndarray,
                  robot: tuple[np.ndarray, np.ndarray, float] | None,
-                 obstacles: list[np.ndarray] | None = None) -> None:
+                 obstacles: list[np.ndarray] | None = None, passive: Sequence[int] = ()) -> None:
         """:param obstacles: static obstacles as counter-clockwise (k, 2) vertex arrays, seen by every agent"""
         # (a simulator is never reused with clear_agents(): RVO2's agent tree keeps pointers to the removed agents)
         self.sim = make_simulator(cfg, max([*np.asarray(v_prefs, dtype=np.float64).tolist(), cfg.human_v_pref]))
@@ -53,64 +61,56 @@ class OrcaCrowd:
             self.sim.process_obstacles()
         self.n = len(positions)
         args = (cfg.orca_neighbor_dist, cfg.orca_max_neighbors, cfg.orca_time_horizon, cfg.orca_time_horizon_obst)
-        for (x, y), r, v in zip(np.asarray(positions, dtype=np.float64).reshape(-1, 2).tolist(),
-                                np.asarray(radii, dtype=np.float64).tolist(), np.asarray(v_prefs, dtype=np.float64).tolist(),
-                                strict=True):  # (in floats: one conversion per array)
-            self.sim.add_agent((x, y), *args, r, v, (0.0, 0.0))
+        blind = (0.0, 0, cfg.orca_time_horizon, BLIND_HORIZON)
+        passive = set(passive)
+        for i, ((x, y), r, v) in enumerate(zip(
+                np.asarray(positions, dtype=np.float64).reshape(-1, 2).tolist(),
+                np.asarray(radii, dtype=np.float64).tolist(), np.asarray(v_prefs, dtype=np.float64).tolist(),
+                strict=True)):  # (in floats: one conversion per array)
+            self.sim.add_agent((x, y), *(blind if i in passive else args), r, v, (0.0, 0.0))
+        self.active = [i for i in range(self.n) if i not in passive]
         self.robot_id = None
         if robot is not None:
             pos, vel, radius = robot
-            self.robot_id = self.sim.add_agent(
-                (float(pos[0]), float(pos[1])), cfg.orca_neighbor_dist, cfg.orca_max_neighbors,
-                cfg.orca_time_horizon, cfg.orca_time_horizon_obst, float(radius), cfg.robot_v_pref,
-                (float(vel[0]), float(vel[1])),
-            )
+            self.robot_id = self.sim.add_agent((float(pos[0]), float(pos[1])), *blind, float(radius), cfg.robot_v_pref,
+                                               (float(vel[0]), float(vel[1])))
 
     def step(self, pref_velocities, robot_state=None) -> tuple[np.ndarray, np.ndarray]:
-        """Advance one step; return the pedestrians' new positions and velocities, each (N, 2).
+        """Advance one step; return the pedestrians' new positions and velocities, each (N, 2) (a passive one's as
+        RVO2 moved it, looking at no one).
 
         :param pref_velocities: (N, 2) array or sequence of (vx, vy) pairs
         :param robot_state: ``(position, velocity)`` pairs of the robot at the start of the step, when visible
         """
-        sim = self.sim
         if isinstance(pref_velocities, np.ndarray):
             pref_velocities = pref_velocities.tolist()
-        for i, (vx, vy) in enumerate(pref_velocities):
-            sim.set_agent_pref_velocity(i, (vx, vy))
-        if self.robot_id is not None and robot_state is not None:
-            (px, py), (vx, vy) = robot_state
-            pos, vel = (float(px), float(py)), (float(vx), float(vy))
-            sim.set_agent_position(self.robot_id, pos)
-            sim.set_agent_velocity(self.robot_id, vel)
-            sim.set_agent_pref_velocity(self.robot_id, vel)
-        sim.do_step()
-        return self.states()
-
-    def states(self) -> tuple[np.ndarray, np.ndarray]:
-        """The pedestrians' positions and velocities, each (N, 2)."""
-        state = np.array(self.rows()).reshape(self.n, 4)
+        self.advance(pref_velocities, robot_state)
+        state = np.array(self.rows(range(self.n))).reshape(self.n, 4)
         return state[:, :2], state[:, 2:]
 
-    def rows(self) -> list[tuple[float, float, float, float]]:
-        """The pedestrians' ``(px, py, vx, vy)``, in floats."""
+    def advance(self, pref_velocities: list, robot_state=None) -> None:
+        """One RVO2 step with the active pedestrians' preferred velocities from ``pref_velocities`` (N pairs) and the
+        robot put at ``robot_state`` (see :meth:`step`)."""
+        sim = self.sim
+        set_pref = sim.set_agent_pref_velocity
+        for i in self.active:
+            vx, vy = pref_velocities[i]
+            set_pref(i, (vx, vy))
+        if self.robot_id is not None and robot_state is not None:
+            (px, py), (vx, vy) = robot_state
+            sim.set_agent_position(self.robot_id, (float(px), float(py)))
+            sim.set_agent_velocity(self.robot_id, (float(vx), float(vy)))
+        sim.do_step()
+
+    def rows(self, indices) -> list[tuple[float, float, float, float]]:
+        """The ``(px, py, vx, vy)`` of the pedestrians ``indices``, in floats."""
         get_pos, get_vel = self.sim.get_agent_position, self.sim.get_agent_velocity
-        return [get_pos(i).to_tuple() + get_vel(i).to_tuple() for i in range(self.n)]
+        return [get_pos(i).to_tuple() + get_vel(i).to_tuple() for i in indices]
 
-    def set_preferred_velocities(self, velocities: list[tuple[float, float]]) -> None:
-        """The pedestrians' preferred velocities for the next step (no robot)."""
-        set_pref = self.sim.set_agent_pref_velocity
-        for i, v in enumerate(velocities):
-            set_pref(i, v)
-
-    def advance(self) -> list[tuple[float, float, float, float]]:
-        """One RVO2 step with the preferred velocities set; :meth:`rows` after it."""
-        self.sim.do_step()
-        return self.rows()
-
-    def set_agents(self, positions: np.ndarray, velocities: np.ndarray) -> None:
-        """Put the pedestrians in these states, each (N, 2) (a crowd split over two simulators keeps them equal)."""
+    def put(self, indices, rows: list[tuple[float, float, float, float]]) -> None:
+        """Put the pedestrians ``indices`` in the states ``rows`` (``(px, py, vx, vy)`` each)."""
         set_pos, set_vel = self.sim.set_agent_position, self.sim.set_agent_velocity
-        for i, ((x, y), (vx, vy)) in enumerate(zip(positions.tolist(), velocities.tolist(), strict=True)):
+        for i, (x, y, vx, vy) in zip(indices, rows, strict=True):
             set_pos(i, (x, y))
             set_vel(i, (vx, vy))
 
