@@ -1,7 +1,7 @@
 """sb3_crowdnav: crowd navigation with deep RL as a Stable-Baselines3 plugin.
 
 ``import sb3_crowdnav`` registers the Gymnasium envs (``CrowdNav-v0``, ``CrowdNavSquare-v0``,
-``CrowdNavComfort-v0``, ``CrowdNavComfortAngular-v0``, ``CrowdNavWarehouse-v0``) and changes nothing
+``CrowdNavComfort-v0``, ``CrowdNavComfortAngular-v0``, ``CrowdNavWarehouse-v0``, ``CrowdNavWorlds-v0``) and changes nothing
 else: SB3's algorithms take the APG encoder as a class (``PPO(ApgActorCriticPolicy, env)``,
 ``DQN(ApgDQNPolicy, env)``), and torch's thread count is the caller's (``sb3_crowdnav.nn.configure_cpu``).
 """
@@ -24,11 +24,13 @@ ENV_IDS = {
 
 
 WAREHOUSE_ENV_IDS = {"CrowdNavWarehouse-v0": {}}
+WORLDS_ENV_IDS = {"CrowdNavWorlds-v0": {}}
 
 
 def _register() -> None:
     for ids, entry_point in ((ENV_IDS, "sb3_crowdnav.envs.crowd_nav:CrowdNavEnv"),
-                             (WAREHOUSE_ENV_IDS, "sb3_crowdnav.envs.warehouse:CrowdNavWarehouseEnv")):
+                             (WAREHOUSE_ENV_IDS, "sb3_crowdnav.envs.warehouse:CrowdNavWarehouseEnv"),
+                             (WORLDS_ENV_IDS, "sb3_crowdnav.envs.worlds:CrowdNavWorldsEnv")):
         for env_id, kwargs in ids.items():
             if env_id not in gym.registry:  # guarded: importing twice (or via "sb3_crowdnav:") is harmless
                 # no max_episode_steps: the env truncates itself (time_limit / time_step; the warehouse by route)
@@ -47,6 +49,7 @@ __all__ = [
     "ENV_IDS",
     "EXTRACTORS",
     "WAREHOUSE_ENV_IDS",
+    "WORLDS_ENV_IDS",
     "APGValue",
     "ApgActorCriticPolicy",
     "ApgDQNPolicy",

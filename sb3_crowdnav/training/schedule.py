@@ -95,7 +95,7 @@ class Variant:
 
 
 # §3: ε from 0.5 to 0.1 over 5,000 episodes; one gradient step every 4 env steps unless a variant's test row says 8
-PAPER_SCHEDULE = {"rl_episodes": 10_000, "exploration_episodes": 5_000, "train_freq": 4}
+PAPER_SCHEDULE = {"rl_episodes": 10_000, "exploration_episodes": 5_000, "train_freq": 4, "num_humans": 6}
 
 
 VARIANTS = {
@@ -110,6 +110,10 @@ VARIANTS = {
     # the paper's method among racks, with route-progress shaping (progress_reward=0: the paper's reward)
     "apg_warehouse": Variant("ApgPolicy", env_id="CrowdNavWarehouse-v0", env_kwargs={"progress_reward": 0.1},
                              schedule={"rl_episodes": 6_000, "exploration_episodes": 3_000}),
+    # the paper's method trained for people it never met: every episode one of several crowds, 0 to 10 people
+    # (sb3_crowdnav.envs.worlds.ROBUST_WORLDS; docs/decisions.md, "Robust training")
+    "apg_robust": Variant("ApgPolicy", env_id="CrowdNavWorlds-v0", env_kwargs={"worlds": "robust"},
+                          schedule={"train_freq": 8, "num_humans": (0, 10)}),
 }
 OPTIMIZERS = {"adam": (th.optim.Adam, {}), "sgd": (th.optim.SGD, {"momentum": 0.9})}
 LOOKAHEAD_DTYPES = ValueLookaheadPolicy.LOOKAHEAD_DTYPES
@@ -127,7 +131,8 @@ class ScheduleConfig:
     :param imitation_epochs: passes of the imitation regression
     :param imitation_learning_rate: its learning rate (Table 1: 0.01)
     :param n_envs: training envs (one batched lookahead)
-    :param num_humans: pedestrians of the training and validation episodes (6), or a (min, max) range
+    :param num_humans: pedestrians of the training and validation episodes, or a (min, max) range drawn per episode
+        (None: the variant's; 6, ``apg_robust``: 0 to 10)
     :param env_kwargs: more keyword arguments of the env, over the variant's own (its reward and ``num_humans``
         are set here)
     :param seed: training seed (envs ``seed, seed + 1, ...``)
@@ -163,7 +168,7 @@ class ScheduleConfig:
     imitation_episodes: int = 3_000
     imitation_epochs: int = 10
     imitation_learning_rate: float = 0.01
-    num_humans: int | tuple[int, int] = 6
+    num_humans: int | tuple[int, int] | None = None
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     n_envs: int = 1
     seed: int = 0
