@@ -115,6 +115,7 @@ class CrowdNavWorldsEnv(gym.Env):
         self.action_space = self.envs[0].action_space
         self.render_mode = render_mode
         self.current = 0
+        self.episode_seed: int | None = None  # the current world's env was reset with this seed
 
     @staticmethod
     def _weights(weights: Sequence[float] | None, n: int) -> np.ndarray:
@@ -159,7 +160,7 @@ class CrowdNavWorldsEnv(gym.Env):
         return self.env.max_steps
 
     def __getattr__(self, name: str) -> Any:  # what a world adds (the warehouse's config, layout...): the current's
-        if name.startswith("_") or name in ("envs", "current"):
+        if name.startswith("_") or name in ("envs", "current", "episode_seed"):
             raise AttributeError(name)
         return getattr(self.envs[self.current], name)
 
@@ -169,8 +170,8 @@ class CrowdNavWorldsEnv(gym.Env):
         that env: the same seed gives the same world and episode."""
         super().reset(seed=seed)
         self.current = int(self.np_random.choice(len(self.envs), p=self.weights))
-        inner = int(self.np_random.integers(2**63 - 1))
-        obs, info = self.env.reset(seed=inner, options=options)
+        self.episode_seed = int(self.np_random.integers(2**63 - 1))
+        obs, info = self.env.reset(seed=self.episode_seed, options=options)
         return obs, {**info, "world": self.current}
 
     def step(self, action):
