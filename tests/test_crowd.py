@@ -97,12 +97,13 @@ def test_bad_values_are_refused_at_construction_by_name(kwargs, exception, name)
 
 
 def test_the_warehouse_refuses_the_open_floors_crowd_settings():
-    for kwargs in ({"crowd": "linear"}, {"human_speed": "measured"},
-                   {"stop_probability": 0.5}, {"stop_duration": (1.0, 2.0)}):
+    for kwargs in ({"crowd": "linear"}, {"stop_probability": 0.5}, {"stop_duration": (1.0, 2.0)}):
         with pytest.raises(ValueError, match=next(iter(kwargs))):
             gym.make("CrowdNavWarehouse-v0", **kwargs)
-    # a share of pickers seeing the robot is the warehouse's too now (tests/test_warehouse_visibility.py)
+    # a share of pickers seeing the robot is the warehouse's too now (tests/test_warehouse_visibility.py), and so are
+    # measured walking speeds (tests/test_picker_speeds.py)
     assert gym.make("CrowdNavWarehouse-v0", robot_visible=0.5).unwrapped.scene.robot_visible == 0.5
+    assert gym.make("CrowdNavWarehouse-v0", human_speed="measured").unwrapped.scene.human_speed == "measured"
 
 
 def test_human_policy_is_the_old_name_of_crowd():

@@ -50,7 +50,7 @@ REFUSED = {
     "CrowdNavComfort-v0": OPEN_FLOOR_REFUSED | {"square_width", "discomfort_factor", "angular_penalty"},
     "CrowdNavComfortAngular-v0": OPEN_FLOOR_REFUSED | {"square_width", "discomfort_factor"},
     "CrowdNavWarehouse-v0": {"circle_radius", "square_width", "start_noise", "human_policy", "scenario",
-                             "social_penalty", "angular_penalty", "crowd", "human_speed",
+                             "social_penalty", "angular_penalty", "crowd",
                              "stop_probability", "stop_duration"},
 }
 

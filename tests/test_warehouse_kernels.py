@@ -296,21 +296,22 @@ def test_the_picker_kernels_are_the_float_loops():
         routes, array, lengths, waypoint, positions, dwell = random_pickers(rng)
         ours_w, theirs_w = waypoint.copy(), waypoint.tolist()
         ours = np.full((len(routes), 2), np.nan)
-        kernels.picker_preferences(positions, dwell, ours_w, array, lengths, 1.0, 0.25, ours)
-        np.testing.assert_allclose(ours, reference.preferences(positions, dwell, theirs_w, routes, 1.0, 0.25),
-                                   rtol=RTOL, atol=1e-15)
+        v_prefs, arrivals = rng.uniform(0.5, 2.0, len(routes)), rng.uniform(0.1, 0.8, len(routes))  # per picker
+        kernels.picker_preferences(positions, dwell, ours_w, array, lengths, v_prefs, arrivals, ours)
+        np.testing.assert_allclose(ours, reference.preferences(positions, dwell, theirs_w, routes, v_prefs.tolist(),
+                                                               arrivals.tolist()), rtol=RTOL, atol=1e-15)
         assert ours_w.tolist() == theirs_w
-        assert (np.linalg.norm(ours, axis=1) <= 1.0 + 1e-12).all()  # never faster than v_pref
+        assert (np.linalg.norm(ours, axis=1) <= v_prefs * (1 + 1e-12)).all()  # never faster than its v_pref
         state = np.concatenate([positions, np.zeros((len(routes), 2))], axis=1)
         ours_d = dwell.copy()
-        which, what = kernels.picker_progress(state, ours_d, ours_w, array, lengths, 0.25, 0.25)
+        which, what = kernels.picker_progress(state, ours_d, ours_w, array, lengths, 0.25, arrivals)
         expected = []
         for i, (x, y) in enumerate(positions.tolist()):
             if dwell[i] > 0:
                 dwell[i] = max(0.0, dwell[i] - 0.25)
                 if dwell[i] == 0:
                     expected.append((i, 1))
-            elif theirs_w[i] == len(routes[i]) - 1 and math.dist((x, y), routes[i][-1]) < 0.25:
+            elif theirs_w[i] == len(routes[i]) - 1 and math.dist((x, y), routes[i][-1]) < arrivals[i]:
                 expected.append((i, 2))
         assert list(zip(which.tolist(), what.tolist(), strict=True)) == expected
         np.testing.assert_array_equal(ours_d, dwell)
@@ -332,15 +333,16 @@ def test_picker_after_step_is_pressed_then_progress():
             positions[0] = layout.boxes[0, :2] + 0.05
         state = np.concatenate([positions, np.zeros((len(routes), 2))], axis=1)
         before_d, before_w = dwell.copy(), waypoint.copy()
+        arrivals = np.full(len(routes), 0.25)
         after = kernels.picker_after_step(state, room, grown, layout.boxes, w, h, c, dwell, waypoint, array, lengths,
-                                          0.25, 0.25)
+                                          0.25, arrivals)
         assert isinstance(after, kernels.AfterStep)
         assert after.pressed.tolist() == kernels.pressed(state, room, grown, layout.boxes, w, h, c).tolist()
         if len(after.pressed):
             assert not len(after.which) and not len(after.what)
             np.testing.assert_array_equal(dwell, before_d)  # nothing counted down
         else:
-            which, what = kernels.picker_progress(state, before_d, before_w, array, lengths, 0.25, 0.25)
+            which, what = kernels.picker_progress(state, before_d, before_w, array, lengths, 0.25, arrivals)
             assert after.which.tolist() == which.tolist() and after.what.tolist() == what.tolist()
         asked[bool(len(after.pressed))] += 1
     assert asked[True] > 0 and asked[False] > 0

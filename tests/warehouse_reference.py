@@ -156,16 +156,17 @@ def slot_points(segments: np.ndarray, spacing: float, offset: float) -> np.ndarr
     return np.stack([ax + ex * (t / length) + ey / length * offset, ay + ey * (t / length) + -ex / length * offset], axis=1)
 
 
-def preferences(positions: np.ndarray, dwell: np.ndarray, waypoint: list[int], routes: list, v_pref: float,
-                arrival: float) -> list[list[float]]:
-    """The pickers' preferred velocities: towards the current waypoint (those within ``arrival`` passed, never the
-    last) at ``v_pref``, slowing into the last one; zero while standing. ``waypoint`` updated in place."""
+def preferences(positions: np.ndarray, dwell: np.ndarray, waypoint: list[int], routes: list, v_prefs: list[float],
+                arrivals: list[float]) -> list[list[float]]:
+    """The pickers' preferred velocities: towards the current waypoint (those within the picker's ``arrivals[i]``
+    passed, never the last) at its ``v_prefs[i]``, slowing into the last one; zero while standing. ``waypoint``
+    updated in place."""
     out = []
     for i, (x, y) in enumerate(positions.tolist()):
         if dwell[i] > 0:
             out.append([0.0, 0.0])
             continue
-        route, w = routes[i], waypoint[i]
+        route, w, v_pref, arrival = routes[i], waypoint[i], v_prefs[i], arrivals[i]
         while w < len(route) - 1 and math.dist((x, y), route[w]) < arrival:
             w += 1
         waypoint[i] = w

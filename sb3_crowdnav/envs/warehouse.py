@@ -31,8 +31,7 @@ UNUSED_SCENE = {
     "circle_radius": "sets the open floor's circle; the warehouse's hall comes from its layout",
     "square_width": "sets the open floor's square; the warehouse's hall comes from its layout",
     "start_noise": "sets the open floor's starts; the warehouse draws its stations from its layout",
-    # the open floor's population (the pickers walk their jobs at human_v_pref)
-    "human_speed": "draws the open floor's walking speeds; pickers walk at human_v_pref",
+    # the open floor's population (the pickers' stops are their jobs' dwells)
     "stop_probability": "makes people on the open floor stop; pickers stand at pick faces for dwell_time",
     "stop_duration": "is how long people on the open floor stand; pickers stand at pick faces for dwell_time",
 }
@@ -132,10 +131,15 @@ class CrowdNavWarehouseEnv(CrowdEnvBase):
     * ``crowd``: the pickers' model, ``"orca"`` (default) or ``"social_force"`` (JuPedSim's, the racks and walls its
       walkable area's boundary), with ``crowd_kwargs`` as on the open floor (``"orca"``'s ``safety_space`` too);
     * ``robot_visible``: who of the pickers sees the robot and avoids it, a share in [0, 1] (each picker sees it with
-      that probability, drawn per episode after the reset's other draws; the others are distracted and walk as if it
-      were not there) or a bool (all or none). Default 0.8 with ORCA, where a picker who sees it has it as one more
-      agent, at its actual position and velocity each step. Social force takes a bool (its forces act on everyone;
-      default True: the robot is an agent following its path). False: no picker yields (the shipped models' world);
+      that probability, drawn per episode after the reset's other draws but the speeds; the others are distracted and
+      walk as if it were not there) or a bool (all or none). Default 0.8 with ORCA, where a picker who sees it has it
+      as one more agent, at its actual position and velocity each step. Social force takes a bool (its forces act on
+      everyone; default True: the robot is an agent following its path). False: no picker yields (the shipped models'
+      world);
+    * ``human_speed``: ``"fixed"`` (default: every picker at ``human_v_pref``, 1 m/s) or ``"measured"``: each picker's
+      preferred walking speed drawn per episode as on the open floor, Normal(1.34, 0.26) m/s clipped to [0.5, 2.0]
+      (the reset's last draw: the layout, the stations, the pickers' jobs and who sees the robot stay those of
+      ``"fixed"``); ``human_v_pref`` is then refused;
     * ``actions``, ``max_acceleration`` and ``max_turn_rate``: the robot (defaults above; None is unlimited);
     * ``occlusion`` (default True), ``people_sensor_range`` (8 m; None: unlimited), ``people_sensor_noise`` (0 m) and
       ``people_sensor_latency`` (0 steps): what the robot sees of the pickers; collisions count with everyone;
@@ -143,8 +147,8 @@ class CrowdNavWarehouseEnv(CrowdEnvBase):
       ``time_limit_slack``;
     * ``circle_radius``, ``square_width`` and ``start_noise`` (the open floor's) are refused, as are
       ``human_policy`` other than ``"orca"``, ``crowd="linear"``, a share for ``robot_visible`` with social force,
-      the ORCA fields with ``crowd="social_force"``, the open floor's population (``human_speed``, ``stop_probability``,
-      ``stop_duration``), ``scenario`` other
+      the ORCA fields with ``crowd="social_force"``, the open floor's stops (``stop_probability``, ``stop_duration``:
+      pickers stand at pick faces for ``dwell_time``), ``scenario`` other
       than ``"warehouse"`` and a reward weight of another reward (as in ``CrowdNav-v0``).
 
     ## Version History
@@ -188,6 +192,8 @@ class CrowdNavWarehouseEnv(CrowdEnvBase):
         reward_config = RewardConfig(name=reward, **reward_kwargs)
         unused_crowd = {key: "concerns ORCA pickers; crowd='social_force' sets its forces in crowd_kwargs"
                         for key in ORCA_KEYS if scene.crowd == "social_force"}
+        if scene.human_speed == "measured":
+            unused_crowd["human_v_pref"] = "is the pickers' speed with human_speed='fixed'; 'measured' draws each one's"
         base.refuse_unused(kwargs, {**UNUSED_SCENE, **unused_crowd, **base.unused_reward_weights(reward_config)}, name)
         self.warehouse = WarehouseConfig(**_layout_objects(warehouse))
         sim = WarehouseSimulator(scene, reward_config, self.warehouse, fixed_time_limit)

@@ -39,11 +39,7 @@ class People:
 def draw_people(scene: SceneConfig, starts: np.ndarray, goals: np.ndarray, rng: np.random.Generator) -> People:
     """The population of ``scene`` for these starts and goals (n, 2), drawn from ``rng``."""
     n = len(starts)
-    if scene.human_speed == "measured":
-        mean, sd, low, high = MEASURED_SPEED
-        v_prefs = np.clip(rng.normal(mean, sd, n), low, high)
-    else:
-        v_prefs = np.full(n, scene.human_v_pref)
+    v_prefs = draw_speeds(scene, n, rng)
     sees = draw_sees_robot(scene.robot_visible, n, rng)
     stop_start, stop_end = np.full(n, math.inf), np.full(n, math.inf)
     if scene.stop_probability > 0:
@@ -55,6 +51,16 @@ def draw_people(scene: SceneConfig, starts: np.ndarray, goals: np.ndarray, rng: 
         stop_end = np.where(stops, when + duration, math.inf)
     return People(np.asarray(starts, dtype=np.float64).reshape(n, 2), np.asarray(goals, dtype=np.float64).reshape(n, 2),
                   np.full(n, scene.human_radius), v_prefs, sees, stop_start, stop_end)
+
+
+def draw_speeds(scene: SceneConfig, n: int, rng: np.random.Generator) -> np.ndarray:
+    """The preferred speeds of ``n`` people, (n,) [m/s]: everyone at ``human_v_pref`` for ``human_speed="fixed"``
+    (nothing drawn), else each from :data:`~sb3_crowdnav.sim.config.MEASURED_SPEED`, one ``rng.normal`` draw of n in
+    the people's order, clipped (the open floor's people and the warehouse's pickers alike)."""
+    if scene.human_speed == "measured":
+        mean, sd, low, high = MEASURED_SPEED
+        return np.clip(rng.normal(mean, sd, n), low, high)
+    return np.full(n, scene.human_v_pref)
 
 
 def draw_sees_robot(robot_visible: bool | float, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -105,4 +111,4 @@ MEASURED_POPULATION = MappingProxyType({
 seeing the robot with probability 0.5. The speeds are measured; the stops and the share who see the robot are a
 stated choice, not a measurement (``docs/decisions.md``). The generalisation table's "measured-speed population"."""
 
-__all__ = ["MEASURED_POPULATION", "People", "PreferredVelocities", "draw_people", "draw_sees_robot"]
+__all__ = ["MEASURED_POPULATION", "People", "PreferredVelocities", "draw_people", "draw_sees_robot", "draw_speeds"]

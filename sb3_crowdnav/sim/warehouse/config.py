@@ -141,13 +141,14 @@ def _packing(points: np.ndarray, spacing: float) -> int:
     return len(kept)
 
 
-OPEN_FLOOR_ONLY = ("human_speed", "stop_probability", "stop_duration")
+OPEN_FLOOR_ONLY = ("stop_probability", "stop_duration")
 PICKER_CROWDS = ("orca", "social_force")  # the crowd models that see walls
 
 
 def check_pickers(scene: SceneConfig) -> None:
     """``ValueError`` naming a crowd setting the pickers do not have (yet): a crowd model that does not see walls,
-    the open floor's population. (A share of pickers seeing the robot is ORCA's; social force refuses it.)"""
+    the open floor's stops (pickers stand at pick faces for their dwells). (``human_speed`` is theirs too; a share of
+    pickers seeing the robot is ORCA's; social force refuses it.)"""
     check_choice("crowd", scene.crowd, PICKER_CROWDS)
     default = SceneConfig()
     for name in OPEN_FLOOR_ONLY:

@@ -13,10 +13,16 @@ a wall back out to its radius (:meth:`PickerCrowd.step`); with social force the 
 model has its own rule for one pushed out of the walkable area.
 
 Who sees the robot (``scene.robot_visible``): everyone or no one for a bool; for a share, each picker with that
-probability, drawn at reset after every other draw of the reset (the start slots, who stands, the dwells and first
-jobs), so that those stay the draws of a world without it. The others are distracted: they walk as if the robot
+probability, drawn at reset after the start slots, who stands, the dwells and first jobs, so that those stay the
+draws of a world without it. The others are distracted: they walk as if the robot
 were not there. With ORCA a picker who sees the robot has it as one more agent, at its actual position and velocity
 each step (:class:`~sb3_crowdnav.sim.crowd.OrcaCrowdModel`); social force takes a bool only.
+
+Each picker walks at its own preferred speed: ``human_v_pref`` for ``scene.human_speed="fixed"`` (nothing drawn), or
+drawn from the open floor's measured distribution (:func:`~sb3_crowdnav.sim.population.draw_speeds`) after who sees
+the robot, the reset's last draw (so that every other draw stays that of ``"fixed"``). The crowd model gets it
+(ORCA's maximum speed, social force's desired speed), and so do the distances within which a picker has reached a
+waypoint or its slot (:meth:`PickerCrowd._arrivals`).
 
 With a fixed layout, the slots, the roadmap and the routes between slots serve every episode (the simulator keeps
 its :class:`PickSlots`).
@@ -31,7 +37,7 @@ from shapely.ops import nearest_points
 
 from sb3_crowdnav.sim.config import SceneConfig
 from sb3_crowdnav.sim.crowd import CrowdModel, RobotAgent, Walls, make_crowd
-from sb3_crowdnav.sim.population import People, draw_sees_robot
+from sb3_crowdnav.sim.population import People, draw_sees_robot, draw_speeds
 from sb3_crowdnav.sim.warehouse import kernels
 from sb3_crowdnav.sim.warehouse.boxes import in_free_space
 from sb3_crowdnav.sim.warehouse.layout import WarehouseLayout
@@ -121,13 +127,6 @@ class PickerCrowd:
         # a model that can put a person at a position (ORCA) gets the overlap guard of step; social force's walls
         # push the pickers off the racks and it has its own rule for one pushed out of the walkable area
         self._place = getattr(self.crowd, "move_person", None)
-        # a model whose walls push (social force) holds a picker heading for a waypoint near a rack (PICKER_CLEARANCE
-        # off it) or slowing into its slot short of it, where the push balances its driving force (``stops_short``):
-        # it reaches one within ARRIVAL of where it comes to rest. Without a push (ORCA), within ARRIVAL of it
-        stops_short = getattr(self.crowd, "stops_short", None)
-        v = scene.human_v_pref
-        self.waypoint_arrival = ARRIVAL + (stops_short(PICKER_CLEARANCE, v, slowing=False) if stops_short else 0.0)
-        self.slot_arrival = ARRIVAL + (stops_short(SLOT_OFFSET, v) if stops_short is not None else 0.0)
         here = self.slots[starts]
         self.slot = np.array(starts, dtype=np.int64)  # a copy: the caller keeps the start slots
         self.routes: list[list[list[float]]] = [[p] for p in self.slots[starts].tolist()]  # waypoints, in floats
@@ -145,12 +144,33 @@ class PickerCrowd:
         # who sees the robot: drawn after the jobs (so that a share leaves the draws above as they were), one
         # rng.random(n) in the pickers' order for a share, nothing for a bool
         self.sees_robot = draw_sees_robot(scene.robot_visible, n, rng) if robot is not None else np.zeros(n, dtype=bool)
-        people = People(here, here, np.full(n, scene.human_radius), np.full(n, scene.human_v_pref),
+        # each picker's preferred speed [m/s], drawn last (human_speed="measured"; nothing drawn for "fixed")
+        self.v_prefs = draw_speeds(scene, n, rng)
+        self.waypoint_arrival, self.slot_arrival = self._arrivals()
+        people = People(here, here, np.full(n, scene.human_radius), self.v_prefs,
                         self.sees_robot, np.full(n, np.inf), np.full(n, np.inf))
         seen = robot if robot is not None else (np.zeros(2), np.zeros(2), scene.robot_radius)
         self.crowd.reset(rng, people, RobotAgent(tuple(np.asarray(seen[0], dtype=np.float64).tolist()),
                                                  tuple(np.asarray(seen[1], dtype=np.float64).tolist()), float(seen[2])),
                          slots.walls)
+
+    def _arrivals(self) -> tuple[np.ndarray, np.ndarray]:
+        """How close [m] each picker (n,) must come to a waypoint of its route, and to its slot, to have reached it.
+
+        A model whose walls push (social force) holds a picker heading for a waypoint near a rack (PICKER_CLEARANCE
+        off it) or slowing into its slot short of it, where the push balances its driving force (``stops_short``):
+        it reaches one within ARRIVAL of where it comes to rest. The drive grows with the picker's preferred speed,
+        so the balance is each picker's own (docs/decisions.md, "Pickers at measured walking speeds"). Without a push
+        (ORCA), within ARRIVAL of it.
+        """
+        stops_short = getattr(self.crowd, "stops_short", None)
+        if stops_short is None:
+            return np.full(self.n, ARRIVAL), np.full(self.n, ARRIVAL)
+        speeds = np.unique(self.v_prefs).tolist()  # (one balance per speed: one for human_speed="fixed")
+        waypoint = {v: ARRIVAL + stops_short(PICKER_CLEARANCE, v, slowing=False) for v in speeds}
+        slot = {v: ARRIVAL + stops_short(SLOT_OFFSET, v) for v in speeds}
+        v_prefs = self.v_prefs.tolist()
+        return np.array([waypoint[v] for v in v_prefs]), np.array([slot[v] for v in v_prefs])
 
     @property
     def standing(self) -> np.ndarray:
@@ -173,10 +193,10 @@ class PickerCrowd:
         self.waypoint[i] = 0
 
     def preferred_velocities(self, positions: np.ndarray) -> list[list[float]]:
-        """Towards the current waypoint at v_pref (slowing into the last one); zero while standing
-        (:func:`~sb3_crowdnav.sim.warehouse.kernels.picker_preferences`; passes the waypoints within reach)."""
+        """Towards the current waypoint at the picker's preferred speed (slowing into the last one); zero while
+        standing (:func:`~sb3_crowdnav.sim.warehouse.kernels.picker_preferences`; passes the waypoints within reach)."""
         kernels.picker_preferences(positions, self.dwell, self.waypoint, self._route_array, self._route_lengths,
-                                   self.scene.human_v_pref, self.waypoint_arrival, self._preferences)
+                                   self.v_prefs, self.waypoint_arrival, self._preferences)
         return self._preferences.tolist()
 
     def step(self, positions: np.ndarray, robot: RobotAgent) -> tuple[np.ndarray, np.ndarray]:

@@ -114,8 +114,8 @@ def spread(points, permutation, n, spacing):  # pragma: no cover  (compiled)
 @njit(**JIT)
 def picker_preferences(positions, dwell, waypoint, routes, lengths, v_pref, arrival, out):  # pragma: no cover
     """``PickerCrowd.preferred_velocities`` into ``out`` (n, 2): towards each walking picker's current waypoint at
-    ``v_pref`` (slowing into the last one), zero for a standing one (``dwell`` > 0); a walking picker first passes the
-    waypoints within ``arrival`` (never the last), ``waypoint`` (n,) updated in place.
+    its ``v_pref`` (n,) [m/s] (slowing into the last one), zero for a standing one (``dwell`` > 0); a walking picker
+    first passes the waypoints within its ``arrival`` (n,) [m] (never the last), ``waypoint`` (n,) updated in place.
 
     :param routes: (n, K, 2) each picker's waypoints, the first ``lengths[i]`` of row i
     """
@@ -124,13 +124,14 @@ def picker_preferences(positions, dwell, waypoint, routes, lengths, v_pref, arri
         if dwell[i] > 0:
             continue
         x, y, w, last = positions[i, 0], positions[i, 1], waypoint[i], lengths[i] - 1
-        while w < last and math.hypot(x - routes[i, w, 0], y - routes[i, w, 1]) < arrival:
+        while w < last and math.hypot(x - routes[i, w, 0], y - routes[i, w, 1]) < arrival[i]:
             w += 1
         waypoint[i] = w
         dx, dy = routes[i, w, 0] - x, routes[i, w, 1] - y
         norm = math.hypot(dx, dy)
-        if norm > v_pref or (w < last and norm > 1e-9):
-            dx, dy = dx / norm * v_pref, dy / norm * v_pref
+        v = v_pref[i]
+        if norm > v or (w < last and norm > 1e-9):
+            dx, dy = dx / norm * v, dy / norm * v
         out[i, 0], out[i, 1] = dx, dy
 
 
@@ -138,7 +139,7 @@ def picker_preferences(positions, dwell, waypoint, routes, lengths, v_pref, arri
 def picker_progress(state, dwell, waypoint, routes, lengths, dt, arrival):  # pragma: no cover  (compiled)
     """After a step: a standing picker's dwell counts down by ``dt`` (to 0 at least; ``dwell`` updated in place); the
     pickers with something to do next, in order, (k,), and what: 1 its dwell is over (a new job), 2 it walked within
-    ``arrival`` of the last waypoint of its route (it stands: a dwell is drawn), (k,)."""
+    its ``arrival`` (n,) [m] of the last waypoint of its route (it stands: a dwell is drawn), (k,)."""
     n = state.shape[0]
     which, what = np.empty(n, np.int64), np.empty(n, np.int64)
     count = 0
@@ -151,7 +152,7 @@ def picker_progress(state, dwell, waypoint, routes, lengths, dt, arrival):  # pr
         else:
             last = lengths[i] - 1
             if waypoint[i] == last and math.hypot(state[i, 0] - routes[i, last, 0], state[i, 1] - routes[i, last, 1]) < \
-                    arrival:
+                    arrival[i]:
                 event = 2
         if event:
             which[count], what[count] = i, event
