@@ -23,7 +23,6 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from sb3_crowdnav.serialization import same_layout
 from sb3_crowdnav.sim.population import MEASURED_POPULATION
 from sb3_crowdnav.sim.validation import check_choice, check_instance, check_number
 
@@ -54,6 +53,11 @@ def _people_free(env: gym.Env) -> tuple[Any, ...]:
     spaces and (warehouse) the layout settings."""
     scene = {f.name: getattr(env.scene, f.name) for f in dataclasses.fields(env.scene) if f.name not in PEOPLE_KEYS}
     return scene, env.reward_config, env.world, env.action_space, getattr(env, "config", None)
+
+
+def _layout(space: spaces.Dict) -> dict[str, tuple]:
+    """Each key's shape and dtype (what a model's network takes; the bounds aside)."""
+    return {key: (box.shape, box.dtype) for key, box in space.spaces.items()}
 
 
 def widest(observation_spaces: Sequence[spaces.Dict]) -> spaces.Dict:
@@ -107,7 +111,7 @@ class CrowdNavWorldsEnv(gym.Env):
                      for world in self.worlds]
         first = _people_free(self.envs[0])
         for i, env in enumerate(self.envs[1:], start=1):
-            if _people_free(env) != first or not same_layout(env.observation_space, self.envs[0].observation_space):
+            if _people_free(env) != first or _layout(env.observation_space) != _layout(self.envs[0].observation_space):
                 raise ValueError(f"worlds[{i}] changes more than the people (its robot, reward, observation or layout "
                                  f"settings differ from worlds[0]'s): {self.worlds[i]}")
         # the observations' layout is every world's; their bounds the widest (a faster crowd's)

@@ -10,9 +10,8 @@ A new model is a class with this constructor and these two methods, its settings
 dataclass in :mod:`sb3_crowdnav.sim.crowd_settings`, and a line in :data:`CROWD_MODELS`. A model that brings its own
 episodes, whose people come and go (``"replay"``, :mod:`sb3_crowdnav.sim.replay`), is a :class:`RecordedCrowd`.
 
-The open floor has no walls; the warehouse passes its racks and hall as :class:`Walls` at reset, and a model that
-can put a person at a position (ORCA: ``move_person``) lets the warehouse push one pressed into a rack back out.
-"""
+The open floor has no walls; the warehouse passes its racks and hall as :class:`Walls` at reset, and a model that can
+put a person at a position (ORCA: ``move_person``) lets the warehouse push one pressed into a rack back out."""
 
 from __future__ import annotations
 
@@ -103,13 +102,11 @@ class RecordedCrowd(CrowdModel, Protocol):
 class OrcaCrowdModel:
     """People driven by ORCA (RVO2 through pyrvo), the paper's crowd.
 
-    Those who see the robot have it as one more ORCA agent, moved each step to its actual position and velocity;
-    the others ignore it. With everyone on one side, one RVO2 simulator runs (with or without the robot); with a
-    mixed crowd, two (with and without the robot), both put in the people's actual state before each step, each
-    person taking its new state from the simulator of its side: ORCA computes a person's velocity from its
-    neighbours' current states only, so this is each person avoiding exactly the agents it sees. In each simulator
-    the other side's people are passive (:class:`~sb3_crowdnav.sim.orca.OrcaCrowd`): RVO2 computes no velocity for
-    them there.
+    Those who see the robot have it as one more ORCA agent at its actual position and velocity; the others ignore it.
+    With everyone on one side, one RVO2 simulator runs (with or without the robot); with a mixed crowd, two, each
+    computing its side's people (the others passive in it, :class:`~sb3_crowdnav.sim.orca.OrcaCrowd`) and given the
+    other side's new states after each step: ORCA computes a person's velocity from its neighbours' current states
+    only, so this is each person avoiding exactly the agents it sees.
     """
 
     def __init__(self, scene: SceneConfig) -> None:
@@ -122,8 +119,7 @@ class OrcaCrowdModel:
         radii = people.radii + self.settings.safety_space
         robot_agent = (np.array(robot.position), np.array(robot.velocity), robot.radius)
         self.seeing = people.sees_robot.copy()
-        seeing = np.flatnonzero(self.seeing).tolist()
-        blind = np.flatnonzero(~self.seeing).tolist()
+        seeing, blind = np.flatnonzero(self.seeing).tolist(), np.flatnonzero(~self.seeing).tolist()
         self.sides = [side for side in (blind, seeing) if side]  # the people of each simulator, in order
         obstacles = walls.rvo_polygons() if walls is not None else None
         # each simulator computes its side's people, the other side's passive in it (OrcaCrowd)
@@ -140,8 +136,7 @@ class OrcaCrowdModel:
             crowd.advance(preferred, robot_state)
         (blind, seeing), (blind_sim, seeing_sim) = self.sides, self.crowds
         blind_rows, seeing_rows = blind_sim.rows(blind), seeing_sim.rows(seeing)
-        blind_sim.put(seeing, seeing_rows)  # each simulator gets the other side's new states
-        seeing_sim.put(blind, blind_rows)
+        blind_sim.put(seeing, seeing_rows), seeing_sim.put(blind, blind_rows)  # the other side's new states
         state = np.empty((len(self.seeing), 4))
         state[blind], state[seeing] = blind_rows, seeing_rows
         return state[:, :2], state[:, 2:]
@@ -166,17 +161,15 @@ class LinearCrowdModel:
     def step(self, preferred: list[tuple[float, float]], robot: RobotAgent) -> tuple[np.ndarray, np.ndarray]:
         dt = self.time_step
         self.positions = [[x + vx * dt, y + vy * dt] for (x, y), (vx, vy) in zip(self.positions, preferred, strict=True)]
-        n = len(preferred)
-        return np.array(self.positions).reshape(n, 2), np.array(preferred, dtype=np.float64).reshape(n, 2)
+        return np.array(self.positions).reshape(-1, 2), np.array(preferred, dtype=np.float64).reshape(-1, 2)
 
 
 JUPEDSIM_VERSION = "1.4.2"  # the model calls its compiled layer (social_force_kernels.native_simulation): pinned
 JUPEDSIM_INSTALL = f'pip install --no-deps "jupedsim=={JUPEDSIM_VERSION}" deprecated wrapt'
 PERSON_MASS = 80.0  # [kg] JuPedSim's default, Helbing et al. (2000)'s
 # the robot's agent follows the robot's path (its velocity set each sub-step): so heavy and slow to react that neither
-# the people's forces nor a driving force move it off that path
-ROBOT_MASS = 1e9  # [kg]
-ROBOT_RELAXATION = 1e9  # [s]
+# the people's forces nor a driving force move it off that path ([kg], [s])
+ROBOT_MASS, ROBOT_RELAXATION = 1e9, 1e9
 TARGET_AHEAD = 1.0  # [m] a person heads for a point this far along its preferred velocity (inside the walkable area)
 OPEN_FLOOR_MARGIN = 10.0  # [m] the open floor's walkable area: a square this much beyond the starts and goals
 # explicit (symplectic Euler) integration of a force of stiffness k [N/m] on a mass m is stable while h sqrt(k/m) < 2;
