@@ -10,6 +10,7 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 import pytest
+from example_scripts import load_example
 
 import sb3_crowdnav  # noqa: F401  (registers the envs)
 from sb3_crowdnav.evaluation import failures
@@ -38,7 +39,6 @@ from sb3_crowdnav.sim.rewards import closest_approach
 from sb3_crowdnav.sim.sensing import PeopleSensor
 from sb3_crowdnav.sim.warehouse.layout import layout_from_sizes
 from sb3_crowdnav.sim.warehouse.sight import RackSight
-from tests.example_scripts import load_example
 
 STRAIGHT = 64  # full speed, straight on (speed index 4, direction index 0)
 
