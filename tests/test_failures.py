@@ -131,6 +131,20 @@ def test_a_picker_hidden_by_a_rack_is_unseen_and_one_just_come_into_sight_is_see
         assert c.avoidable and c.avoidable_with_warning  # (no limits: it could have turned away from the rack)
 
 
+def test_a_robot_driving_into_a_rack_is_an_obstacle_collision_touching_the_rack_face():
+    layout = layout_from_sizes(1, 1, 8.0, 1.0, 2.0, 2.0)  # the rack is [-4, 4] x [-0.5, 0.5]
+    scene = SceneConfig()
+    robot = [[-5.5 + 0.25 * k, 0.1, 1.0, 0.0, scene.robot_radius, 0.0, 3.0, 1.0, 0.0] for k in range(6)]
+    traj = Trajectory(robot=np.array(robot), humans=np.zeros((6, 0, 5)), human_goals=np.zeros((0, 2)), scene=scene,
+                      obstacles=tuple(layout.polygons))
+    none = np.zeros((6, 0), dtype=bool)
+    c = analyse_collision(EpisodeLog(traj, none, none, none, np.full(5, STRAIGHT), layout.segments), hit="obstacle")
+    assert (c.hit, c.step, c.person, c.closer, c.side) == ("obstacle", 4, -1, "", "")
+    assert c.clearance == pytest.approx(-0.05)  # the swept disc's centre ends 0.25 m from the face, radius 0.3
+    assert c.contact == pytest.approx((-4.0, 0.1))
+    assert c.avoidable and c.avoidable_with_warning  # (no limits: turning away in the step is enough)
+
+
 def test_the_rules_reproduce_every_step_of_the_env_and_its_collision():
     """Re-applying the taken action (the analysis' motion rule) gives the recorded next state, and its collision test
     flags exactly the last step of a collision episode, with people, racks and walls."""

@@ -78,9 +78,8 @@ class FailureRules:
         check_range("both_tolerance", self.both_tolerance, 0, 0.5, high_open=True)
         check_range("front_angle", self.front_angle, 0, 180)
         check_range("behind_angle", self.behind_angle, self.front_angle, 180)
-        check_positive("warning", self.warning, " [s]")
-        check_positive("blind_window", self.blind_window, " [s]")
-        check_positive("clip", self.clip, " [s]")
+        for name in ("warning", "blind_window", "clip"):
+            check_positive(name, getattr(self, name), " [s]")
 
 
 @dataclass(frozen=True, eq=False)
@@ -141,7 +140,7 @@ class CollisionAnalysis:
     robot_speed: float  # [m/s] during the colliding step
     avoidable: bool
     avoidable_with_warning: bool
-    contact: tuple[float, float]  # [m] where the discs first touch (an obstacle: the robot's centre at the end)
+    contact: tuple[float, float]  # [m] where the discs first touch (an obstacle: its point nearest the robot's end)
     clearance: float  # [m] an obstacle: the swept disc's clearance to racks and walls (< 0); a person: nan
     person: int = -1  # the person's slot
     closer: str = ""
@@ -262,9 +261,13 @@ def analyse_collision(log: EpisodeLog, rules: FailureRules = FailureRules(), hit
     warned = max(1, round(rules.warning / dt))
     common = dict(step=k, time=k * dt, robot_speed=float(np.linalg.norm(p1 - p0) / dt),
                   avoidable=can_avoid(log, k, k), avoidable_with_warning=can_avoid(log, max(0, k + 1 - warned), k))
-    if hit == "obstacle":
+    if hit == "obstacle":  # the contact: the point of the racks and walls nearest the robot's centre at the end
         clearance = float(swept_clearance(p0, p1, log.segments, np.ones(len(log.segments), dtype=bool))) - radius
-        return CollisionAnalysis(hit, contact=(float(p1[0]), float(p1[1])), clearance=clearance, **common)
+        a, b = log.segments[:, :2], log.segments[:, 2:]
+        along = np.clip(np.sum((p1 - a) * (b - a), axis=1) / np.maximum(np.sum((b - a) ** 2, axis=1), 1e-18), 0, 1)
+        points = a + along[:, None] * (b - a)
+        contact = points[np.argmin(np.linalg.norm(points - p1, axis=1))]
+        return CollisionAnalysis(hit, contact=(float(contact[0]), float(contact[1])), clearance=clearance, **common)
     gaps, h0, h1 = _people_gaps(log, k, p0, p1, radius)
     j = int(np.argmin(gaps))
     h0, h1 = h0[j], h1[j]
@@ -290,11 +293,10 @@ def analyse_collision(log: EpisodeLog, rules: FailureRules = FailureRules(), hit
 
 def analyse_timeout(log: EpisodeLog, rules: FailureRules = FailureRules()) -> TimeoutAnalysis:
     """The analysis of a timeout."""
-    traj = log.trajectory
     anyone = log.seen[:-1].any(axis=1)  # the observations the policy acted on
     trailing = len(anyone) - 1 - int(np.flatnonzero(anyone)[-1]) if anyone.any() else len(anyone)
-    unseen = trailing * traj.scene.time_step
-    end = traj.robot[-1]
+    unseen = trailing * log.trajectory.scene.time_step
+    end = log.trajectory.robot[-1]
     return TimeoutAnalysis(unseen, unseen >= rules.blind_window - 1e-9,
                            float(np.linalg.norm(end[Robot.GOAL] - end[Robot.POS])), bool(log.present[-1].any()))
 
