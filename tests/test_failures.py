@@ -145,6 +145,18 @@ def test_a_robot_driving_into_a_rack_is_an_obstacle_collision_touching_the_rack_
     assert c.avoidable and c.avoidable_with_warning  # (no limits: turning away in the step is enough)
 
 
+def test_a_replayed_person_appearing_on_the_robot_closes_on_no_one_and_was_not_seen():
+    scene = SceneConfig()
+    robot = np.tile([0.0, 0.0, 0.0, 0.0, scene.robot_radius, 4.0, 0.0, 1.0, 0.0], (4, 1))
+    humans = np.zeros((4, 1, 5))
+    humans[3, 0] = [0.4, 0.1, -1.0, 0.0, scene.human_radius]  # appears 0.4 m ahead: overlapping
+    arrived = np.array([[False], [False], [False], [True]])
+    traj = Trajectory(robot=robot, humans=humans, human_goals=np.zeros((1, 2)), scene=scene)
+    c = analyse_collision(EpisodeLog(traj, arrived, arrived, arrived, np.full(3, STRAIGHT)))
+    assert (c.closer, c.side, c.seen, c.seen_for) == ("none", "front", False, 0.0)
+    assert c.gap < 0 and not c.avoidable  # already touching: no action helps in the step
+
+
 def test_the_rules_reproduce_every_step_of_the_env_and_its_collision():
     """Re-applying the taken action (the analysis' motion rule) gives the recorded next state, and its collision test
     flags exactly the last step of a collision episode, with people, racks and walls."""

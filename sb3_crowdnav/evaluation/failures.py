@@ -9,9 +9,9 @@ Wilson 95 % intervals. The rules (parameters: :class:`FailureRules`):
   :func:`~sb3_crowdnav.sim.rewards.closest_approach`). A rack or wall hit (``"obstacle"``) gets its clearance and
   the avoidability tests only.
 * **Closer**: with u the unit vector from the robot's centre to the person's at the start of the step, the robot
-  closes at v_r·u and the person at -v_p·u (each velocity its displacement in the step / Δt; a person appearing in
-  the step, in a replay, their recorded one). The person's share of the sum above 0.5 + ``both_tolerance`` (0.1) is
-  ``"person"``, below 0.5 - ``both_tolerance`` ``"robot"``, else ``"both"``; ``"none"`` when not closing.
+  closes at v_r·u, the person at -v_p·u (velocities: displacements in the step / Δt; a person appearing in it, their
+  recorded one). The person's share of the sum above 0.5 + ``both_tolerance`` (0.1) is ``"person"``, below 0.5 -
+  ``both_tolerance`` ``"robot"``, else ``"both"``; ``"none"`` when not closing or overlapping at the start (a replay).
 * **Side**: the person's bearing from the robot's heading at the start of the step [deg, left positive]:
   ``"front"`` below ``front_angle`` (45°), ``"behind"`` above ``behind_angle`` (135°), else ``"side"``.
 * **Seen**: the person's slot is set in the ``humans_mask`` the policy acted on (and no new person took it in the
@@ -280,14 +280,14 @@ def analyse_collision(log: EpisodeLog, rules: FailureRules = FailureRules(), hit
     bearing = float(np.degrees(wrap_angle(math.atan2(offset[1], offset[0]) - r0[Robot.HEADING])))
     seen = bool(log.seen[k, j]) and not arrived
     person_radius = float(traj.humans[k + 1, j, Human.RADIUS])
+    gap = float(np.linalg.norm(offset)) - radius - person_radius
     t = min_time_to_collision(*p0, *v_robot, radius, np.array([[*h0, *v_motion, person_radius]]), np.ones(1, bool), dt)
     centre, other = p0 + v_robot * t, h0 + v_motion * t
     contact = centre + (other - centre) * radius / (radius + person_radius)
     return CollisionAnalysis(
         hit, contact=(float(contact[0]), float(contact[1])), clearance=math.nan, person=j,
-        closer=closer_of(robot_closing, person_closing, rules.both_tolerance), robot_closing=robot_closing,
-        person_closing=person_closing, bearing=bearing, side=side_of(bearing, rules),
-        gap=float(np.linalg.norm(offset)) - radius - person_radius, seen=seen,
+        closer=closer_of(robot_closing, person_closing, rules.both_tolerance) if gap >= 0 else "none", gap=gap,
+        robot_closing=robot_closing, person_closing=person_closing, bearing=bearing, side=side_of(bearing, rules), seen=seen,
         seen_for=_seen_for(log, k, j) * dt if seen else 0.0, **common)
 
 
