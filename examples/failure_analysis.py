@@ -51,7 +51,7 @@ from sb3_crowdnav.evaluation.policy_spec import PolicySpec
 from sb3_crowdnav.evaluation.runner import DEFAULT_ENV_ID, TEST_SEED_OFFSET, make_env, make_policy
 
 SHARES = {  # the rows of the shares table: key of FailureSummary.shares -> what it counts
-    "person_faster": "the person closing faster than the robot",
+    "person_faster": "the person closing faster than the robot (not already overlapping)",
     "person": "closer: the person (more than 60 % of the closing speed)",
     "behind": "the person behind the robot (bearing above 135°)",
     "seen": "seen in the observation the robot acted on",

@@ -400,7 +400,7 @@ class FailureSummary:
     """Counts and shares of a policy's failures.
 
     ``table[closer][side]`` counts the collisions with people; ``shares`` holds, each with its Wilson 95 % interval:
-    ``collision`` and ``timeout`` of the episodes; ``person_faster`` (the person's closing speed above the robot's),
+    ``collision`` and ``timeout`` of the episodes; ``person_faster`` (closing faster than the robot, not overlapping),
     ``person``, ``behind``, ``seen``, ``seen_warned`` (seen for at least ``warning``), ``avoidable`` and
     ``avoidable_with_warning`` of the collisions with people; ``obstacle_avoidable`` and
     ``obstacle_avoidable_with_warning`` of those with racks and walls; ``nobody_in_view`` of the timeouts.
@@ -426,7 +426,7 @@ def summarize_failures(records: Sequence[FailureRecord], rules: FailureRules = F
     shares = {
         "collision": Share.of(n_people + m, n),
         "timeout": Share.of(len(timeouts), n),
-        "person_faster": Share.of(sum(c.person_closing > c.robot_closing for c in people), n_people),
+        "person_faster": Share.of(sum(c.person_closing > c.robot_closing and c.gap >= 0 for c in people), n_people),
         "person": Share.of(sum(c.closer == "person" for c in people), n_people),
         "behind": Share.of(sum(c.side == "behind" for c in people), n_people),
         "seen": Share.of(sum(c.seen for c in people), n_people),
