@@ -86,6 +86,14 @@ def _draw_trajectory(ax, traj: Trajectory, stamp_every: int, cmap) -> None:
         ax.plot(g[0], g[1], marker="x", color=cmap(i % 10), ms=4, alpha=0.6)
 
 
+def _draw_obstacles(ax, obstacles: Sequence[np.ndarray]) -> None:
+    """The racks and walls ((k, 2) vertex arrays), grey, under everything else."""
+    from matplotlib.patches import Polygon
+
+    for vertices in obstacles:
+        ax.add_patch(Polygon(vertices, closed=True, fc="0.6", ec="0.35", lw=0.6, zorder=0))
+
+
 def _trajectory_legend(fig, stamp_interval: float, obstacles: bool, ncol: int = 4) -> None:
     """What the marks mean, under the panels (``ncol`` entries per row: 2 under a single panel, so it fits)."""
     from matplotlib.lines import Line2D
@@ -123,11 +131,8 @@ def plot_trajectories(episodes: Mapping[str, EpisodeRecord | Trajectory], path: 
     for ax, (label, traj, subtitle) in zip(axes.flat, items, strict=False):
         stamp_every = max(1, round(stamp_interval / traj.scene.time_step))
         _draw_trajectory(ax, traj, stamp_every, cmap)
-        if traj.obstacles:  # the warehouse: racks and walls, and the view of the hall
-            from matplotlib.patches import Polygon
-
-            for vertices in traj.obstacles:
-                ax.add_patch(Polygon(vertices, closed=True, fc="0.6", ec="0.35", lw=0.6, zorder=0))
+        _draw_obstacles(ax, traj.obstacles)
+        if traj.obstacles:  # the warehouse: the view of the hall
             corners = np.concatenate(traj.obstacles)
             ax.set_xlim(corners[:, 0].min() - 0.3, corners[:, 0].max() + 0.3)
             ax.set_ylim(corners[:, 1].min() - 0.3, corners[:, 1].max() + 0.3)
@@ -146,6 +151,45 @@ def plot_trajectories(episodes: Mapping[str, EpisodeRecord | Trajectory], path: 
     narrow = cols == 1  # one panel: the legend in two rows
     fig.tight_layout(rect=(0, 0.1 if narrow else 0.06, 1, 1))
     _trajectory_legend(fig, stamp_interval, any(traj.obstacles for _, traj, _ in items), ncol=2 if narrow else 4)
+    return _save(fig, path)
+
+
+def plot_collisions(clips: Mapping[str, tuple[Trajectory, Sequence[float]]], path: str | Path,
+                    stamp_interval: float = 0.5, half_width: float = 3.0, panel_size: float = 4.0,
+                    title: str | None = None) -> Path:
+    """One panel per collision: the end of its episode (a :class:`Trajectory` cut to its last seconds, e.g.
+    :attr:`~sb3_crowdnav.evaluation.failures.FailureRecord.clip`) around the contact point, marked with a red cross.
+
+    :param clips: label → (trajectory, contact point (x, y) [m])
+    :param path: PNG file to write
+    :param stamp_interval: [s] between drawn circles; their numbers count from the clip's start
+    :param half_width: [m] each panel shows the contact point ± this
+    """
+    if not clips:
+        raise ValueError("plot_collisions needs at least one clip")
+    plt = _pyplot()
+    cols = min(len(clips), 3)
+    rows = math.ceil(len(clips) / cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(panel_size * cols, panel_size * rows), squeeze=False)
+    cmap = plt.get_cmap("tab10")
+    for ax, (label, (traj, (x, y))) in zip(axes.flat, clips.items(), strict=False):
+        _draw_trajectory(ax, traj, max(1, round(stamp_interval / traj.scene.time_step)), cmap)
+        _draw_obstacles(ax, traj.obstacles)
+        ax.plot(x, y, marker="X", color="red", mec="k", ms=14, ls="none", zorder=7)
+        for text in ax.texts:  # time stamps of people outside the panel: not drawn beside it
+            text.set_clip_on(True)
+        ax.set_xlim(x - half_width, x + half_width)
+        ax.set_ylim(y - half_width, y + half_width)
+        ax.set_aspect("equal")
+        ax.set_xlabel("x [m]")
+        ax.set_ylabel("y [m]")
+        ax.set_title(label, fontsize=8)
+    for ax in list(axes.flat)[len(clips):]:
+        ax.set_visible(False)
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout(rect=(0, 0.1 if cols == 1 else 0.06, 1, 1))
+    _trajectory_legend(fig, stamp_interval, any(traj.obstacles for traj, _ in clips.values()), ncol=2 if cols == 1 else 4)
     return _save(fig, path)
 
 
@@ -360,6 +404,7 @@ __all__ = [
     "action_values_of",
     "ffmpeg_available",
     "find_runs",
+    "plot_collisions",
     "plot_learning_curves",
     "plot_trajectories",
     "plot_value_map",
