@@ -103,7 +103,7 @@ def test_bad_policies(tmp_path, capsys, command, args, fragment):
     (["render", "--policy", "orca", "--fps", "nan", "--out", "R/e.gif"], "--fps"),
     (["render", "--policy", "orca", "--out", "R/e.avi"], "must end in .gif, .mp4 or .png"),
     (["render", "--policy", "orca", "--seed", "-1", "--out", "R/e.gif"], "--seed"),
-    (["train", "--variant", "apg_warehouse", "--env", "CrowdNav-v0", "--out", "T"], "trains on CrowdNavWarehouse-v0"),
+    (["train", "--variant", "apg_warehouse", "--env", "CrowdNav-v0", "--out", "T"], "trains on CrowdNavWorlds-v0"),
     (["train", "--variant", "apg_rl", "--checkpoint-episodes", "0", "--out", "T"], "--checkpoint-episodes"),
     (["train", "--variant", "apg_rl", "--eval-episodes", "-1", "--out", "T"], "--eval-episodes"),
     (["train", "--variant", "apg_rl", "--n-envs", "0", "--out", "T"], "--n-envs"),

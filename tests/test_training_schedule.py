@@ -320,6 +320,11 @@ def test_a_variant_brings_its_env_settings_and_schedule_and_a_run_overrides_them
     assert paper.overlap == warehouse.overlap == "process"
     assert ScheduleConfig(variant="apg_rl", train_freq=4).train_freq == 4
     assert (warehouse.rl_episodes, warehouse.exploration_episodes) == (6_000, 3_000)
+    assert warehouse.pedestrian_model == "cautious" and paper.pedestrian_model is None
+    assert warehouse.num_humans == (4, 10) and warehouse.training_env_kwargs["worlds"] == "warehouse"
+    old = ScheduleConfig(variant="apg_warehouse_paper")  # the shipped apg_warehouse_paper's world
+    assert old.spec.env_id == "CrowdNavWarehouse-v0" and old.training_env_kwargs["actions"] == "paper"
+    assert old.training_env_kwargs["robot_visible"] is False and old.pedestrian_model is None
     assert "progress_reward" not in paper.training_env_kwargs
     assert warehouse.training_env_kwargs["progress_reward"] == 0.1
     unshaped = ScheduleConfig(variant="apg_warehouse", env_kwargs={"progress_reward": 0.0}, rl_episodes=10_000)

@@ -63,6 +63,7 @@ from sb3_crowdnav.sim.validation import (
     check_number,
     check_probability,
 )
+from sb3_crowdnav.sim.warehouse.config import PAPER_WAREHOUSE
 from sb3_crowdnav.training.callbacks import SELECT_BY, EpisodeCheckpoint
 from sb3_crowdnav.training.run_folder import (
     RunLock,
@@ -107,9 +108,18 @@ VARIANTS = {
     "lm_rl": Variant("LmPolicy"),
     "lstm_rl": Variant("LstmRlPolicy"),
     "sarl": Variant("SarlPolicy"),
-    # the paper's method among racks, with route-progress shaping (progress_reward=0: the paper's reward)
-    "apg_warehouse": Variant("ApgPolicy", env_id="CrowdNavWarehouse-v0", env_kwargs={"progress_reward": 0.1},
-                             schedule={"rl_episodes": 6_000, "exploration_episodes": 3_000}),
+    # the paper's method among racks, with route-progress shaping (progress_reward=0: the paper's reward), for the
+    # warehouse robot (stop, limits, racks that hide pickers) among ORCA and social-force pickers at measured speeds,
+    # 4 in 5 ORCA pickers seeing it, 4 to 10 pickers, the cautious lookahead (docs/training.md)
+    "apg_warehouse": Variant("ApgPolicy", env_id="CrowdNavWorlds-v0",
+                             env_kwargs={"worlds": "warehouse", "progress_reward": 0.1},
+                             schedule={"rl_episodes": 6_000, "exploration_episodes": 3_000, "num_humans": (4, 10),
+                                       "pedestrian_model": "cautious"}),
+    # the same in the world of the shipped apg_warehouse_paper: the paper's robot among blind ORCA pickers, seen through
+    # racks at any range (sim.warehouse.config.PAPER_WAREHOUSE)
+    "apg_warehouse_paper": Variant("ApgPolicy", env_id="CrowdNavWarehouse-v0",
+                                   env_kwargs={"progress_reward": 0.1, **PAPER_WAREHOUSE},
+                                   schedule={"rl_episodes": 6_000, "exploration_episodes": 3_000}),
     # the paper's method trained for people it never met: every episode one of several crowds, 0 to 10 people
     # (sb3_crowdnav.envs.worlds.ROBUST_WORLDS; docs/decisions.md, "Robust training")
     "apg_robust": Variant("ApgPolicy", env_id="CrowdNavWorlds-v0", env_kwargs={"worlds": "robust"},
