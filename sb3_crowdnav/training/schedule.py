@@ -115,8 +115,8 @@ VARIANTS = {
                              env_kwargs={"worlds": "warehouse", "progress_reward": 0.1},
                              schedule={"rl_episodes": 6_000, "exploration_episodes": 3_000, "num_humans": (4, 10),
                                        "pedestrian_model": "cautious"}),
-    # the same in the world the shipped apg_warehouse was trained in: the paper's robot among blind ORCA pickers, seen through
-    # racks at any range (sim.warehouse.config.PAPER_WAREHOUSE)
+    # the same in the world the shipped apg_warehouse was trained in: the paper's robot among blind ORCA pickers,
+    # seen through racks at any range (sim.warehouse.config.PAPER_WAREHOUSE)
     "apg_warehouse_paper": Variant("ApgPolicy", env_id="CrowdNavWarehouse-v0",
                                    env_kwargs={"progress_reward": 0.1, **PAPER_WAREHOUSE},
                                    schedule={"rl_episodes": 6_000, "exploration_episodes": 3_000}),
