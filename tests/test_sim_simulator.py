@@ -15,6 +15,7 @@ from sb3_crowdnav.sim import (
     action_table,
     apply_action,
     closest_approach,
+    compute_reward,
     walking_direction,
 )
 from sb3_crowdnav.sim.observation import Human, Robot
@@ -56,13 +57,13 @@ def test_incremental_walking_direction_equals_walking_direction_of_the_history(p
     import sb3_crowdnav.sim.simulator as simulator
 
     seen = []
-    original = simulator.compute_reward
+    original = simulator.transition_terms
 
     def spy(*args):
         seen.append(args[10].copy())  # human_dir
         return original(*args)
 
-    monkeypatch.setattr(simulator, "compute_reward", spy)
+    monkeypatch.setattr(simulator, "transition_terms", spy)
     sim = make_sim(human_policy=policy, time_limit=60.0, num_humans=5)
     stopped = 0
     for seed in range(3):
@@ -75,6 +76,42 @@ def test_incremental_walking_direction_equals_walking_direction_of_the_history(p
             np.testing.assert_allclose(seen[-1], expected, rtol=0, atol=1e-12)
             stopped += int(np.all(np.linalg.norm(sim.history[:, :n, Human.VEL], axis=-1) < 1e-3, axis=0).sum())
     assert stopped > 0  # the "still for the whole window: face the robot" branch was exercised
+
+
+@pytest.mark.parametrize("reward", ["crowdnav", "comfort_angular"])
+def test_the_steps_reward_terms_are_compute_reward_s(reward, monkeypatch):
+    """A step's terms (Python floats and bools) equal compute_reward's of the same transition, term by term."""
+    import sb3_crowdnav.sim.simulator as simulator
+
+    seen = []
+    original = simulator.transition_terms
+
+    def spy(*args):
+        seen.append((tuple(a.copy() if isinstance(a, np.ndarray) else a for a in args), original(*args)))
+        return seen[-1][1]
+
+    monkeypatch.setattr(simulator, "transition_terms", spy)
+    sim = CrowdSimulator(SceneConfig(num_humans=5), RewardConfig(reward))
+    rng = np.random.default_rng(0)
+    for seed in range(4):
+        sim.reset(np.random.default_rng(seed))
+        for _ in range(40):
+            terms = sim.step(int(rng.integers(80)))
+            if terms.collision or terms.success:
+                break
+    for args, terms in seen:
+        expected = compute_reward(*args)
+        for name, value in zip(terms._fields, terms, strict=True):
+            assert type(value) in (float, bool) and value == getattr(expected, name), name
+    assert len(seen) > 40
+
+
+def test_within_bounds():
+    from sb3_crowdnav.sim.geometry import within
+
+    values = np.array([-2.0, 0.5, 2.0], dtype=np.float32)
+    assert within(values, 2.0) and not within(values, 1.999) and within(values[:0], 0.0)
+    assert not within(np.array([0.0, np.nan], dtype=np.float32), 1.0)
 
 
 def test_padded_slots_are_zero_and_masked():

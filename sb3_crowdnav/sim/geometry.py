@@ -77,6 +77,15 @@ def _swept_clearances(pos0, pos1, segments, mask):  # pragma: no cover  (compile
     return out
 
 
+@njit(**JIT)
+def within(values, bound):  # pragma: no cover  (compiled)
+    """Whether every one of ``values`` (n,) lies in [-bound, bound] (False when one is NaN)."""
+    for x in values:
+        if not (-bound <= x <= bound):
+            return False
+    return True
+
+
 def as_rows(x: np.ndarray, lead: tuple[int, ...], tail: tuple[int, ...], dtype: type = np.float64) -> np.ndarray:
     """``x`` broadcast to ``lead + tail`` as (prod(lead), *tail) rows for a compiled loop (a view when ``x`` has that
     shape and dtype: the env's one transition pays no copy)."""

@@ -279,6 +279,42 @@ def compute_reward(
     return RewardTerms(*(x.reshape(lead) for x in terms))
 
 
+def transition_terms(cfg: RewardConfig, time_step: float, robot_pos0: np.ndarray, robot_pos1: np.ndarray,
+                     heading0: float, heading1: float, goal: np.ndarray, robot_radius: float, human_pos0: np.ndarray,
+                     human_pos1: np.ndarray, human_dir: np.ndarray, human_radius: np.ndarray,
+                     mask: np.ndarray) -> RewardTerms:
+    """:func:`compute_reward` of one transition (a simulator's step: robot positions and goal (2,), pedestrian arrays
+    (N, 2) and (N,), ``mask`` bool), the same kernel, its terms left as Python floats and bools."""
+    return RewardTerms(*_transition(robot_pos0, robot_pos1, heading0, heading1, goal, robot_radius, human_pos0,
+                                    human_pos1, human_dir, human_radius, mask, *_weights(cfg, time_step)), 0.0)
+
+
+@njit(**JIT)
+def walking_directions_step(newest, walk, age, t_len, robot_x, robot_y):  # pragma: no cover  (compiled)
+    """:func:`walking_direction` of N pedestrians kept step by step: ``newest`` (N, >= 4) their newest px, py, vx, vy;
+    ``walk`` (N, 2) the last walking direction of each and ``age`` (N,) the steps since (updated in place). A velocity
+    faster than ``STILL_SPEED`` is the direction; a pedestrian still over the last ``t_len`` steps faces the robot."""
+    n = newest.shape[0]
+    out = np.empty((n, 2))
+    for i in range(n):
+        vx, vy = newest[i, 2], newest[i, 3]
+        speed = math.sqrt(vx * vx + vy * vy)
+        if speed > STILL_SPEED:
+            walk[i, 0], walk[i, 1], age[i] = vx / speed, vy / speed, 0
+        else:
+            age[i] += 1
+        if age[i] < t_len:
+            out[i, 0], out[i, 1] = walk[i, 0], walk[i, 1]
+        else:
+            fx, fy = robot_x - newest[i, 0], robot_y - newest[i, 1]
+            norm = math.sqrt(fx * fx + fy * fy)
+            if norm > 1e-9:
+                out[i, 0], out[i, 1] = fx / norm, fy / norm
+            else:
+                out[i, 0], out[i, 1] = 1.0, 0.0
+    return out
+
+
 def with_obstacle_collision(terms: RewardTerms, hit: np.ndarray, penalty: float) -> RewardTerms:
     """``terms`` of transitions in which the robot also hit a static obstacle where ``hit`` (...) is True.
 

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from sb3_crowdnav.sim.actions import action_table, move, step_limits
@@ -11,7 +9,7 @@ from sb3_crowdnav.sim.config import RewardConfig, SceneConfig
 from sb3_crowdnav.sim.crowd import CrowdModel, RecordedCrowd, RobotAgent, make_crowd
 from sb3_crowdnav.sim.observation import HUMAN_DIM, ROBOT_DIM, Human, Robot
 from sb3_crowdnav.sim.population import People, PreferredVelocities, draw_people
-from sb3_crowdnav.sim.rewards import STILL_SPEED, RewardTerms, compute_reward
+from sb3_crowdnav.sim.rewards import RewardTerms, transition_terms, walking_directions_step
 from sb3_crowdnav.sim.scenarios import generate_scenario
 from sb3_crowdnav.sim.sensing import PeopleSensor, sensing_on
 
@@ -50,9 +48,8 @@ class CrowdSimulator:
         self.recorded = isinstance(self.crowd, RecordedCrowd)  # its own episodes, people who come and go
         self.people: People | None = None  # the episode's population (set by reset)
         self._preferred: PreferredVelocities | None = None
-        # walking direction of each pedestrian and the steps since it last walked (see _walking_directions)
-        self._walk_dir: list[tuple[float, float]] = []
-        self._walk_age: list[int] = []
+        # walking direction of each pedestrian (n, 2) and the steps since it last walked (n,) (see _walking_directions)
+        self._walk_dir, self._walk_age = np.zeros((0, 2)), np.zeros(0, dtype=np.int64)
         self.num_humans = 0
         self.steps = 0
         self.max_steps = scene.max_steps  # the episode is truncated after this many steps (the env reads it)
@@ -103,8 +100,7 @@ class CrowdSimulator:
             current[:n][~self.crowd.present] = 0.0  # empty slots padded
         self.history = np.repeat(current[None], cfg.history_length, axis=0)
         self.human_goals = sc.human_goals
-        self._walk_dir = [(1.0, 0.0)] * n
-        self._walk_age = [cfg.history_length] * n  # everyone still over the whole initial window
+        self._forget_walks(n)
         self.steps = 0
         self.people = draw_people(cfg, sc.human_starts, sc.human_goals, rng)
         self._preferred = PreferredVelocities(self.people)
@@ -124,30 +120,20 @@ class CrowdSimulator:
         pos = self.history[-1, : self.num_humans, Human.POS].tolist()
         return self.crowd.step(self._preferred.at(pos, self.time), self._robot_agent(robot_end))
 
+    def _forget_walks(self, n: int) -> None:
+        """Start the walking directions of ``n`` pedestrians: everyone still over the whole initial window."""
+        self._walk_dir, self._walk_age = np.zeros((n, 2)), np.full(n, self.scene.history_length, dtype=np.int64)
+        self._walk_dir[:, 0] = 1.0
+
     def _walking_directions(self, robot_x: float, robot_y: float) -> np.ndarray:
         """:func:`walking_direction` of the present pedestrians (n, 2) from the newest history row.
 
-        Incremental form of the same rule: the last velocity faster than ``STILL_SPEED`` within the
-        window of T steps (kept with its age), else the direction towards the robot.
+        Incremental form of the same rule (:func:`~sb3_crowdnav.sim.rewards.walking_directions_step`): the last
+        velocity faster than ``STILL_SPEED`` within the window of T steps (kept with its age), else the direction
+        towards the robot.
         """
-        n, t_len = self.num_humans, self.scene.history_length
-        walk, age = self._walk_dir, self._walk_age
-        out = []
-        newest = self.history[-1, :n]
-        for i, ((x, y), (vx, vy)) in enumerate(zip(newest[:, Human.POS].tolist(), newest[:, Human.VEL].tolist(), strict=True)):
-            speed = math.sqrt(vx * vx + vy * vy)
-            if speed > STILL_SPEED:
-                walk[i] = (vx / speed, vy / speed)
-                age[i] = 0
-            else:
-                age[i] += 1
-            if age[i] < t_len:
-                out.append(walk[i])
-            else:
-                fx, fy = robot_x - x, robot_y - y
-                norm = math.sqrt(fx * fx + fy * fy)
-                out.append((fx / norm, fy / norm) if norm > 1e-9 else (1.0, 0.0))
-        return np.array(out).reshape(n, 2)
+        return walking_directions_step(self.history[-1, : self.num_humans], self._walk_dir, self._walk_age,
+                                       self.scene.history_length, robot_x, robot_y)
 
     def _update_presence(self, human_pos0: np.ndarray) -> None:
         """Take who is present from a :class:`RecordedCrowd` after its step: a vanished person's slot padded over the
@@ -165,9 +151,8 @@ class CrowdSimulator:
         hist[-1, came, Human.RADIUS] = self.scene.human_radius
         hist[:-1, came] = hist[-1, came]
         human_pos0[came] = hist[-1, came, Human.POS]
-        for i in came.tolist():
-            self._walk_dir[i] = (1.0, 0.0)
-            self._walk_age[i] = self.scene.history_length
+        self._walk_dir[came] = (1.0, 0.0)
+        self._walk_age[came] = self.scene.history_length
         mask[:] = present
 
     def step(self, action: int) -> RewardTerms:
@@ -199,10 +184,10 @@ class CrowdSimulator:
         if self.sensor is not None:
             self._sense_people()
 
-        return compute_reward(
-            self.reward_cfg, cfg.time_step, np.array([px, py]), robot[Robot.POS], np.float64(heading0),
-            np.float64(heading), robot[Robot.GOAL], np.float64(cfg.robot_radius), human_pos0,
-            hist[-1, :n, Human.POS], self._walking_directions(x, y), hist[-1, :n, Human.RADIUS], self.mask[:n],
+        return transition_terms(
+            self.reward_cfg, float(cfg.time_step), np.array([px, py]), robot[Robot.POS], heading0, heading,
+            robot[Robot.GOAL], float(cfg.robot_radius), human_pos0, hist[-1, :n, Human.POS], self._walking_directions(x, y),
+            hist[-1, :n, Human.RADIUS], self.mask[:n],
         )
 
     @property

@@ -140,8 +140,7 @@ class WarehouseSimulator(CrowdSimulator):
         self.mask = np.zeros(s.max_humans, dtype=bool)
         self.mask[: self.num_humans] = True
         self.human_goals = np.full((self.num_humans, 2), np.nan)  # pickers have no fixed goal (figures draw none)
-        self._walk_dir = [(1.0, 0.0)] * self.num_humans
-        self._walk_age = [s.history_length] * self.num_humans
+        self._forget_walks(self.num_humans)
         self.steps = 0
         self._sense_obstacles(*start.tolist())
         self.min_clearance = float(self._seg_dist.min()) - s.robot_radius if len(self._seg_dist) else math.inf
