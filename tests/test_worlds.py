@@ -115,6 +115,7 @@ def test_apg_robust_brings_its_worlds_and_people_and_a_run_overrides_them():
     assert ScheduleConfig(variant="apg_robust", num_humans=(2, 8)).training_env_kwargs["num_humans"] == (2, 8)
 
 
+@pytest.mark.slow  # a training run: make slow
 def test_apg_robust_short_run(tmp_path, monkeypatch):
     out = tmp_path / "robust"
     assert main(["train", "--variant", "apg_robust", "--out", str(out), "--il-episodes", "3", "--il-epochs", "1",
