@@ -22,6 +22,7 @@ import torch as th
 
 from sb3_crowdnav.deploy.graph import LookaheadDecision, decision_module, policy_of
 from sb3_crowdnav.deploy.metadata import OPSET, OUTPUT_NAMES, GraphMetadata, require
+from sb3_crowdnav.deploy.runtime import OnnxPolicy
 from sb3_crowdnav.models import load_model, resolve_model_path
 from sb3_crowdnav.serialization import read_world, world_of
 from sb3_crowdnav.sim.config import SceneConfig
@@ -70,6 +71,11 @@ def export_onnx(model: Any, path: str | Path, *, env: Any = None, world: World |
     onnx.checker.check_model(proto)
     path = Path(path)
     onnx.save_model(proto, str(path))
+    try:  # the file as a robot reads it: the graph loads in ONNX Runtime, the metadata reads back
+        OnnxPolicy(path)
+    except ValueError as exc:
+        path.unlink(missing_ok=True)
+        raise RuntimeError(f"the exported graph does not load in ONNX Runtime, an exporter bug: {exc}") from exc
     return path
 
 

@@ -20,7 +20,16 @@ import torch as th
 from torch import nn
 
 from sb3_crowdnav.sim.actions import wrap_angle
-from sb3_crowdnav.sim.observation import ROBOT_DIM, SEGMENT_DIM, Human, ObservationSchema, Robot
+from sb3_crowdnav.sim.observation import (
+    OBS_KEYS,
+    OBSTACLE_KEYS,
+    ROBOT_DIM,
+    SEGMENT_DIM,
+    WAYPOINT_KEY,
+    Human,
+    ObservationSchema,
+    Robot,
+)
 from sb3_crowdnav.sim.rewards import ANGLE_TOLERANCE, STILL_SPEED
 from sb3_crowdnav.sim.world import World
 
@@ -273,25 +282,25 @@ class GraphPropagation(nn.Module):
         terms = self.terms(pos0, pos1, heading0, heading1, goal, radius, start, end, dirs, *human_args)
         if self.cautious:  # worse_of: the pedestrians may also stand still
             still = self.terms(pos0, pos1, heading0, heading1, goal, radius, start, start, dirs, *human_args)
-            worse = still.reward < terms.reward
-            terms = Terms(*(th.where(worse, b, a) for a, b in zip(terms, still, strict=True)))
+            worse = still.reward < terms.reward  # flags by logic: ONNX Runtime has no Where of booleans
+            terms = Terms(th.where(worse, still.reward, terms.reward), (worse & still.success) | (~worse & terms.success),
+                          (worse & still.collision) | (~worse & terms.collision))
 
         n_actions = speeds.shape[1]
         propagated = {}
         if self.world.has_static_world and self.schema.max_obstacles and self.schema.num_waypoints:
-            terms, route = self.static_world(terms, pos0, pos1, radius, observation["obstacles"],
-                                             observation["obstacles_mask"], observation["waypoints"])
-            propagated = {"obstacles": _per_action(observation["obstacles"], n_actions),
-                          "obstacles_mask": _per_action(observation["obstacles_mask"], n_actions),
-                          "waypoints": route.reshape(batch * n_actions, -1).float()}
+            segments = [observation[key] for key in OBSTACLE_KEYS]  # obstacles, obstacles_mask
+            terms, route = self.static_world(terms, pos0, pos1, radius, *segments, observation[WAYPOINT_KEY])
+            propagated = {key: _per_action(observation[key], n_actions) for key in OBSTACLE_KEYS}
+            propagated[WAYPOINT_KEY] = route.reshape(batch * n_actions, -1).float()
         new_robot = robot[:, None, :].expand(-1, n_actions, -1).clone()  # (B, A, 9)
         new_robot[..., Robot.POS] = pos1
         new_robot[..., Robot.VEL] = vel1
         new_robot[..., Robot.HEADING] = heading1
         mask = present.to(th.float32)
-        obs = {"robot": new_robot.reshape(batch * n_actions, ROBOT_DIM).float(),
-               "humans": _per_action(self.schema.flatten_humans(new_hist).float(), n_actions),
-               "humans_mask": _per_action(mask, n_actions), **propagated}
+        crowd = (new_robot.reshape(batch * n_actions, ROBOT_DIM).float(),
+                 _per_action(self.schema.flatten_humans(new_hist).float(), n_actions), _per_action(mask, n_actions))
+        obs = {**dict(zip(OBS_KEYS, crowd, strict=True)), **propagated}
         discount = th.pow(th.tensor(self.gamma, dtype=F64), self.world.time_step * v_pref)
         return Propagated(obs, terms.reward, terms.success | terms.collision, discount)
 

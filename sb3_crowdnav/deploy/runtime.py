@@ -104,7 +104,8 @@ class OnnxPolicy:
             keywords = env_keywords(self.world, env_world, fields)
             hint = f"; to run it in its world, make the env with {', '.join(f'{k}={v!r}' for k, v in keywords.items())}" \
                 if keywords else ""
-            raise ValueError(f"{self.path.name}: {mismatch}{hint}; or pass allow_env_mismatch=True to run it there anyway")
+            raise ValueError(f"{self.path.name}: {mismatch}{hint}; or pass allow_env_mismatch=True "
+                             "(--allow-env-mismatch) to run it there anyway")
 
     # ------------------------------------------------------------------ acting
     def _feeds(self, observation: Any) -> tuple[dict[str, np.ndarray], bool]:
