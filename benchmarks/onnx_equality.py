@@ -1,6 +1,6 @@
 """The exported ONNX graph against the PyTorch model it came from, on observations of test episodes.
 
-Usage: python benchmarks/onnx_equality.py [--models apg_rl apg_warehouse ...] [--observations 10000] [--envs 16]
+Usage: python benchmarks/onnx_equality.py [--models apg_rl apg_warehouse ...] [--observations 10000] [--envs 32]
     [--graphs DIR]
 
 For every shipped model (default) the model drives ``--envs`` envs of its world from the test seeds (1,000,000 on)
@@ -64,8 +64,10 @@ def compare(name: str, observations: int, n_envs: int, graphs: Path) -> dict:
     worst = 0.0
     obs = vec.reset()
     while seen < observations:
-        actions, _ = model.predict(obs, deterministic=True)
         values = torch_values(model, decision, obs)
+        # a lookahead's predict is the argmax of these values: computing them once halves the run
+        actions = values.argmax(axis=1) if hasattr(model.policy, "action_values") else \
+            model.predict(obs, deterministic=True)[0]
         onnx_actions, onnx_values, _ = graph.run(obs)
         worst = max(worst, float(np.abs(onnx_values - values).max()))
         rows = np.arange(len(actions))
@@ -84,7 +86,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--models", nargs="+", default=available_pretrained(), choices=available_pretrained())
     parser.add_argument("--observations", type=int, default=10_000, help="observations per model")
-    parser.add_argument("--envs", type=int, default=16, help="envs stepped together (the batch of each comparison)")
+    parser.add_argument("--envs", type=int, default=32, help="envs stepped together (the batch of each comparison)")
     parser.add_argument("--graphs", type=Path, help="folder of the .onnx files (default: a temporary one)")
     args = parser.parse_args()
     configure_cpu(1)

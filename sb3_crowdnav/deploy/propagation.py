@@ -200,7 +200,7 @@ class GraphPropagation(nn.Module):
         collision = closest < 0
         success = ~collision & (norm2(pos1[..., 0] - goal[..., 0], pos1[..., 1] - goal[..., 1]) < radius)
         shaping = ~(collision | success)
-        reward = th.where(success, w["success"], 0.0) + th.where(collision, w["collision"], 0.0)
+        reward = _where(success, w["success"]) + _where(collision, w["collision"])
         cfg = self.world.reward
         if cfg.uses_discomfort:
             near = shaping & (closest < w["discomfort_dist"])
@@ -214,7 +214,7 @@ class GraphPropagation(nn.Module):
             reward = reward + th.where(shaping, summed, 0.0)
         if cfg.uses_angular:
             sharp = th.abs(wrap(heading1 - heading0)) >= w["threshold"] - ANGLE_TOLERANCE
-            reward = reward + th.where(shaping & sharp, -w["angular_penalty"], 0.0)
+            reward = reward + _where(shaping & sharp, -w["angular_penalty"])
         return Terms(reward, success, collision)
 
     def comfort(self, rx: th.Tensor, ry: th.Tensor, dirs: th.Tensor, radius_sum: th.Tensor) -> th.Tensor:
@@ -303,6 +303,11 @@ class GraphPropagation(nn.Module):
         obs = {**dict(zip(OBS_KEYS, crowd, strict=True)), **propagated}
         discount = th.pow(th.tensor(self.gamma, dtype=F64), self.world.time_step * v_pref)
         return Propagated(obs, terms.reward, terms.success | terms.collision, discount)
+
+
+def _where(condition: th.Tensor, value: float) -> th.Tensor:
+    """``value`` where ``condition``, else 0, in float64 (``th.where`` of two Python numbers would be float32)."""
+    return th.where(condition, th.tensor(value, dtype=F64), th.tensor(0.0, dtype=F64))
 
 
 def _per_action(x: th.Tensor, n_actions: int) -> th.Tensor:
