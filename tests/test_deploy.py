@@ -10,7 +10,6 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch as th
-from gymnasium import spaces
 
 import sb3_crowdnav  # noqa: F401  (registers the envs)
 from sb3_crowdnav.apg_value.policies import ValueLookaheadPolicy
@@ -87,7 +86,7 @@ def test_unsupported_models_are_refused_by_name():
     from stable_baselines3 import PPO
 
     env = gym.make("CrowdNav-v0")
-    with pytest.raises(ValueError, match="QRDQN .*cannot be exported"):
+    with pytest.raises(ValueError, match=r"QRDQN .*cannot be exported"):
         decision_module(QRDQN("MultiInputPolicy", env, learning_starts=0, buffer_size=10))
     with pytest.raises(ValueError, match="CombinedExtractor"):
         decision_module(PPO("MultiInputPolicy", env, n_steps=8, batch_size=8))
@@ -180,7 +179,7 @@ def test_onnx_policy_predicts_like_sb3(tmp_path):
         policy.predict({"robot": batch["robot"], "humans": batch["humans"], "extra": 1})
     with pytest.raises(ValueError, match="observation shapes"):
         policy.predict({**batch, "humans": batch["humans"][:, :10]})
-    with pytest.raises(ValueError, match="(obs, info)"):
+    with pytest.raises(ValueError, match=r"\(obs, info\)"):
         policy.predict(env.reset())
     with pytest.raises(ValueError, match="greedy"):
         policy.predict(batch, deterministic=False)
@@ -193,7 +192,7 @@ def test_onnx_policy_refuses_another_world_naming_the_fields(tmp_path):
     with pytest.raises(ValueError, match=r"time_step=0.25 \(the env has 0.5\).*make the env with time_step=0.25"):
         OnnxPolicy(tmp_path / "toy.onnx", gym.make("CrowdNav-v0", time_step=0.5))
     OnnxPolicy(tmp_path / "toy.onnx", gym.make("CrowdNav-v0", time_step=0.5), allow_env_mismatch=True)
-    with pytest.raises(ValueError, match="actions='paper' .*'with_stop'"):
+    with pytest.raises(ValueError, match=r"actions='paper' .*'with_stop'"):
         OnnxPolicy(tmp_path / "toy.onnx", gym.make("CrowdNav-v0", actions="with_stop"))
     with pytest.raises(ValueError, match="was trained on observations"):  # shapes are checked even then
         OnnxPolicy(tmp_path / "toy.onnx", gym.make("CrowdNav-v0", max_humans=7), allow_env_mismatch=True)

@@ -131,8 +131,10 @@ class Propagated(NamedTuple):
 class GraphPropagation(nn.Module):
     """:class:`~sb3_crowdnav.apg_value.propagation.PropagationModel` as a torch module (see the module docstring).
 
-    :param world: the model's world; :param schema: its observation schema; :param gamma: discount per second at
-    v_pref = 1; :param pedestrian_model: ``"constant_velocity"`` or ``"cautious"``
+    :param world: the model's world
+    :param schema: its observation schema
+    :param gamma: discount per second at v_pref = 1
+    :param pedestrian_model: ``"constant_velocity"`` or ``"cautious"``
     """
 
     def __init__(self, world: World, schema: ObservationSchema, gamma: float, pedestrian_model: str) -> None:
