@@ -94,6 +94,26 @@ def test_unsupported_models_are_refused_by_name():
         decision_module(th.nn.Linear(2, 2))
 
 
+def test_export_refuses_before_any_work(tmp_path):
+    """A model without a world, a world= that contradicts the model's, an env of another world: refused at once."""
+    from stable_baselines3 import PPO
+
+    from sb3_crowdnav.deploy import export_onnx
+    from sb3_crowdnav.models import pretrained
+    from sb3_crowdnav.nn import ApgActorCriticPolicy
+
+    env = gym.make("CrowdNav-v0")
+    with pytest.raises(ValueError, match="holds no world: pass world="):
+        export_onnx(PPO(ApgActorCriticPolicy, env, n_steps=8, batch_size=8), tmp_path / "ppo.onnx")
+    with pytest.raises(ValueError, match=r"world= differs .*time_step=0.25 \(world= has 0.5\)"):
+        export_onnx(_policy(env), tmp_path / "apg.onnx", world=World(time_step=0.5))
+    with pytest.raises(ValueError, match=r"actions='paper' \(the env has 'with_stop'\)"):
+        export_onnx(pretrained("apg_warehouse"), tmp_path / "wh.onnx", env=gym.make("CrowdNavWarehouse-v0"))
+    with pytest.raises(ValueError, match="trained on observations"):
+        export_onnx(_policy(env), tmp_path / "apg.onnx", env=gym.make("CrowdNav-v0", max_humans=7))
+    assert not list(tmp_path.iterdir())
+
+
 # ---------------------------------------------------------------- the contract
 def _metadata(**kwargs) -> GraphMetadata:
     args = dict(kind="q_values", world=World(), schema=ObservationSchema(5, 10), robot_radius=0.3, robot_v_pref=1.0,
