@@ -25,7 +25,7 @@ from stable_baselines3.dqn.policies import DQNPolicy, MultiInputPolicy
 from torch import nn
 
 from sb3_crowdnav.apg_value.policies import ValueLookaheadPolicy
-from sb3_crowdnav.deploy.propagation import F64, GraphPropagation
+from sb3_crowdnav.deploy.propagation import F64, GraphPropagation, f64
 from sb3_crowdnav.nn import ApgActorCriticPolicy, ApgDQNPolicy
 from sb3_crowdnav.nn.extractors import CrowdFeaturesExtractor
 from sb3_crowdnav.sim.observation import ObservationSchema, Robot
@@ -45,15 +45,23 @@ class LookaheadDecision(nn.Module):
         schema = ObservationSchema.from_space(policy.observation_space)
         self.propagation = GraphPropagation(policy.world, schema, policy.gamma, policy.pedestrian_model)
         self.value_net = policy.value_net
-        self.value_ceiling = policy.value_ceiling  # the policy's own rule, on torch tensors
+        world = policy.world
+        self.ceiling = world.has_static_world and policy.gamma < 1
+        self.ceiling_terms = (world.time_step, world.progress_reward, policy.gamma, world.reward.success_reward)
+
+    def value_ceiling(self, v_pref: th.Tensor) -> th.Tensor:
+        """:meth:`ValueLookaheadPolicy.value_ceiling` with float64 constants (the policy's own would enter the graph
+        with float32 ones): ``max(S, k·v_pref·Δt / (1 - γ^(Δt·v_pref)))``, (B,)."""
+        time_step, progress_reward, gamma, success = (f64(x) for x in self.ceiling_terms)
+        step = time_step * v_pref
+        return th.maximum(progress_reward * step / (1 - th.pow(gamma, step)), success)
 
     def forward(self, observation: dict[str, th.Tensor]) -> tuple[th.Tensor, th.Tensor]:
         prop = self.propagation(observation)
         batch, n_actions = prop.reward.shape
         v = self.value_net(prop.observation).reshape(batch, n_actions).to(F64)
-        ceiling = self.value_ceiling(observation["robot"][:, Robot.V_PREF].to(F64))
-        if ceiling is not None:
-            v = th.minimum(v, ceiling[:, None])
+        if self.ceiling:
+            v = th.minimum(v, self.value_ceiling(observation["robot"][:, Robot.V_PREF].to(F64))[:, None])
         q = prop.reward + prop.discount[:, None] * th.where(prop.terminal, 0.0, v)
         return q.argmax(dim=1), q
 

@@ -37,12 +37,19 @@ TWO_PI = 2 * math.pi
 F64 = th.float64
 
 
+def f64(value: float) -> th.Tensor:
+    """A float64 constant. Every constant of the float64 arithmetic is one: the exporter would write a Python number
+    into the graph as a float32 constant (π as 3.14159274), and the graph would no longer be the numpy code's."""
+    return th.tensor(value, dtype=F64)
+
+
 def wrap(angle: th.Tensor) -> th.Tensor:
     """Angles wrapped to (-π, π], as :func:`~sb3_crowdnav.sim.actions.wrap` (Python's float ``%``: fmod, then
     the divisor added to a negative remainder)."""
-    r = th.fmod(angle + math.pi, TWO_PI)
-    a = th.where(r < 0, r + TWO_PI, r) - math.pi
-    return th.where(a <= -math.pi, a + TWO_PI, a)
+    pi, two_pi = f64(math.pi), f64(TWO_PI)
+    r = th.fmod(angle + pi, two_pi)
+    a = th.where(r < 0, r + two_pi, r) - pi
+    return th.where(a <= -pi, a + two_pi, a)
 
 
 def atan2(y: th.Tensor, x: th.Tensor) -> th.Tensor:
@@ -54,7 +61,8 @@ def atan2(y: th.Tensor, x: th.Tensor) -> th.Tensor:
     den = x * cos + y * sin  # |(x, y)| when the guess is right
     ok = den > 0
     a = a + th.where(ok, (y * cos - x * sin) / th.where(ok, den, 1.0), 0.0)
-    return th.where(a > math.pi, a - TWO_PI, th.where(a < -math.pi, a + TWO_PI, a))
+    pi, two_pi = f64(math.pi), f64(TWO_PI)
+    return th.where(a > pi, a - two_pi, th.where(a < -pi, a + two_pi, a))
 
 
 def norm2(x: th.Tensor, y: th.Tensor) -> th.Tensor:
@@ -65,7 +73,7 @@ def norm2(x: th.Tensor, y: th.Tensor) -> th.Tensor:
 def closest_approach(d0x, d0y, dvx, dvy) -> th.Tensor:
     """Minimum of |d0 + t dv| over t in [0, 1] (:func:`~sb3_crowdnav.sim.rewards.closest_approach`'s kernel)."""
     dv2 = dvx * dvx + dvy * dvy
-    moving = dv2 > 1e-12
+    moving = dv2 > f64(1e-12)
     t = th.where(moving, (-(d0x * dvx + d0y * dvy) / th.where(moving, dv2, 1.0)).clamp(0.0, 1.0), 0.0)
     return norm2(d0x + t * dvx, d0y + t * dvy)
 
@@ -74,7 +82,7 @@ def point_to_segment(px, py, ax, ay, bx, by) -> th.Tensor:
     """Distance from points to segments (:func:`~sb3_crowdnav.sim.geometry.point_to_segment`)."""
     abx, aby = bx - ax, by - ay
     length2 = abx * abx + aby * aby
-    t = ((px - ax) * abx + (py - ay) * aby) / th.where(length2 > 1e-18, length2, 1.0)
+    t = ((px - ax) * abx + (py - ay) * aby) / th.where(length2 > f64(1e-18), length2, 1.0)
     t = t.clamp(0.0, 1.0)
     return norm2(px - (ax + t * abx), py - (ay + t * aby))
 
@@ -98,7 +106,7 @@ def walking_direction(velocities: th.Tensor, human_pos: th.Tensor, robot_pos: th
     """Unit walking directions (:func:`~sb3_crowdnav.sim.rewards.walking_direction`): velocities (B, T, M, 2),
     human_pos (B, M, 2), robot_pos (B, A, 2) -> (B, A, M, 2)."""
     steps = velocities.shape[1]
-    moving = norm2(velocities[..., 0], velocities[..., 1]) > STILL_SPEED  # (B, T, M)
+    moving = norm2(velocities[..., 0], velocities[..., 1]) > f64(STILL_SPEED)  # (B, T, M)
     index = th.arange(steps, device=velocities.device)[None, :, None]
     last = th.where(moving, index, -1).amax(dim=1)  # (B, M) the last moving step, or -1
     chosen = th.gather(velocities, 1, last.clamp(min=0)[:, None, :, None].expand(-1, 1, -1, 2))[:, 0]  # (B, M, 2)
@@ -106,8 +114,8 @@ def walking_direction(velocities: th.Tensor, human_pos: th.Tensor, robot_pos: th
     facing = robot_pos[:, :, None, :] - human_pos[:, None]  # (B, A, M, 2)
     facing_norm = norm2(facing[..., 0], facing[..., 1])[..., None]
     east = th.tensor([1.0, 0.0], dtype=F64, device=facing.device)
-    facing = th.where(facing_norm > 1e-9, facing / facing_norm.clamp(min=1e-9), east)
-    walking = (chosen / chosen_speed.clamp(min=1e-12))[:, None]  # (B, 1, M, 2)
+    facing = th.where(facing_norm > f64(1e-9), facing / th.maximum(facing_norm, f64(1e-9)), east)
+    walking = (chosen / th.maximum(chosen_speed, f64(1e-12)))[:, None]  # (B, 1, M, 2)
     return th.where((last >= 0)[:, None, :, None], walking, facing)
 
 
@@ -162,7 +170,7 @@ class GraphPropagation(nn.Module):
              speeds: th.Tensor) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
         """:func:`~sb3_crowdnav.sim.actions.move` of every action: pos0, goal, vel0 (B, 1, 2), heading0 (B, 1),
         speeds (B, A) -> position (B, A, 2), heading (B, A), velocity (B, A, 2)."""
-        limit = self.max_speed_change
+        limit = None if self.max_speed_change is None else f64(self.max_speed_change)
         vx0, vy0 = vel0[..., 0], vel0[..., 1]
         if self.world.kinematics == "holonomic":
             to_goal = goal - pos0
@@ -183,7 +191,7 @@ class GraphPropagation(nn.Module):
                 speed0 = th.sqrt(vx0 * vx0 + vy0 * vy0)
                 speeds = th.minimum(th.maximum(speeds, speed0 - limit), speed0 + limit)
             vx, vy = speeds * th.cos(heading), speeds * th.sin(heading)
-        dt = self.world.time_step
+        dt = f64(self.world.time_step)
         position = th.stack((pos0[..., 0] + vx * dt, pos0[..., 1] + vy * dt), dim=-1)
         return position, heading, th.stack((vx, vy), dim=-1)
 
@@ -192,7 +200,7 @@ class GraphPropagation(nn.Module):
         """:func:`~sb3_crowdnav.sim.rewards.compute_reward`: robot pos0, goal (B, 1, 2), pos1 (B, A, 2), heading0,
         radius (B, 1), heading1 (B, A); pedestrians start, end (B, 1, M, 2), dirs (B, A, M, 2) or None, radius and
         mask (B, 1, M)."""
-        w = self.weights
+        w = {name: f64(value) for name, value in self.weights.items()}
         ax0, ay0 = pos0[..., 0:1], pos0[..., 1:2]  # (B, 1, 1)
         ax1, ay1 = pos1[..., 0:1], pos1[..., 1:2]  # (B, A, 1)
         bx0, by0, bx1, by1 = start[..., 0], start[..., 1], end[..., 0], end[..., 1]  # (B, 1, M)
@@ -202,7 +210,7 @@ class GraphPropagation(nn.Module):
         collision = closest < 0
         success = ~collision & (norm2(pos1[..., 0] - goal[..., 0], pos1[..., 1] - goal[..., 1]) < radius)
         shaping = ~(collision | success)
-        reward = _where(success, w["success"]) + _where(collision, w["collision"])
+        reward = _where(success, self.weights["success"]) + _where(collision, self.weights["collision"])
         cfg = self.world.reward
         if cfg.uses_discomfort:
             near = shaping & (closest < w["discomfort_dist"])
@@ -215,15 +223,15 @@ class GraphPropagation(nn.Module):
                 summed = summed + penalty[..., j]
             reward = reward + th.where(shaping, summed, 0.0)
         if cfg.uses_angular:
-            sharp = th.abs(wrap(heading1 - heading0)) >= w["threshold"] - ANGLE_TOLERANCE
-            reward = reward + _where(shaping & sharp, -w["angular_penalty"])
+            sharp = th.abs(wrap(heading1 - heading0)) >= f64(self.weights["threshold"] - ANGLE_TOLERANCE)
+            reward = reward + _where(shaping & sharp, -self.weights["angular_penalty"])
         return Terms(reward, success, collision)
 
     def comfort(self, rx: th.Tensor, ry: th.Tensor, dirs: th.Tensor, radius_sum: th.Tensor) -> th.Tensor:
         """Eq. 9-11 of every pedestrian (``_comfort`` of :mod:`sb3_crowdnav.sim.rewards`): (B, A, M)."""
-        w = self.weights
+        w = {name: f64(value) for name, value in self.weights.items()}
         dist = norm2(rx, ry)
-        scale = (dist - radius_sum).clamp(min=0.0) / dist.clamp(min=1e-9)
+        scale = (dist - radius_sum).clamp(min=0.0) / th.maximum(dist, f64(1e-9))
         sx, sy = rx * scale, ry * scale
         dx, dy = dirs[..., 0], dirs[..., 1]
         x0 = sx * dx + sy * dy
@@ -243,18 +251,18 @@ class GraphPropagation(nn.Module):
                                   seg[..., 0], seg[..., 1], seg[..., 2], seg[..., 3])  # (B, A, S)
         clearance = th.where(obstacles_mask.reshape(batch, 1, -1) > 0.5, dist, math.inf).amin(dim=-1)
         hit = (clearance < radius) & ~terms.collision  # with_obstacle_collision
-        terms = Terms(th.where(hit, world.obstacle_collision_penalty, terms.reward), terms.success & ~hit,
+        terms = Terms(th.where(hit, f64(world.obstacle_collision_penalty), terms.reward), terms.success & ~hit,
                       terms.collision | hit)
         route = waypoints.reshape(batch, 1, -1, 2)  # (B, 1, K, 2)
         if world.progress_reward != 0:  # with_route_progress
             wx, wy = route[..., 0, 0], route[..., 0, 1]
             gained = norm2(pos0[..., 0] - wx, pos0[..., 1] - wy) - norm2(pos1[..., 0] - wx, pos1[..., 1] - wy)
-            progress = th.where(terms.success | terms.collision, 0.0, world.progress_reward * gained)
+            progress = th.where(terms.success | terms.collision, 0.0, f64(world.progress_reward) * gained)
             terms = terms._replace(reward=terms.reward + progress)
         out = route.expand(-1, pos1.shape[1], -1, -1)
         for _ in range(out.shape[-2] - 1):  # next_waypoints: drop each passed waypoint, never the goal
             first, goal = out[..., 0, :], out[..., -1, :]
-            reached = (norm2(first[..., 0] - pos1[..., 0], first[..., 1] - pos1[..., 1]) < world.waypoint_radius) & \
+            reached = (norm2(first[..., 0] - pos1[..., 0], first[..., 1] - pos1[..., 1]) < f64(world.waypoint_radius)) & \
                 ((first[..., 0] != goal[..., 0]) | (first[..., 1] != goal[..., 1]))
             shifted = th.cat((out[..., 1:, :], out[..., -1:, :]), dim=-2)
             out = th.where(reached[..., None, None], shifted, out)
@@ -274,7 +282,7 @@ class GraphPropagation(nn.Module):
         pos1, heading1, vel1 = self.move(pos0, heading0, goal, vel0, speeds)
 
         hpos0 = hist[:, -1, :, Human.POS]  # (B, M, 2)
-        hpos1 = th.where(present[..., None], hpos0 + hist[:, -1, :, Human.VEL] * self.world.time_step, 0.0)
+        hpos1 = th.where(present[..., None], hpos0 + hist[:, -1, :, Human.VEL] * f64(self.world.time_step), 0.0)
         latest = hist[:, -1].clone()  # (B, M, 5): moved, velocity and radius kept
         latest[..., Human.POS] = hpos1
         new_hist = th.cat((hist[:, 1:], latest[:, None]), dim=1)  # (B, T, M, 5)
@@ -303,13 +311,13 @@ class GraphPropagation(nn.Module):
         crowd = (new_robot.reshape(batch * n_actions, ROBOT_DIM).float(),
                  _per_action(self.schema.flatten_humans(new_hist).float(), n_actions), _per_action(mask, n_actions))
         obs = {**dict(zip(OBS_KEYS, crowd, strict=True)), **propagated}
-        discount = th.pow(th.tensor(self.gamma, dtype=F64), self.world.time_step * v_pref)
+        discount = th.pow(f64(self.gamma), f64(self.world.time_step) * v_pref)
         return Propagated(obs, terms.reward, terms.success | terms.collision, discount)
 
 
 def _where(condition: th.Tensor, value: float) -> th.Tensor:
     """``value`` where ``condition``, else 0, in float64 (``th.where`` of two Python numbers would be float32)."""
-    return th.where(condition, th.tensor(value, dtype=F64), th.tensor(0.0, dtype=F64))
+    return th.where(condition, f64(value), f64(0.0))
 
 
 def _per_action(x: th.Tensor, n_actions: int) -> th.Tensor:
@@ -317,4 +325,4 @@ def _per_action(x: th.Tensor, n_actions: int) -> th.Tensor:
     return x[:, None, :].expand(-1, n_actions, -1).reshape(-1, x.shape[-1])
 
 
-__all__ = ["GraphPropagation", "Propagated", "atan2", "wrap"]
+__all__ = ["GraphPropagation", "Propagated", "atan2", "f64", "wrap"]
