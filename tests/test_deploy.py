@@ -292,6 +292,12 @@ def graphs(tmp_path_factory):
                                          env=warehouse)}
 
 
+def _assert_same_but_ties(actions: np.ndarray, values: np.ndarray) -> None:
+    """The graph's actions are the argmax of the PyTorch values but where another action's value is within 1e-6."""
+    rows = np.arange(len(actions))
+    assert np.all(values.max(axis=1) - values[rows, actions] <= 1e-6)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("name, env_id, env_kwargs", [("apg_rl", "CrowdNav-v0", {}),
                                                      ("apg_warehouse", "CrowdNavWarehouse-v0", WAREHOUSE_PAPER)])
@@ -306,21 +312,24 @@ def test_round_trip_of_a_shipped_model(graphs, name, env_id, env_kwargs):
     expected = model.policy.action_values(obs)
     actions, values, _ = graph.run(obs)
     np.testing.assert_allclose(values, expected, rtol=0, atol=1e-4)
-    differ = np.flatnonzero(actions != expected.argmax(axis=1))
-    rows = np.arange(len(actions))
-    assert np.all(np.abs(expected[rows, actions] - expected.max(axis=1))[differ] <= 1e-6)  # ties only
+    _assert_same_but_ties(actions, expected)
 
 
 @pytest.mark.slow
-def test_round_trip_with_limits_and_a_stop(tmp_path):
-    """An untrained APG policy of a robot with acceleration and turn-rate limits and a stop action."""
+def test_round_trip_with_limits_a_stop_and_every_reward_term(tmp_path):
+    """An untrained APG policy of a robot with limits and a stop, the cautious model and the comfort_angular reward
+    (its sharp-turn threshold sits exactly on the table's ±π/2 turns: a float32 constant in the graph would flip it)."""
     from sb3_crowdnav.deploy import OnnxPolicy, export_onnx
 
-    env = gym.make("CrowdNav-v0", **WORLDS["limits and a stop"][1])
-    policy = _policy(env)
+    env = gym.make("CrowdNav-v0", reward="comfort_angular", actions="with_stop", max_acceleration=1.0,
+                   max_turn_rate=8.0)
+    policy = _policy(env, pedestrian_model="cautious")
     graph = OnnxPolicy(export_onnx(policy, tmp_path / "limits.onnx", env=env), env)
     obs = _observations(env, 200)
-    np.testing.assert_allclose(graph.action_values(obs), policy.action_values(obs), rtol=0, atol=1e-4)
+    expected = policy.action_values(obs)
+    actions, values, _ = graph.run(obs)
+    np.testing.assert_allclose(values, expected, rtol=0, atol=1e-5)
+    _assert_same_but_ties(actions, expected)
 
 
 @pytest.mark.slow
