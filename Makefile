@@ -15,7 +15,7 @@ $(STAMP): setup.cfg pyproject.toml
 	$(BIN)/pip install -q --upgrade pip
 	# torch first and pinned: an unpinned torch pulls several GB of CUDA wheels
 	$(BIN)/pip install -q "$(TORCH)"
-	$(BIN)/pip install -q -e ".[tests,zoo,gif]"
+	$(BIN)/pip install -q -e ".[tests,zoo,gif,deploy]"
 	$(BIN)/pip install -q --no-deps $(JUPEDSIM)
 	touch $(STAMP)
 

@@ -18,6 +18,7 @@ FLOORS = {
     "apg_value": 3,
     "models": 4,
     "": 4.5,  # ``import sb3_crowdnav``: the public API, registers the envs; its __init__ imports up to floor 4
+    "deploy": 4.7,  # exports a model (floor 4) as an ONNX graph; the evaluation runs the graph as a policy
     "evaluation": 5,
     "training": 6,
     "cli": 7,

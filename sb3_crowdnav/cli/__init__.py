@@ -1,18 +1,19 @@
-"""The ``sb3-crowdnav`` command line: ``evaluate``, ``benchmark``, ``render`` and ``train``.
+"""The ``sb3-crowdnav`` command line: ``evaluate``, ``benchmark``, ``render``, ``train`` and ``export``.
 
 Run ``sb3-crowdnav <command> --help`` for the options of each command. Policies are given as
 ``orca`` (``orca-constrained``), ``random`` (or ``random:SEED``), ``pretrained:NAME`` or the path
 of a saved model ``.zip`` (APGValue, DQN, PPO; the algorithm is detected). Test episode ``i``
 uses ``env.reset(seed=1_000_000 + i)`` (``--seed-offset``), disjoint from training seeds.
 ``train --variant NAME`` runs the paper's schedule of a variant; ``train --hyperparams FILE``
-trains from an rl-zoo3 hyperparameter file. Bad arguments exit with status 2 and a one-line message.
+trains from an rl-zoo3 hyperparameter file; ``export --policy SPEC --out FILE.onnx`` writes a model's decision as
+one ONNX graph, which ``evaluate --policy FILE.onnx`` runs. Bad arguments exit with status 2 and a one-line message.
 """
 
 from __future__ import annotations
 
 import argparse
 
-from sb3_crowdnav.cli import evaluate, train
+from sb3_crowdnav.cli import evaluate, export, train
 from sb3_crowdnav.cli.common import DEFAULT_ENV_ID, Parser, UsageError, common_options, env_options
 
 
@@ -29,6 +30,7 @@ def build_parser() -> argparse.ArgumentParser:
     parents = [common_options(), env_options()]
     evaluate.add_parsers(sub, parents)
     train.add_parser(sub, parents)
+    export.add_parser(sub, [common_options()])
     return parser
 
 

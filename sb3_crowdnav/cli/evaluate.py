@@ -107,6 +107,9 @@ def _check_policy(spec: str, env_id: str = "CrowdNav-v0", env_kwargs: dict[str, 
         raise UsageError(str(exc)) from None
     if not parsed.is_model:
         return parsed
+    if parsed.is_onnx:
+        _check_graph(Path(str(parsed.argument)), env_id, env_kwargs, allow_env_mismatch)
+        return parsed
     if parsed.kind == "pretrained":
         from sb3_crowdnav.models import check_pretrained
 
@@ -138,6 +141,22 @@ def _resolve_file(spec: str, text: str) -> Path:
         print(f"note: --policy {spec} loads the local file {path}; the shipped model is --policy pretrained:{shipped}",
               file=sys.stderr)
     return path
+
+
+def _check_graph(path: Path, env_id: str, env_kwargs: dict[str, Any] | None, allow: bool) -> None:
+    """An exported graph can be run in the env: ONNX Runtime is installed, the file is a graph with its contract, and
+    the env's observation shapes and (unless ``allow``) world are the model's."""
+    import gymnasium as gym
+
+    from sb3_crowdnav.deploy import OnnxPolicy
+
+    env = gym.make(env_id, **(env_kwargs or {}))
+    try:
+        OnnxPolicy(path, env, allow_env_mismatch=allow)
+    except (ImportError, OSError, ValueError) as exc:
+        raise UsageError(f"--policy {path}: {exc}") from None
+    finally:
+        env.close()
 
 
 def _check_shapes(path: Path, env_id: str, env_kwargs: dict[str, Any] | None) -> None:

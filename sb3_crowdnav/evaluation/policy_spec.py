@@ -17,7 +17,7 @@ from sb3_crowdnav.sim.validation import check_choice, check_instance
 
 PolicyKind = Literal["orca", "orca-constrained", "random", "pretrained", "file"]
 KINDS: tuple[str, ...] = ("orca", "orca-constrained", "random", "pretrained", "file")
-GRAMMAR = "orca, orca-constrained, random[:SEED], pretrained:NAME or the path of a saved model .zip"
+GRAMMAR = "orca, orca-constrained, random[:SEED], pretrained:NAME, a saved model .zip or an exported graph .onnx"
 _LABELS = {"orca": "ORCA", "orca-constrained": "ORCA-constrained", "random": "Random"}
 
 
@@ -84,6 +84,11 @@ class PolicySpec:
     def is_model(self) -> bool:
         """True for a saved model (shipped or a file): it has a network, a world it was trained in, spaces."""
         return self.kind in ("pretrained", "file")
+
+    @property
+    def is_onnx(self) -> bool:
+        """True for a file ending in ``.onnx``: a decision graph exported by :func:`sb3_crowdnav.deploy.export_onnx`."""
+        return self.kind == "file" and Path(str(self.argument)).suffix.lower() == ".onnx"
 
     @property
     def label(self) -> str:

@@ -80,7 +80,8 @@ def make_policy(spec: Any, env: gym.Env | None = None, allow_env_mismatch: bool 
     ``"orca"`` → :class:`~sb3_crowdnav.sim.orca.OrcaPolicy` built from ``env`` (nearest-action
     mapping, the paper's ORCA row); ``"orca-constrained"`` → the same with the constrained mapping;
     ``"random"`` or ``"random:SEED"`` → :class:`RandomPolicy`; ``"pretrained:NAME"`` → a model
-    shipped with the package (:func:`sb3_crowdnav.pretrained`); any other string → a saved model
+    shipped with the package (:func:`sb3_crowdnav.pretrained`); a file ``.onnx`` → an exported graph run by
+    :class:`~sb3_crowdnav.deploy.OnnxPolicy`; any other string → a saved model
     loaded with :func:`~sb3_crowdnav.models.load_model`. A model trained in another world than ``env`` (time step,
     kinematics, rotation range) is refused unless ``allow_env_mismatch``. A
     :class:`~sb3_crowdnav.safety.ProtectiveField` wraps the policy in a
@@ -112,6 +113,10 @@ def _make_policy(spec: Any, env: gym.Env | None, allow_env_mismatch: bool) -> An
         return OrcaPolicy.from_env(env, mapping=mapping) if env is not None else OrcaPolicy(mapping=mapping)
     if parsed.kind == "random":
         return RandomPolicy(env.action_space if env is not None else 80, seed=parsed.seed)
+    if parsed.is_onnx:  # an exported graph: it checks the env's shapes and world itself
+        from sb3_crowdnav.deploy import OnnxPolicy
+
+        return OnnxPolicy(str(parsed.argument), env, allow_env_mismatch=allow_env_mismatch)
     from sb3_crowdnav.models import check_pretrained, load_model
 
     path = str(check_pretrained(parsed.argument)) if parsed.kind == "pretrained" else str(parsed.argument)

@@ -25,7 +25,7 @@ from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from torch import nn
 
 from sb3_crowdnav.nn.interactions import angular_pedestrian_grid, local_occupancy_map, social_forces
-from sb3_crowdnav.nn.layers import check_arch, linear, lstm_last_state, masked_softmax, mlp, sort_farthest_first
+from sb3_crowdnav.nn.layers import check_arch, compact_width, linear, lstm_last_state, masked_softmax, mlp, sort_farthest_first
 from sb3_crowdnav.nn.static_world import StaticWorldEncoder
 from sb3_crowdnav.nn.transforms import (
     HUMAN_FEATURE_DIM,
@@ -86,7 +86,7 @@ class CrowdFeaturesExtractor(BaseFeaturesExtractor):
         offset = humans[:, -1, :, Human.POS] - robot[:, None, Robot.POS]  # (B, N, 2)
         dist = th.hypot(offset[..., 0], offset[..., 1])  # (B, N), NaN in garbage slots is masked by the sort
         order, lengths, valid = sort_farthest_first(dist, present)
-        width = int(lengths.max()) if batch > 0 else 0
+        width = compact_width(lengths)
         order, valid = order[:, :width], valid[:, :width]
         humans = humans.gather(2, order[:, None, :, None].expand(batch, steps, width, dim))  # (B, T', L, 5)
         robot_feats, human_feats = robot_centric(robot, humans)
@@ -192,7 +192,7 @@ class ApgExtractor(CrowdFeaturesExtractor):
                 pooled.addcmul_(weights[:, m], z[:, m])
         e_o = linear(pooled, self.psi_h_out)  # (B, L, D) = Σ_m softmax(alpha)_m h_m, Eq. 8
 
-        h_o = lstm_last_state(self.lstm, e_o, lengths)  # (B, hidden), rows past a length are never read
+        h_o = lstm_last_state(self.lstm, e_o, lengths, self.max_humans)  # (B, hidden); rows past a length are not read
         return th.cat((robot_feats, h_o), dim=1)
 
 
@@ -246,7 +246,7 @@ class _SortedLstmExtractor(CrowdFeaturesExtractor):
 
     def _pool(self, robot_feats: th.Tensor, inputs: th.Tensor, lengths: th.Tensor) -> th.Tensor:
         """inputs (B, L, F) sorted farthest first -> (B, 7 + hidden)."""
-        return th.cat((robot_feats, lstm_last_state(self.lstm, self.embedding(inputs), lengths)), dim=1)
+        return th.cat((robot_feats, lstm_last_state(self.lstm, self.embedding(inputs), lengths, self.max_humans)), dim=1)
 
 
 class LstmRlExtractor(_SortedLstmExtractor):

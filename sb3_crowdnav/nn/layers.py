@@ -60,9 +60,31 @@ def set_onednn_training(enabled: bool) -> bool:
     return _ONEDNN["training"] and _ONEDNN["available"]
 
 
+def exporting() -> bool:
+    """Whether a graph is being traced for export (``torch.export``, ``torch.onnx.export``).
+
+    The graph then reads the compacted width from the data at run time (:func:`compact_width`), the LSTM runs over
+    every slot (:func:`lstm_last_state`) and :func:`linear` runs ``nn.Linear`` (oneDNN's private kernel has no ONNX
+    form).
+    """
+    return th.compiler.is_exporting()
+
+
+def compact_width(lengths: th.Tensor) -> int:
+    """How many sorted pedestrian slots the extractors keep: the batch's largest count ``lengths`` (B,).
+
+    In an exported graph this is a size read from the data at run time (the graph stays as fast as the eager
+    compaction), and at least 1: an all-empty batch keeps one masked slot, so no shape is ever 0.
+    """
+    if exporting():
+        return th.sym_max(lengths.max().item(), 1)
+    return int(lengths.max()) if lengths.shape[0] > 0 else 0
+
+
 def _onednn_eligible(x: th.Tensor) -> bool:
     return (
         _ONEDNN["available"]
+        and not exporting()
         and x.dtype in (th.float32, th.bfloat16)
         and x.device.type == "cpu"
         and x.numel() > 0
@@ -203,7 +225,7 @@ def sort_farthest_first(dist: th.Tensor, present: th.Tensor) -> tuple[th.Tensor,
     return order, lengths, valid
 
 
-def lstm_last_state(lstm: nn.LSTM, sequence: th.Tensor, lengths: th.Tensor) -> th.Tensor:
+def lstm_last_state(lstm: nn.LSTM, sequence: th.Tensor, lengths: th.Tensor, capacity: int | None = None) -> th.Tensor:
     """Hidden state of a batch-first LSTM after the first ``lengths[b]`` items of each sequence.
 
     Items past a sequence's length are computed but never read (outputs of a unidirectional
@@ -212,12 +234,19 @@ def lstm_last_state(lstm: nn.LSTM, sequence: th.Tensor, lengths: th.Tensor) -> t
 
     :param sequence: (B, N, F), valid items first
     :param lengths: (B,) long
+    :param capacity: in an exported graph, the sequence is zero-padded to this many items first (the ONNX LSTM
+        cannot take a length read from the data); None: the sequence's own length
     :return: (B, hidden_size)
     """
     batch = sequence.shape[0]
-    max_len = int(lengths.max()) if batch > 0 else 0
-    if max_len == 0:
-        return sequence.new_zeros(batch, lstm.hidden_size)
-    out, _ = lstm(sequence[:, :max_len])  # (B, max_len, H)
+    if exporting():
+        if capacity is not None:
+            sequence = nn.functional.pad(sequence, (0, 0, 0, capacity - sequence.shape[1]))
+        out, _ = lstm(sequence)
+    else:
+        max_len = int(lengths.max()) if batch > 0 else 0
+        if max_len == 0:
+            return sequence.new_zeros(batch, lstm.hidden_size)
+        out, _ = lstm(sequence[:, :max_len])  # (B, max_len, H)
     last = out[th.arange(batch, device=sequence.device), (lengths - 1).clamp(min=0)]  # (B, H)
     return th.where((lengths > 0)[:, None], last, th.zeros((), dtype=last.dtype))

@@ -1,0 +1,170 @@
+"""``export_onnx``: a trained model's whole greedy decision as one ONNX graph with its contract as metadata.
+
+The graph goes from the observation's tensors (the env's ``Dict`` keys as named float32 inputs, batch dimension
+``batch`` dynamic) to ``action`` (the greedy action index, int64) and ``action_values`` (the values it maximises):
+for ``APGValue`` the whole lookahead (:mod:`sb3_crowdnav.deploy.graph`), for SB3's DQN the Q network, for PPO/A2C
+the actor. It is written by torch's ONNX exporter (``torch.onnx.export(..., dynamo=True)``) in opset
+:data:`~sb3_crowdnav.deploy.metadata.OPSET`, with two translations it lacks: ``hypot`` (as ``sqrt(x² + y²)``) and
+the stable ``sort`` (as ``TopK``, which orders ties by index, as a stable sort does). The file holds the weights
+(no external data) and :class:`~sb3_crowdnav.deploy.metadata.GraphMetadata`'s entries.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import warnings
+from collections.abc import Iterator, Mapping
+from pathlib import Path
+from typing import Any
+
+import torch as th
+
+from sb3_crowdnav.deploy.graph import LookaheadDecision, decision_module, policy_of
+from sb3_crowdnav.deploy.metadata import OPSET, OUTPUT_NAMES, GraphMetadata, require
+from sb3_crowdnav.deploy.runtime import OnnxPolicy
+from sb3_crowdnav.models import load_model, resolve_model_path
+from sb3_crowdnav.serialization import read_world, world_of
+from sb3_crowdnav.sim.config import SceneConfig
+from sb3_crowdnav.sim.observation import ObservationSchema, Robot
+from sb3_crowdnav.sim.world import MOTION_FIELDS, PREDICTION_FIELDS, World, compare_worlds
+
+
+def export_onnx(model: Any, path: str | Path, *, env: Any = None, world: World | Mapping[str, Any] | None = None) -> Path:
+    """Write ``model``'s greedy decision as one ONNX graph at ``path`` (see the module docstring); returns the path.
+
+    :param model: a trained ``APGValue``, ``DQN``, ``PPO`` or ``A2C`` model (or its policy), or the path of one
+        saved as ``.zip`` (loaded without unpickling; its world read from the file). Other models are refused with
+        a ``ValueError`` naming them
+    :param path: the ``.onnx`` file to write
+    :param env: the env the model acts in: its robot's radius and v_pref are recorded (default: the package's robot,
+        0.3 m and 1 m/s), and a model trained in another world or on other observation shapes is refused
+    :param world: the world of an SB3 model object, which does not hold one (its saved file does; so does an
+        ``APGValue`` model, whose own world is used)
+    """
+    source = None
+    if isinstance(model, (str, Path)):
+        source = resolve_model_path(model)
+        model = load_model(source)
+    decision = decision_module(model)  # refuses what it cannot export, before any work
+    policy = policy_of(model)
+    schema = ObservationSchema.from_space(policy.observation_space)
+    trained = _trained_world(policy, world, source, env)
+    radius, v_pref = SceneConfig.robot_radius, SceneConfig.robot_v_pref
+    if env is not None:
+        _check_env(env, schema, trained, isinstance(decision, LookaheadDecision))
+        scene = env.get_attr("scene")[0] if hasattr(env, "get_attr") else env.unwrapped.scene
+        radius, v_pref = scene.robot_radius, scene.robot_v_pref
+    extractor = getattr(policy, "features_extractor_class", None)
+    lookahead = isinstance(decision, LookaheadDecision)
+    metadata = GraphMetadata(
+        kind=decision.kind, world=trained, schema=schema, robot_radius=float(radius), robot_v_pref=float(v_pref),
+        policy=type(policy).__name__, extractor=getattr(extractor, "__name__", str(extractor)),
+        ensemble_size=getattr(policy, "ensemble_size", 1),
+        pedestrian_model=policy.pedestrian_model if lookahead else None, gamma=policy.gamma if lookahead else None,
+    )
+    proto = to_onnx(decision, schema)
+    onnx = require("onnx", "export_onnx")
+    proto.producer_name, proto.producer_version = "sb3_crowdnav", metadata.version
+    proto.doc_string = f"sb3_crowdnav {metadata.policy} ({metadata.extractor}): observation -> greedy action"
+    onnx.helper.set_model_props(proto, metadata.props())
+    onnx.checker.check_model(proto)
+    path = Path(path)
+    onnx.save_model(proto, str(path))
+    try:  # the file as a robot reads it: the graph loads in ONNX Runtime, the metadata reads back
+        OnnxPolicy(path)
+    except ValueError as exc:
+        path.unlink(missing_ok=True)
+        raise RuntimeError(f"the exported graph does not load in ONNX Runtime, an exporter bug: {exc}") from exc
+    return path
+
+
+def _trained_world(policy: Any, world: World | Mapping[str, Any] | None, source: Path | None, env: Any) -> World:
+    """The world the model was trained in: a lookahead's own, else ``world``, the saved file's or the env's."""
+    given = None if world is None else World.coerce(world)
+    own = getattr(policy, "world", None)
+    if isinstance(own, World):
+        if given is not None and (diff := compare_worlds(own, given, against="world=")):
+            raise ValueError(f"world= differs from the world the model holds: {diff}; leave world= out")
+        return own
+    found = given or (read_world(source) if source is not None else None) or (world_of(env) if env is not None else None)
+    if found is None:
+        raise ValueError(f"{type(policy).__name__} holds no world: pass world= (the env's env.unwrapped.world) or env=, "
+                         "or export the model's saved file, which records it")
+    return found
+
+
+def _check_env(env: Any, schema: ObservationSchema, trained: World, lookahead: bool) -> None:
+    """``ValueError`` when the env's observations or world are not the model's."""
+    actual = ObservationSchema.from_space(env.observation_space)
+    if actual != schema:
+        raise ValueError(f"the model was trained on observations {schema.shapes} but the env gives {actual.shapes}")
+    env_world = world_of(env)
+    if env_world is None:
+        raise ValueError(f"env must be a sb3_crowdnav env (it publishes its world), got {type(env).__name__}")
+    mismatch = compare_worlds(trained, env_world, PREDICTION_FIELDS if lookahead else MOTION_FIELDS)
+    if mismatch:
+        raise ValueError(f"{mismatch}; export it with an env of the world it was trained in")
+
+
+def example_observation(schema: ObservationSchema, batch: int = 2) -> dict[str, th.Tensor]:
+    """A batch of plausible observations to trace with (zeros, everyone present, a robot of radius 0.3 m at 1 m/s)."""
+    obs = {key: th.zeros(batch, *shape) for key, shape in schema.shapes.items()}
+    obs["robot"][:, Robot.RADIUS] = SceneConfig.robot_radius
+    obs["robot"][:, Robot.V_PREF] = SceneConfig.robot_v_pref
+    for key in obs:
+        if key.endswith("mask"):
+            obs[key] += 1.0
+    return obs
+
+
+@contextlib.contextmanager
+def _quiet() -> Iterator[None]:
+    """Silence the exporter's progress lines and warnings (about torchvision, LSTM weights, deprecations)."""
+    logger = logging.getLogger("torch.onnx")
+    level = logger.level
+    logger.setLevel(logging.ERROR)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            yield
+    finally:
+        logger.setLevel(level)
+
+
+def to_onnx(decision: th.nn.Module, schema: ObservationSchema) -> Any:
+    """The ``onnx.ModelProto`` of a decision module (:mod:`sb3_crowdnav.deploy.graph`), inputs named by the
+    observation's keys with a dynamic batch dimension."""
+    require("onnx", "export_onnx")
+    op = require("onnxscript", "export_onnx").opset18
+
+    def hypot(x, y):
+        return op.Sqrt(op.Add(op.Mul(x, x), op.Mul(y, y)))
+
+    def stable_sort(x, stable=None, dim: int = -1, descending: bool = False):
+        count = op.Gather(op.Shape(x), op.Constant(value_ints=[dim]))
+        return op.TopK(x, count, axis=dim, largest=descending, sorted=True)  # ties in index order, as stable
+
+    example = example_observation(schema)
+    batch = th.export.Dim("batch")
+    modes = [(module, module.training) for module in decision.modules()]  # the model's own, restored after
+    decision.eval()
+    try:
+        with _quiet(), th.no_grad():
+            program = th.onnx.export(
+                decision, (), kwargs={"observation": example}, dynamo=True, opset_version=OPSET, verbose=False,
+                input_names=list(example), output_names=list(OUTPUT_NAMES),
+                dynamic_shapes={"observation": {key: {0: batch} for key in example}},
+                custom_translation_table={th.ops.aten.hypot.default: hypot, th.ops.aten.sort.stable: stable_sort},
+            )
+    finally:
+        for module, mode in modes:
+            module.training = mode
+    proto = program.model_proto
+    names = [value.name for value in proto.graph.input]
+    if names != list(example):  # the dict's order is the inputs' order; a reordering would swap tensors of a shape
+        raise RuntimeError(f"the exported graph's inputs are {names}, expected {list(example)}")
+    return proto
+
+
+__all__ = ["example_observation", "export_onnx", "to_onnx"]

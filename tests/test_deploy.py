@@ -1,0 +1,341 @@
+"""sb3_crowdnav.deploy: the lookahead in torch equals the numpy one; the graph's contract is read strictly; OnnxPolicy
+refuses what does not fit it; export round trips (slow: torch's exporter takes tens of seconds per model)."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch as th
+
+import sb3_crowdnav  # noqa: F401  (registers the envs)
+from sb3_crowdnav.apg_value.policies import ValueLookaheadPolicy
+from sb3_crowdnav.deploy.graph import LookaheadDecision, decision_module
+from sb3_crowdnav.deploy.metadata import PREFIX, GraphMetadata
+from sb3_crowdnav.deploy.propagation import atan2, wrap
+from sb3_crowdnav.sim.actions import wrap_angle
+from sb3_crowdnav.sim.observation import ObservationSchema
+from sb3_crowdnav.sim.world import World
+
+WAREHOUSE_PAPER = dict(actions="paper", max_acceleration=None, max_turn_rate=None)
+# (env id, env kwargs, policy kwargs): every branch of the propagation and the reward
+WORLDS = {
+    "open floor": ("CrowdNav-v0", {}, {}),
+    "comfort_angular, cautious": ("CrowdNav-v0", {"reward": "comfort_angular"}, {"pedestrian_model": "cautious"}),
+    "comfort, ensemble": ("CrowdNav-v0", {"reward": "comfort"}, {"ensemble_size": 2}),
+    "limits and a stop": ("CrowdNav-v0", {"actions": "with_stop", "max_acceleration": 1.0, "max_turn_rate": 2.0}, {}),
+    "holonomic, limited": ("CrowdNav-v0", {"kinematics": "holonomic", "max_acceleration": 1.5}, {}),
+    "holonomic, narrow fan": ("CrowdNav-v0", {"kinematics": "holonomic", "rotation_range": math.pi}, {}),
+    "warehouse": ("CrowdNavWarehouse-v0", {"progress_reward": 0.1}, {"pedestrian_model": "cautious"}),
+    "warehouse, limits": ("CrowdNavWarehouse-v0", {}, {}),
+}
+
+
+def _observations(env: gym.Env, count: int, seed: int = 0) -> dict[str, np.ndarray]:
+    """``count`` observations of random-action episodes, batched."""
+    rng = np.random.default_rng(seed)
+    obs, _ = env.reset(seed=seed)
+    seen = []
+    while len(seen) < count:
+        seen.append(obs)
+        obs, _, terminated, truncated, _ = env.step(int(rng.integers(env.action_space.n)))
+        if terminated or truncated:
+            obs, _ = env.reset()
+    return {k: np.stack([o[k] for o in seen]) for k in seen[0]}
+
+
+def _policy(env: gym.Env, **kwargs) -> ValueLookaheadPolicy:
+    th.manual_seed(0)
+    return ValueLookaheadPolicy(env.observation_space, env.action_space, lambda _: 1e-3, world=env.unwrapped.world,
+                                **kwargs)
+
+
+def test_wrap_and_atan2_are_the_numpy_ones():
+    angles = np.concatenate([np.linspace(-20, 20, 2001), [math.pi, -math.pi, 3 * math.pi, 0.0, -0.0]])
+    np.testing.assert_array_equal(wrap(th.as_tensor(angles)).numpy(), wrap_angle(angles))
+    rng = np.random.default_rng(0)
+    y, x = rng.normal(size=(2, 5000)) * rng.choice([1e-3, 1.0, 1e3], size=(2, 5000))
+    x[:3], y[:3] = [0.0, -1.0, -1.0], [0.0, 0.0, -0.0]
+    np.testing.assert_allclose(atan2(th.as_tensor(y), th.as_tensor(x)).numpy(), np.arctan2(y, x), rtol=0, atol=1e-15)
+
+
+@pytest.mark.parametrize("case", list(WORLDS))
+def test_the_graph_decision_is_the_policys(case):
+    """The torch propagation, reward and value ceiling give the numpy lookahead's values on real observations."""
+    env_id, env_kwargs, policy_kwargs = WORLDS[case]
+    env = gym.make(env_id, **env_kwargs)
+    policy = _policy(env, **policy_kwargs)
+    obs = _observations(env, 40)
+    expected = policy.action_values(obs)
+    with th.no_grad():
+        action, values = LookaheadDecision(policy).eval()({k: th.as_tensor(v) for k, v in obs.items()})
+    np.testing.assert_allclose(values.numpy(), expected, rtol=0, atol=1e-9)
+    np.testing.assert_array_equal(action.numpy(), expected.argmax(axis=1))
+    prop = policy.propagation(obs["robot"], obs["humans"], obs["humans_mask"],
+                              {k: obs[k] for k in ("obstacles", "obstacles_mask", "waypoints") if k in obs})
+    graph = LookaheadDecision(policy).propagation({k: th.as_tensor(v) for k, v in obs.items()})
+    np.testing.assert_array_equal(graph.terminal.numpy(), prop.terminal)  # every collision, success and wall hit
+    np.testing.assert_allclose(graph.reward.numpy(), prop.reward, rtol=0, atol=1e-12)
+
+
+def test_unsupported_models_are_refused_by_name():
+    from sb3_contrib import QRDQN
+    from stable_baselines3 import PPO
+
+    env = gym.make("CrowdNav-v0")
+    with pytest.raises(ValueError, match=r"QRDQN .*cannot be exported"):
+        decision_module(QRDQN("MultiInputPolicy", env, learning_starts=0, buffer_size=10))
+    with pytest.raises(ValueError, match="CombinedExtractor"):
+        decision_module(PPO("MultiInputPolicy", env, n_steps=8, batch_size=8))
+    with pytest.raises(ValueError, match="Linear cannot be exported"):
+        decision_module(th.nn.Linear(2, 2))
+
+
+def test_export_refuses_before_any_work(tmp_path):
+    """A model without a world, a world= that contradicts the model's, an env of another world: refused at once."""
+    from stable_baselines3 import PPO
+
+    from sb3_crowdnav.deploy import export_onnx
+    from sb3_crowdnav.models import pretrained
+    from sb3_crowdnav.nn import ApgActorCriticPolicy
+
+    env = gym.make("CrowdNav-v0")
+    with pytest.raises(ValueError, match="holds no world: pass world="):
+        export_onnx(PPO(ApgActorCriticPolicy, env, n_steps=8, batch_size=8), tmp_path / "ppo.onnx")
+    with pytest.raises(ValueError, match=r"world= differs .*time_step=0.25 \(world= has 0.5\)"):
+        export_onnx(_policy(env), tmp_path / "apg.onnx", world=World(time_step=0.5))
+    with pytest.raises(ValueError, match=r"actions='paper' \(the env has 'with_stop'\)"):
+        export_onnx(pretrained("apg_warehouse"), tmp_path / "wh.onnx", env=gym.make("CrowdNavWarehouse-v0"))
+    with pytest.raises(ValueError, match="trained on observations"):
+        export_onnx(_policy(env), tmp_path / "apg.onnx", env=gym.make("CrowdNav-v0", max_humans=7))
+    assert not list(tmp_path.iterdir())
+
+
+# ---------------------------------------------------------------- the contract
+def _metadata(**kwargs) -> GraphMetadata:
+    args = dict(kind="q_values", world=World(), schema=ObservationSchema(5, 10), robot_radius=0.3, robot_v_pref=1.0,
+                policy="ApgDQNPolicy", extractor="ApgExtractor")
+    return GraphMetadata(**{**args, **kwargs})
+
+
+@pytest.mark.parametrize("meta", [
+    _metadata(),
+    _metadata(kind="lookahead", gamma=0.9, pedestrian_model="cautious", ensemble_size=2,
+              world=World(actions="with_stop", max_acceleration=1.0, max_turn_rate=2.0)),
+    _metadata(schema=ObservationSchema(5, 10, 16, 3), world=World(obstacle_collision_penalty=-0.25, waypoint_radius=0.6)),
+])
+def test_metadata_round_trips_as_plain_json(meta):
+    props = meta.props()
+    assert all(key.startswith(PREFIX) and isinstance(json.loads(text), object) for key, text in props.items())
+    assert GraphMetadata.from_props(props) == meta
+    actions = json.loads(props[PREFIX + "actions"])
+    assert len(actions["speed_fractions"]) == meta.world.n_actions == actions["n_actions"]
+
+
+def _edited(entry: str, edit) -> dict[str, str]:
+    props = _metadata().props()
+    value = json.loads(props[PREFIX + entry])
+    props[PREFIX + entry] = edit(value) if callable(edit) else edit
+    return props
+
+
+@pytest.mark.parametrize("props, fragment", [
+    ({k: v for k, v in _metadata().props().items() if not k.endswith("world")}, "lacks"),
+    (_edited("world", "{'time_step': 0.25}"), "not plain JSON"),
+    (_edited("robot", '{"radius": NaN}'), "not plain JSON"),
+    (_edited("format", "2"), "update sb3_crowdnav"),
+    (_edited("world", lambda w: json.dumps({**w, "time_step": 0.5})), "robot does not match the world"),
+    (_edited("world", lambda w: json.dumps({**w, "warp_drive": True})), "warp_drive"),
+    (_edited("actions", lambda a: json.dumps({**a, "directions": a["directions"][::-1]})), "action table"),
+    (_edited("observation", lambda o: json.dumps({**o, "max_humans": 7})), "does not match its own schema"),
+    (_edited("decision", lambda d: json.dumps({**d, "kind": "magic"})), "kind"),
+    (_edited("robot", lambda r: json.dumps({**r, "radius": -1})), "robot_radius"),
+])
+def test_a_damaged_contract_is_refused_naming_the_entry(props, fragment):
+    with pytest.raises(ValueError, match=fragment):
+        GraphMetadata.from_props(props)
+
+
+# ---------------------------------------------------------------- OnnxPolicy on a graph built by hand (fast)
+def _toy_graph(path, meta: GraphMetadata | None = None, inputs: dict | None = None):
+    """A graph of the deploy layout: action_values = robot @ W, action = argmax."""
+    onnx = pytest.importorskip("onnx")
+    pytest.importorskip("onnxruntime")
+    from onnx import TensorProto, helper, numpy_helper
+
+    meta = meta or _metadata()
+    n = meta.world.n_actions
+    weights = np.random.default_rng(0).normal(size=(9, n)).astype(np.float32)
+    shapes = inputs or meta.schema.shapes
+    graph = helper.make_graph(
+        [helper.make_node("MatMul", ["robot", "w"], ["action_values"]),
+         helper.make_node("ArgMax", ["action_values"], ["action"], axis=1, keepdims=0)],
+        "toy", [helper.make_tensor_value_info(k, TensorProto.FLOAT, ["batch", s[0]]) for k, s in shapes.items()],
+        [helper.make_tensor_value_info("action", TensorProto.INT64, ["batch"]),
+         helper.make_tensor_value_info("action_values", TensorProto.FLOAT, ["batch", n])],
+        initializer=[numpy_helper.from_array(weights, "w")])
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 18)])
+    helper.set_model_props(model, meta.props())
+    onnx.save_model(model, str(path))
+    return weights
+
+
+def test_onnx_policy_predicts_like_sb3(tmp_path):
+    from sb3_crowdnav.deploy import OnnxPolicy
+
+    weights = _toy_graph(tmp_path / "toy.onnx")
+    env = gym.make("CrowdNav-v0")
+    policy = OnnxPolicy(tmp_path / "toy.onnx", env)
+    batch = _observations(env, 5)
+    actions, state = policy.predict(batch, state="kept")
+    np.testing.assert_array_equal(actions, (batch["robot"] @ weights).argmax(axis=1))
+    assert state == "kept"
+    one, _ = policy.predict({k: v[0] for k, v in batch.items()})
+    assert one.shape == () and one == actions[0]
+    with pytest.raises(ValueError, match=r"missing \['humans_mask'\], unknown \['extra'\]"):
+        policy.predict({"robot": batch["robot"], "humans": batch["humans"], "extra": 1})
+    with pytest.raises(ValueError, match="observation shapes"):
+        policy.predict({**batch, "humans": batch["humans"][:, :10]})
+    with pytest.raises(ValueError, match=r"\(obs, info\)"):
+        policy.predict(env.reset())
+    with pytest.raises(ValueError, match="greedy"):
+        policy.predict(batch, deterministic=False)
+
+
+def test_onnx_policy_refuses_another_world_naming_the_fields(tmp_path):
+    from sb3_crowdnav.deploy import OnnxPolicy
+
+    _toy_graph(tmp_path / "toy.onnx")
+    with pytest.raises(ValueError, match=r"time_step=0.25 \(the env has 0.5\).*make the env with time_step=0.25"):
+        OnnxPolicy(tmp_path / "toy.onnx", gym.make("CrowdNav-v0", time_step=0.5))
+    OnnxPolicy(tmp_path / "toy.onnx", gym.make("CrowdNav-v0", time_step=0.5), allow_env_mismatch=True)
+    with pytest.raises(ValueError, match=r"actions='paper' .*'with_stop'"):
+        OnnxPolicy(tmp_path / "toy.onnx", gym.make("CrowdNav-v0", actions="with_stop"))
+    with pytest.raises(ValueError, match="was trained on observations"):  # shapes are checked even then
+        OnnxPolicy(tmp_path / "toy.onnx", gym.make("CrowdNav-v0", max_humans=7), allow_env_mismatch=True)
+
+
+def test_onnx_policy_refuses_a_graph_that_is_not_its_contract(tmp_path):
+    from sb3_crowdnav.deploy import OnnxPolicy
+
+    _toy_graph(tmp_path / "inputs.onnx", inputs={"robot": (9,), "humans": (250,)})
+    with pytest.raises(ValueError, match="are not those of its metadata"):
+        OnnxPolicy(tmp_path / "inputs.onnx")
+    (tmp_path / "junk.onnx").write_bytes(b"not a graph")
+    with pytest.raises(ValueError, match="not an ONNX graph"):
+        OnnxPolicy(tmp_path / "junk.onnx")
+    with pytest.raises(FileNotFoundError):
+        OnnxPolicy(tmp_path / "missing.onnx")
+
+
+def test_a_missing_runtime_says_how_to_install_it(tmp_path, monkeypatch):
+    from sb3_crowdnav.deploy import OnnxPolicy
+
+    _toy_graph(tmp_path / "toy.onnx")
+    monkeypatch.setitem(__import__("sys").modules, "onnxruntime", None)  # as if not installed
+    with pytest.raises(ImportError, match=r'pip install "sb3-crowdnav\[deploy\]"'):
+        OnnxPolicy(tmp_path / "toy.onnx")
+
+
+def test_the_runner_and_the_cli_run_a_graph(tmp_path, capsys):
+    from sb3_crowdnav.cli import main
+    from sb3_crowdnav.deploy import OnnxPolicy
+    from sb3_crowdnav.evaluation.runner import make_policy, run_episodes
+
+    path = tmp_path / "toy.onnx"
+    _toy_graph(path)
+    assert isinstance(make_policy(str(path), gym.make("CrowdNav-v0")), OnnxPolicy)
+    records = run_episodes(str(path), 2)
+    assert [r.seed for r in records] == [1_000_000, 1_000_001]
+    assert main(["evaluate", "--policy", str(path), "--episodes", "2", "--no-progress"]) == 0
+    assert "toy" in capsys.readouterr().out
+    with pytest.raises(SystemExit) as caught:
+        main(["evaluate", "--policy", str(path), "--episodes", "1", "--env-kwargs", "dict(time_step=0.5)"])
+    err = capsys.readouterr().err
+    assert caught.value.code == 2 and len(err.strip().splitlines()) == 1 and "time_step=0.25 (the env has 0.5)" in err
+
+
+@pytest.mark.parametrize("args, fragment", [
+    (["--policy", "orca", "--out", "x.onnx"], "is not a trained model"),
+    (["--policy", "pretrained:nope", "--out", "x.onnx"], "unknown pretrained model"),
+    (["--policy", "pretrained:apg_rl", "--out", "x.zip"], "--out must end in .onnx"),
+    (["--policy", "model.onnx", "--out", "x.onnx"], "an exported graph already"),
+    (["--policy", "missing.zip", "--out", "x.onnx"], "no saved model"),
+    (["--policy", "pretrained:apg_rl", "--out", "x.onnx", "--env-kwargs", "dict(a=1)"], "--env-kwargs needs --env"),
+    (["--policy", "pretrained:apg_rl", "--out", "x.onnx", "--env", "CartPole-v1"], "not a crowd-navigation env"),
+])
+def test_export_refuses_bad_input_in_one_line(tmp_path, capsys, monkeypatch, args, fragment):
+    from sb3_crowdnav.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as caught:
+        main(["export", *args])
+    err = capsys.readouterr().err
+    assert caught.value.code == 2 and len(err.strip().splitlines()) == 1 and fragment in err, err
+
+
+# ---------------------------------------------------------------- round trips through torch's exporter (slow)
+@pytest.fixture(scope="module")
+def graphs(tmp_path_factory):
+    """The shipped open-floor and warehouse (an ensemble) models exported once for the tests below."""
+    pytest.importorskip("onnxruntime")
+    from sb3_crowdnav.deploy import export_onnx
+    from sb3_crowdnav.models import check_pretrained
+
+    folder = tmp_path_factory.mktemp("graphs")
+    warehouse = gym.make("CrowdNavWarehouse-v0", **WAREHOUSE_PAPER)
+    return {"apg_rl": export_onnx(check_pretrained("apg_rl"), folder / "apg_rl.onnx", env=gym.make("CrowdNav-v0")),
+            "apg_warehouse": export_onnx(check_pretrained("apg_warehouse"), folder / "apg_warehouse.onnx",
+                                         env=warehouse)}
+
+
+def _assert_same_but_ties(actions: np.ndarray, values: np.ndarray) -> None:
+    """The graph's actions are the argmax of the PyTorch values but where another action's value is within 1e-6."""
+    rows = np.arange(len(actions))
+    assert np.all(values.max(axis=1) - values[rows, actions] <= 1e-6)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name, env_id, env_kwargs", [("apg_rl", "CrowdNav-v0", {}),
+                                                     ("apg_warehouse", "CrowdNavWarehouse-v0", WAREHOUSE_PAPER)])
+def test_round_trip_of_a_shipped_model(graphs, name, env_id, env_kwargs):
+    from sb3_crowdnav.deploy import OnnxPolicy
+    from sb3_crowdnav.models import pretrained
+
+    env = gym.make(env_id, **env_kwargs)
+    model, graph = pretrained(name), OnnxPolicy(graphs[name], env)
+    assert graph.metadata.ensemble_size == model.policy.ensemble_size
+    obs = _observations(env, 300, seed=1)
+    expected = model.policy.action_values(obs)
+    actions, values, _ = graph.run(obs)
+    np.testing.assert_allclose(values, expected, rtol=0, atol=1e-4)
+    _assert_same_but_ties(actions, expected)
+
+
+@pytest.mark.slow
+def test_round_trip_with_limits_a_stop_and_every_reward_term(tmp_path):
+    """An untrained APG policy of a robot with limits and a stop, the cautious model and the comfort_angular reward
+    (its sharp-turn threshold sits exactly on the table's ±π/2 turns: a float32 constant in the graph would flip it)."""
+    from sb3_crowdnav.deploy import OnnxPolicy, export_onnx
+
+    env = gym.make("CrowdNav-v0", reward="comfort_angular", actions="with_stop", max_acceleration=1.0,
+                   max_turn_rate=8.0)
+    policy = _policy(env, pedestrian_model="cautious")
+    graph = OnnxPolicy(export_onnx(policy, tmp_path / "limits.onnx", env=env), env)
+    obs = _observations(env, 200)
+    expected = policy.action_values(obs)
+    actions, values, _ = graph.run(obs)
+    np.testing.assert_allclose(values, expected, rtol=0, atol=1e-5)
+    _assert_same_but_ties(actions, expected)
+
+
+@pytest.mark.slow
+def test_evaluate_gives_the_records_of_the_original(graphs):
+    from sb3_crowdnav.evaluation.runner import run_episodes
+
+    original = run_episodes("pretrained:apg_rl", 3)
+    exported = run_episodes(str(graphs["apg_rl"]), 3)
+    assert [r.to_dict() for r in exported] == [r.to_dict() for r in original]
