@@ -64,8 +64,8 @@ def exporting() -> bool:
     """Whether a graph is being traced for export (``torch.export``, ``torch.onnx.export``).
 
     The graph then reads the compacted width from the data at run time (:func:`compact_width`), the LSTM runs over
-    every slot (:func:`lstm_last_state`) and :func:`linear` runs ``nn.Linear`` (oneDNN's private kernel has no ONNX
-    form).
+    every slot (:func:`lstm_last_state`) and :func:`linear` runs ``nn.Linear`` on rows (oneDNN's private kernel has
+    no ONNX form).
     """
     return th.compiler.is_exporting()
 
@@ -155,6 +155,9 @@ def linear(x: th.Tensor, layer: nn.Linear, relu: bool = False) -> th.Tensor:
     rounds the output to bfloat16). With gradients, :class:`_OneDnnLinear` gives the fused
     forward a oneDNN backward pass (:func:`set_onednn_training` switches it off).
     """
+    if exporting():  # as rows: ONNX Runtime fuses a 2-D product, its bias and the ReLU into one Gemm
+        out = layer(x.reshape(-1, x.shape[-1])).reshape(*x.shape[:-1], layer.out_features)
+        return th.relu(out) if relu else out
     if _use_onednn(x):
         weight, bias = layer.weight, layer.bias
         if x.dtype == th.bfloat16:
