@@ -7,7 +7,8 @@ crowds than the one they were trained in.
 
 Rows: ``pretrained:NAME`` for each shipped open-floor model and the ORCA robot (``orca-constrained``: ORCA's velocity
 mapped onto the robot's 80 actions), or the ``--policy`` given. Columns (``--columns``, default all five), each one
-``sb3-crowdnav benchmark --crowd SPEC`` run in ``CrowdNav-v0`` on the same test seeds (1,000,000 + i):
+``sb3-crowdnav benchmark --crowd SPEC`` run in ``CrowdNav-v0`` on the same test seeds (1,000,000 + i; ``--seeds
+validation``: 2,000,000 + i, to choose a model or a recipe without the held-out scenes):
 
 * ``orca6``: ORCA, 6 people (``CrowdNav-v0`` as it is, the crowd every model was trained in);
 * ``orca10``: ORCA, 10 people;
@@ -40,9 +41,11 @@ from typing import Any
 from sb3_crowdnav.cli import main as cli
 from sb3_crowdnav.cli.common import Parser, UsageError, check_env, check_out, positive_int
 from sb3_crowdnav.evaluation.crowd_spec import CrowdSpec
+from sb3_crowdnav.evaluation.runner import TEST_SEED_OFFSET
 from sb3_crowdnav.evaluation.tables import CrowdTable
 from sb3_crowdnav.sim.crowd import CROWD_MODELS
 from sb3_crowdnav.sim.population import MEASURED_POPULATION
+from sb3_crowdnav.training import VALIDATION_SEED_OFFSET
 
 ENV = "CrowdNav-v0"
 MODELS = ("apg_rl", "lm_rl", "sf_rl", "cadrl", "ppo_apg", "dqn_apg", "apg_crl", "apg_carl")
@@ -50,6 +53,7 @@ POLICIES = (*(f"pretrained:{name}" for name in MODELS), "orca-constrained")
 HEADLINE = ("APG_RL", "ORCA-constrained")  # the README's rows (table labels)
 FIRST = ("pretrained:apg_rl", "orca-constrained")  # their policies, run first
 HELD_OUT = ("eth", "hotel")  # scenes never used for training or model selection
+SEEDS = {"test": TEST_SEED_OFFSET, "validation": VALIDATION_SEED_OFFSET}  # --seeds -> first episode seed
 # key -> (title, crowd spec, env keyword arguments beside the crowd)
 COLUMNS: dict[str, tuple[str, str, dict[str, Any]]] = {
     "orca6": ("ORCA, 6 people", "orca", {}),
@@ -104,22 +108,24 @@ def cell(out: Path, key: str, policy: str) -> Path:
     return out / "cells" / key / "".join(c if c.isalnum() or c in "-_." else "_" for c in policy)
 
 
-def done(folder: Path, episodes: int) -> bool:
-    """Whether the cell in ``folder`` is finished with ``episodes`` episodes (``--resume`` keeps it); a finished cell
-    with another number of episodes is refused, not mixed into the table."""
+def done(folder: Path, episodes: int, seed_offset: int = TEST_SEED_OFFSET) -> bool:
+    """Whether the cell in ``folder`` is finished with ``episodes`` episodes from ``seed_offset`` (``--resume`` keeps
+    it); a finished cell with other episodes or seeds is refused, not mixed into the table."""
     if not (folder / "crowds.csv").is_file():
         return False
-    had = json.loads((folder / "meta.json").read_text()).get("episodes")
-    if had != episodes:
-        raise SystemExit(f"{folder} holds {had} episodes, not --episodes {episodes}: give another --out")
+    meta = json.loads((folder / "meta.json").read_text())
+    had, seeds = meta.get("episodes"), meta.get("seeds", [None])
+    if had != episodes or seeds[0] != seed_offset:
+        raise SystemExit(f"{folder} holds {had} episodes from seed {seeds[0]}, not --episodes {episodes} from seed "
+                         f"{seed_offset}: give another --out")
     return True
 
 
 def benchmark(out: Path, spec: CrowdSpec, env_kwargs: dict[str, Any], policy: str, episodes: int,
-              workers: int) -> None:
+              workers: int, seed_offset: int = TEST_SEED_OFFSET) -> None:
     """One ``sb3-crowdnav benchmark --crowd`` run: one policy in one column."""
     args = ["benchmark", "--env", ENV, "--crowd", str(spec), "--episodes", str(episodes), "--workers", str(workers),
-            "--out", str(out), "--no-progress", "--policy", policy]
+            "--out", str(out), "--no-progress", "--seed-offset", str(seed_offset), "--policy", policy]
     if env_kwargs:
         args += ["--env-kwargs", repr(env_kwargs)]
     code = cli(args)
@@ -176,12 +182,21 @@ def main(argv: list[str] | None = None) -> None:
                    help=f"the built-in columns, of {', '.join(COLUMNS)} (default: all)")
     p.add_argument("--scene", action="append", default=[], metavar="NAME=PATH[,frame_rate=F]",
                    help="a column of a recorded scene (repeat); eth and hotel are flagged held out")
+    p.add_argument("--seeds", choices=tuple(SEEDS), default="test",
+                   help="the test seeds (1,000,000 + i, the docs' tables) or the validation seeds (2,000,000 + i, for "
+                        "choosing a model or a recipe; refuses the held-out scenes and --markdown-into)")
     p.add_argument("--resume", action="store_true",
                    help="keep the finished cells (one policy in one column) of an earlier run into --out")
     p.add_argument("--markdown-into", type=Path, metavar="FILE",
                    help=f"replace the block between {BEGIN} and {END} in FILE with the table")
     args = p.parse_args(argv)
     try:  # every column, the output and the docs' block, before any episode
+        if args.seeds == "validation":
+            if held := [key for key in (parse_scene(text)[0] for text in args.scene) if key in HELD_OUT]:
+                raise UsageError(f"--seeds validation: the held-out scenes ({', '.join(held)}) are never used to "
+                                 "choose; leave them out")
+            if args.markdown_into is not None:
+                raise UsageError("--seeds validation: the docs' table is of the test seeds; leave out --markdown-into")
         planned = plan(list(dict.fromkeys(args.columns)), args.scene)
         check_out(args.out)
         if args.markdown_into is not None:
@@ -196,10 +211,10 @@ def main(argv: list[str] | None = None) -> None:
     for policy in sorted(policies, key=lambda spec: spec not in FIRST):
         for key, (_, spec, kwargs) in planned.items():
             folder = cell(args.out, key, policy)
-            if args.resume and done(folder, args.episodes):
+            if args.resume and done(folder, args.episodes, SEEDS[args.seeds]):
                 print(f"kept {folder}")
                 continue
-            benchmark(folder, spec, kwargs, policy, args.episodes, args.workers)
+            benchmark(folder, spec, kwargs, policy, args.episodes, args.workers, SEEDS[args.seeds])
     table = combine(args.out, planned, policies)
     titles = {key: title for key, (title, _, _) in planned.items()}
     table.save(args.out / "generalisation", titles)

@@ -264,3 +264,19 @@ def test_the_script_writes_the_table_the_cells_and_the_docs_block(tmp_path, caps
     assert _csv(out / "generalisation.csv") == rows
     with pytest.raises(SystemExit, match="holds 2 episodes"):
         _script().main([*again[2:], "--episodes", "3", "--resume"])
+    with pytest.raises(SystemExit, match="from seed 1000000, not --episodes 2 from seed 2000000"):
+        _script().main([*again, "--resume", "--seeds", "validation"])
+
+
+def test_validation_seeds_choose_without_the_held_out_scenes_or_the_docs(tmp_path, capsys):
+    script = _script()
+    (tmp_path / "doc.md").write_text("<!-- generalisation:begin -->\n<!-- generalisation:end -->\n")
+    _refused(capsys, ["--seeds", "validation", "--columns", "orca6", "--scene", "eth=x.txt,frame_rate=15",
+                      "--out", str(tmp_path / "o")], "held-out scenes (eth)", script.main)
+    _refused(capsys, ["--seeds", "validation", "--columns", "orca6", "--out", str(tmp_path / "o"), "--markdown-into",
+                      str(tmp_path / "doc.md")], "leave out --markdown-into", script.main)
+    out = tmp_path / "v"
+    script.main(["--seeds", "validation", "--episodes", "2", "--workers", "1", "--policy", "random:0", "--columns",
+                 "orca6", "--out", str(out)])
+    meta = json.loads((out / "cells" / "orca6" / "random_0" / "meta.json").read_text())
+    assert meta["seeds"] == [2_000_000, 2_000_001]
