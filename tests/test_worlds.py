@@ -112,6 +112,11 @@ def test_apg_robust_brings_its_worlds_and_people_and_a_run_overrides_them():
     robust = ScheduleConfig(variant="apg_robust")
     assert robust.num_humans == (0, 10) and ScheduleConfig(variant="apg_rl").num_humans == 6
     assert robust.training_env_kwargs["worlds"] == "robust" and robust.train_freq == 8
+    # the schedule that fits an hour on 2 cores; the paper's variants keep theirs, and a run's own value wins
+    assert (robust.rl_episodes, robust.exploration_episodes, robust.imitation_epochs) == (3_000, 1_500, 5)
+    paper = ScheduleConfig(variant="apg_rl")
+    assert (paper.rl_episodes, paper.exploration_episodes, paper.imitation_epochs) == (10_000, 5_000, 10)
+    assert ScheduleConfig(variant="apg_robust", imitation_epochs=7, rl_episodes=4).imitation_epochs == 7
     assert ScheduleConfig(variant="apg_robust", num_humans=(2, 8)).training_env_kwargs["num_humans"] == (2, 8)
 
 

@@ -56,14 +56,14 @@ def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
                    help="ORCA-robot episodes imitated first (default: 3000 with --variant; 0 with --hyperparams, "
                         "where it is for ppo, a2c, dqn and dqfd)")
     p.add_argument("--imitation-epochs", "--il-epochs", dest="imitation_epochs", type=common.nonneg_int,
-                   help="passes over the demonstrations (default: 10)")
+                   help="passes over the demonstrations (default: the variant's: 10, apg_robust 5; 10 with --hyperparams)")
     p.add_argument("--imitation-learning-rate", "--il-learning-rate", dest="imitation_learning_rate",
                    type=common.positive_float,
                    help="learning rate of the imitation (default: 0.01 with --variant, Table 1; 0.001 with --hyperparams)")
 
     g = p.add_argument_group("the paper's schedule (--variant)")
     g.add_argument("--rl-episodes", type=common.positive_int,
-                   help="RL episodes in total (default: the variant's: 10000, apg_warehouse 6000)")
+                   help="RL episodes in total (default: the variant's: 10000, apg_warehouse 6000, apg_robust 3000)")
     g.add_argument("--n-envs", type=common.positive_int, help="training envs, one batched lookahead (default: 1)")
     g.add_argument("--learning-rate", type=common.positive_float, help="RL learning rate (default: 0.001, Table 1)")
     g.add_argument("--train-freq", type=common.positive_int,

@@ -96,7 +96,8 @@ class Variant:
 
 
 # §3: ε from 0.5 to 0.1 over 5,000 episodes; one gradient step every 4 env steps unless a variant's test row says 8
-PAPER_SCHEDULE = {"rl_episodes": 10_000, "exploration_episodes": 5_000, "train_freq": 4, "num_humans": 6}
+PAPER_SCHEDULE = {"rl_episodes": 10_000, "exploration_episodes": 5_000, "train_freq": 4, "num_humans": 6,
+                  "imitation_epochs": 10}
 
 
 VARIANTS = {
@@ -121,9 +122,11 @@ VARIANTS = {
                                    env_kwargs={"progress_reward": 0.1, **PAPER_WAREHOUSE},
                                    schedule={"rl_episodes": 6_000, "exploration_episodes": 3_000}),
     # the paper's method trained for people it never met: every episode one of several crowds, 0 to 10 people
-    # (sb3_crowdnav.envs.worlds.ROBUST_WORLDS; docs/decisions.md, "Robust training")
+    # (sb3_crowdnav.envs.worlds.ROBUST_WORLDS; docs/decisions.md, "Robust training"); a shorter schedule, so that the
+    # whole command fits an hour on 2 cores of an AVX2 machine (its lookahead ~3x the AVX-512 machines')
     "apg_robust": Variant("ApgPolicy", env_id="CrowdNavWorlds-v0", env_kwargs={"worlds": "robust"},
-                          schedule={"train_freq": 8, "num_humans": (0, 10)}),
+                          schedule={"train_freq": 8, "num_humans": (0, 10), "rl_episodes": 3_000,
+                                    "exploration_episodes": 1_500, "imitation_epochs": 5}),
 }
 OPTIMIZERS = {"adam": (th.optim.Adam, {}), "sgd": (th.optim.SGD, {"momentum": 0.9})}
 LOOKAHEAD_DTYPES = ValueLookaheadPolicy.LOOKAHEAD_DTYPES
@@ -136,9 +139,10 @@ class ScheduleConfig:
     """The paper's schedule (Table 1 and §3) and the knobs of a run; every value is checked at construction.
 
     :param variant: a key of :data:`VARIANTS`
-    :param rl_episodes: RL episodes in total (None: the variant's; the paper: 10,000; ``apg_warehouse``: 6,000)
+    :param rl_episodes: RL episodes in total (None: the variant's; the paper: 10,000; ``apg_warehouse``: 6,000;
+        ``apg_robust``: 3,000)
     :param imitation_episodes: ORCA-robot episodes collected before RL (3,000)
-    :param imitation_epochs: passes of the imitation regression
+    :param imitation_epochs: passes of the imitation regression (None: the variant's; 10, ``apg_robust``: 5)
     :param imitation_learning_rate: its learning rate (Table 1: 0.01)
     :param n_envs: training envs (one batched lookahead)
     :param num_humans: pedestrians of the training and validation episodes, or a (min, max) range drawn per episode
@@ -156,7 +160,8 @@ class ScheduleConfig:
         (use it for the comfort variants)
     :param bootstrap_timeouts: see :class:`~sb3_crowdnav.apg_value.APGValue`
     :param exploration_episodes: RL episodes over which ε decays from ``exploration_initial_eps`` to
-        ``exploration_final_eps`` (None: the variant's; the paper: 5,000; ``apg_warehouse``: 3,000)
+        ``exploration_final_eps`` (None: the variant's; the paper: 5,000; ``apg_warehouse``: 3,000; ``apg_robust``:
+        1,500)
     :param exploration_initial_eps: ε at the first RL episode (the paper: 0.5; lower it to fine-tune a trained
         model given as ``from_imitation``)
     :param exploration_final_eps: ε after ``exploration_episodes`` (the paper: 0.1)
@@ -176,7 +181,7 @@ class ScheduleConfig:
     variant: str = "apg_rl"
     rl_episodes: int | None = None
     imitation_episodes: int = 3_000
-    imitation_epochs: int = 10
+    imitation_epochs: int | None = None
     imitation_learning_rate: float = 0.01
     num_humans: int | tuple[int, int] | None = None
     env_kwargs: dict[str, Any] = field(default_factory=dict)
