@@ -162,6 +162,7 @@ class ObservationBuilder:
             raise TimeOrderError(f"people: t={t!r} s is not after the previous frame's {self._people_time!r} s")
         rows: dict[int | str, tuple[float, ...]] = {}
         kinds = set()
+        names = ("x", "y", "vx", "vy")
         for k, detection in enumerate(detections):
             if isinstance(detection, np.ndarray):
                 detection = tuple(detection.tolist())
@@ -172,7 +173,6 @@ class ObservationBuilder:
                 raise UnknownId(f"people: id {pid!r} is not one of the declared ids {sorted(map(str, self.settings.ids))}")
             if pid in rows:
                 raise BuilderError(f"people: id {pid!r} appears twice in the frame at t={t!r} s")
-            names = ("x", "y", "vx", "vy")
             rows[pid] = tuple(_finite(f"people: {names[j]} of id {pid!r}", v) for j, v in enumerate(detection[1:]))
             kinds.add(len(detection) == 5)
         if len(kinds) > 1 or (kinds and self._velocities is not None and kinds != {self._velocities}):
@@ -345,8 +345,12 @@ class ObservationBuilder:
         self._decision = t
         self._forget(t)
         robot = np.zeros(ROBOT_DIM)
-        robot[Robot.POS], robot[Robot.VEL], robot[Robot.GOAL] = (x, y), (vx, vy), self._goal
-        robot[Robot.RADIUS], robot[Robot.V_PREF], robot[Robot.HEADING] = s.robot_radius, s.robot_v_pref, heading
+        robot[Robot.POS] = x, y
+        robot[Robot.VEL] = vx, vy
+        robot[Robot.RADIUS] = s.robot_radius
+        robot[Robot.GOAL] = self._goal
+        robot[Robot.V_PREF] = s.robot_v_pref
+        robot[Robot.HEADING] = heading
         return self.schema.observation(robot, history, mask, **static)
 
     def _forget(self, t: float) -> None:
