@@ -260,6 +260,20 @@ def test_with_more_people_than_slots_the_nearest_to_the_robot_a_step_before_take
     assert builder.slots == {"here": 0, "far": 1}  # from (5, 0) now: "here" enters nearest first
 
 
+def test_the_robot_row_is_the_odometry_at_t_the_goal_and_the_contract():
+    builder = _builder(robot_radius=0.4, robot_v_pref=1.2)
+    builder.people(0.0, [], frame="odom")
+    builder.odometry(0.0, 1.0, 2.0, 3.0, 0.5, 0.0, frame="odom")
+    builder.odometry(0.2, 1.1, 2.0, 3 * math.pi / 2, 0.5, 0.2, frame="odom")  # -π/2 once wrapped
+    robot = builder.observation(0.1)["robot"]  # between the samples: the heading along the shorter arc, past ±π
+    expected = [1.05, 2.0, 0.5, 0.1, 0.4, 5.0, 0.0, 1.2, 3.0 + (3 * math.pi / 2 - 3.0) / 2 - 2 * math.pi]
+    np.testing.assert_allclose(robot, np.float32(expected), rtol=0, atol=FLOAT32)
+    builder.people(0.25, [], frame="odom")
+    robot = builder.observation(0.25)["robot"]  # 0.05 s past the newest sample: along its velocity
+    np.testing.assert_allclose(robot[:4], np.float32([1.125, 2.01, 0.5, 0.2]), rtol=0, atol=FLOAT32)
+    assert robot[Robot.HEADING] == np.float32(-math.pi / 2)
+
+
 # ---------------------------------------------------------------------- the world it serves
 @pytest.mark.parametrize(("env_id", "kwargs"), [("CrowdNav-v0", {"max_humans": 7, "history_length": 3}),
                                                 ("CrowdNavWarehouse-v0", {"waypoint_radius": 0.8})])
