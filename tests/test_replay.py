@@ -203,6 +203,10 @@ BAD_SETTINGS = [  # (crowd_kwargs beyond the path, exception, the name the messa
     ({"time_window": (1e4, 2e4)}, ValueError, "time_window"),
     ({"time_window": 10.0}, TypeError, "time_window"),
     ({"speed": 2.0}, ValueError, "crowd_kwargs"),
+    ({"lead_in": -0.5}, ValueError, "lead_in"),
+    ({"lead_in": 11.0}, ValueError, "lead_in"),
+    ({"lead_in": math.inf}, ValueError, "lead_in"),
+    ({"lead_in": "1"}, TypeError, "lead_in"),
 ]
 
 
@@ -319,6 +323,40 @@ def test_people_come_and_go_in_free_slots_with_a_padded_history(tmp_path):
     np.testing.assert_allclose(arrived, np.repeat(arrived[-1:], 3, axis=0))
     np.testing.assert_allclose(arrived[-1], [-2.0, 2.0, 1.0, 0.0, 0.3])  # where it is, walking already
     np.testing.assert_allclose(humans[16][-1, 1], [2.0 - 2.0 + 1.0, -1.0, 1.0, 0.0, 0.3])  # B at 4 s, 3 s in
+
+
+def test_a_lead_in_brings_people_in_earlier_walking_back_along_their_first_segment(tmp_path):
+    """B's first sample is at 1 s: with lead_in=0.5 it is present from 0.5 s, at its first segment's line and velocity,
+    and from 1 s on it is where it is without a lead-in; A (from 0 s, the recording's start) cannot come earlier."""
+    rows = ["t,id,x,y"]
+    for person, (t0, t1, y) in {"A": (0.0, 2.0, 1.0), "B": (1.0, 5.0, -1.0)}.items():
+        for t in np.arange(t0, t1 + 1e-9, 0.5):
+            rows.append(f"{t},{person},{t - t0 - 2.0},{y}")  # walking at 1 m/s along x
+    path = tmp_path / "two.csv"
+    path.write_text("\n".join(rows) + "\n")
+
+    def run(lead_in):
+        env = CrowdNavEnv(crowd="replay", history_length=3, crowd_kwargs={
+            "path": str(path), "robot_start": (0.0, -6.0), "robot_goal": (0.0, -2.0), "start_time": 0.0,
+            "lead_in": lead_in})
+        obs, _ = env.reset(seed=0)
+        out = [(obs["humans_mask"][:2].tolist(), env.sim.history[-1, :2].copy())]
+        for _ in range(12):
+            obs, *_ = env.step(8)
+            out.append((obs["humans_mask"][:2].tolist(), env.sim.history[-1, :2].copy()))
+        return out
+
+    plain, early = run(0.0), run(0.5)
+    assert [m for m, _ in plain[:5]] == [[1, 0]] * 4 + [[1, 1]]  # B from 1 s (step 4)
+    assert [m for m, _ in early[:5]] == [[1, 0]] * 2 + [[1, 1]] * 3  # B from 0.5 s (step 2)
+    np.testing.assert_allclose(early[2][1][1], [-2.5, -1.0, 1.0, 0.0, 0.3])  # half a metre back, walking
+    for k in range(4, 13):  # from its first sample on, the same people at the same places
+        assert early[k][0] == plain[k][0]
+        np.testing.assert_allclose(early[k][1], plain[k][1], atol=1e-12)
+    settings = early_env = CrowdNavEnv(crowd="replay", crowd_kwargs={
+        "path": str(path), "robot_start": (0.0, -6.0), "robot_goal": (0.0, -2.0), "lead_in": 3.0}).scene.crowd_kwargs
+    assert settings.recording.max_present(settings.window, settings.lead_in) == 2
+    assert early_env.extent == max(settings.recording.extent + 3.0 * settings.recording.max_speed, 6.0)
 
 
 def test_positions_are_interpolated_and_velocities_are_backward_differences(tmp_path):

@@ -243,7 +243,7 @@ class SceneConfig:
             if value != default:
                 raise ValueError(f"{name} must stay {default!r} with crowd='replay' ({why}), got {value!r}")
         settings = self.crowd_kwargs
-        most = settings.recording.max_present(settings.window)
+        most = settings.recording.max_present(settings.window, settings.lead_in)
         if most > self.max_humans and settings.tracked == "all":
             raise ValueError(f"max_humans: the recording {settings.path} has up to {most} people present at once, "
                              f"more than max_humans = {self.max_humans}; raise max_humans, choose a time_window, or "

@@ -53,6 +53,7 @@ class LinearCrowdSettings:
 
 
 MAX_CROSSING = 100.0  # [m]
+MAX_LEAD_IN = 10.0  # [s] replay's lead_in: longer extrapolates a straight walk too far
 
 
 def _point(name: str, value: Any) -> tuple[float, float] | None:
@@ -90,6 +91,10 @@ class ReplayCrowdSettings:
         such a recording at construction; ``"nearest"`` observes the ``max_humans`` present people nearest to the
         robot at the start of each step, as a tracker that reports its N nearest tracks (a person who enters that set
         starts a new track, its history its state repeated). Real scenes (ETH, UCY) have up to 18-62 people at once.
+    :param lead_in: [s] each person is present this long before their first sample, walking back along their first
+        segment (0: from the first sample, as recorded). Annotators start a track when a person is first marked, which
+        in the ETH/UCY scenes is often well inside the view (people step out of a door, or are marked late): with 0
+        such a person appears from nowhere, possibly in contact with the robot, which no sensor would allow
     """
 
     path: str | None = None
@@ -100,6 +105,7 @@ class ReplayCrowdSettings:
     time_window: tuple[float, float] | None = None
     crossing_length: float = 8.0
     tracked: str = "all"
+    lead_in: float = 0.0
 
     def __post_init__(self) -> None:
         if self.path is None:
@@ -125,6 +131,9 @@ class ReplayCrowdSettings:
         check_at_most("crowd_kwargs['crossing_length']", self.crossing_length, MAX_CROSSING, " m")
         object.__setattr__(self, "crossing_length", float(self.crossing_length))
         check_choice("crowd_kwargs['tracked']", self.tracked, TRACKED)
+        check_number("crowd_kwargs['lead_in']", self.lead_in, allow_zero=True)
+        check_at_most("crowd_kwargs['lead_in']", self.lead_in, MAX_LEAD_IN, " s")
+        object.__setattr__(self, "lead_in", float(self.lead_in))
         if start is not None and self.crossing_length != 8.0:
             raise ValueError("crowd_kwargs['crossing_length'] sets the placed crossing; with robot_start and "
                              "robot_goal given it has no effect")
@@ -177,9 +186,10 @@ class ReplayCrowdSettings:
     @property
     def extent(self) -> float:
         """[m] the largest absolute coordinate an episode can place a person or the robot's start or goal at."""
+        people = self.recording.extent + self.lead_in * self.recording.max_speed  # (walked back along a segment)
         if self.robot_start is None:  # the placed crossing's centre lies among the samples
-            return self.recording.extent + self.crossing_length / 2
-        return max(self.recording.extent, *map(abs, (*self.robot_start, *self.robot_goal)))
+            return people + self.crossing_length / 2
+        return max(people, *map(abs, (*self.robot_start, *self.robot_goal)))
 
 
 

@@ -79,10 +79,10 @@ class Recording:
         """The largest absolute coordinate of any sample [m]."""
         return max(float(np.abs(p).max()) for p in self.positions)
 
-    def max_present(self, window: tuple[float, float] | None = None) -> int:
-        """The most people present at once (a person is present from its first to its last sample, both included),
-        within ``window`` = (start, end) [s] when given."""
-        first, last = self.first, self.last
+    def max_present(self, window: tuple[float, float] | None = None, lead_in: float = 0.0) -> int:
+        """The most people present at once (a person is present from ``lead_in`` [s] before its first sample to its
+        last sample, both included), within ``window`` = (start, end) [s] when given."""
+        first, last = self.first - lead_in, self.last
         if window is not None:
             inside = (last >= window[0]) & (first <= window[1])
             first, last = np.maximum(first[inside], window[0]), np.minimum(last[inside], window[1])

@@ -3,8 +3,9 @@
 An episode is a window of the recording: ``time_limit`` seconds from a start time (``start_time``, or drawn per
 episode), sampled every Δt. At each step time t:
 
-* **who is present**: the people whose first sample is at or before t and whose last is at or after it (within
-  ``time_window``); people appear and vanish as recorded. A person who appears takes the lowest free slot of the
+* **who is present**: the people whose first sample is at or before t + ``lead_in`` and whose last is at or after
+  t (within ``time_window``); people appear and vanish as recorded (with ``lead_in`` > 0, that long before their
+  first sample, walking back along their first segment). A person who appears takes the lowest free slot of the
   observation (free from the first step its previous person is absent; the first of equals in file order); a
   vanished person's slot is padded (zeros, mask 0). The recording's most people present at once must fit
   ``max_humans`` (checked at construction), unless ``tracked="nearest"``: then, in a window with more people
@@ -62,7 +63,7 @@ class ReplayCrowdModel:
         self.scene = scene
         self.settings: ReplayCrowdSettings = scene.crowd_kwargs
         rec = self.settings.recording
-        self.first, self.last = rec.first, rec.last
+        self.first, self.last = rec.first - self.settings.lead_in, rec.last  # present from first - lead_in
         self.window = self.settings.window
         self.duration = scene.max_steps * scene.time_step  # [s] one episode
         self.positions = np.zeros((0, 0, 2))  # (steps + 1, n, 2) of the episode
