@@ -207,3 +207,19 @@ def test_cli_trains_saves_loads_and_evaluates(algo, tmp_path, capsys):
     assert main(["evaluate", "--policy", str(path), "--env", env_id, "--humans", "2", "--episodes", "2",
                  "--no-progress"]) == 0
     assert "2 episodes" in capsys.readouterr().out
+
+
+@pytest.mark.slow  # an rl-zoo3 training run in a subprocess (about 20 s)
+def test_rl_zoo3_trains_maskableppo_from_its_file(tmp_path):
+    """sb3-crowdnav-zoo reads the file's env_wrapper (the wall masks) and "ApgPolicy"; the file loads safely."""
+    import subprocess
+    import sys
+
+    subprocess.run([sys.executable, "-m", "sb3_crowdnav.training.zoo", "train", "--algo", "maskableppo", "--env",
+                    WAREHOUSE, "-conf", str(HYPER / "maskableppo.yml"), "-n", "64", "-f", str(tmp_path), "--eval-freq",
+                    "-1", "--seed", "0", "-params", "n_envs:1", "n_steps:32", "batch_size:32", "n_epochs:1"],
+                   check=True, capture_output=True, timeout=300)
+    saved = tmp_path / "maskableppo" / f"{WAREHOUSE}_1" / f"{WAREHOUSE}.zip"
+    assert detect_algorithm(saved) == "maskableppo"
+    model = load_model(saved, spaces_from=gym.make(WAREHOUSE))
+    assert isinstance(model, MaskablePPO) and isinstance(model.policy, ApgMaskablePolicy)
