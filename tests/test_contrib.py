@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 from pathlib import Path
 
 import gymnasium as gym
@@ -95,7 +96,7 @@ def test_never_every_action_masked():
 
 def test_wall_masks_are_refused_without_walls():
     env = gym.make("CrowdNav-v0")
-    with pytest.raises(ValueError, match="need a world of racks and walls.*CrowdNav-v0 has none"):
+    with pytest.raises(ValueError, match=r"need a world of racks and walls.*CrowdNav-v0 has none"):
         WallActionMasker(env)
     obs, _ = env.reset(seed=0)
     with pytest.raises(ValueError, match="racks and walls"):
@@ -165,7 +166,7 @@ def test_recurrent_state_is_carried_across_the_episode_by_the_runner():
     record = run_episode(env, Spy(), seed=3)
     assert record.steps == len(calls) > 1
     assert calls[0][0] is None and calls[0][1]
-    for (_, _, returned), (given, start, _) in zip(calls, calls[1:], strict=False):
+    for (_, _, returned), (given, start, _) in itertools.pairwise(calls):
         assert given is returned and not start
     assert not np.allclose(calls[0][2][0], calls[-1][2][0])  # the memory moves along the episode
 
