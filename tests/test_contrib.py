@@ -224,3 +224,27 @@ def test_rl_zoo3_trains_maskableppo_from_its_file(tmp_path):
     assert detect_algorithm(saved) == "maskableppo"
     model = load_model(saved, spaces_from=gym.make(WAREHOUSE))
     assert isinstance(model, MaskablePPO) and isinstance(model.policy, ApgMaskablePolicy)
+
+
+@pytest.mark.parametrize("algo", sorted(CONTRIB))
+@pytest.mark.parametrize("policy", ["ApgPolicy", "sb3-contrib's"])
+def test_save_detect_and_load_without_unpickling(algo, policy, tmp_path):
+    """Our aliases and sb3-contrib's own MultiInput policies: detected, loaded safely, the same deterministic actions."""
+    cls, policy_cls, _ = CONTRIB[algo]
+    env = gym.make("CrowdNav-v0", num_humans=2)
+    name = policy_cls if policy == "ApgPolicy" else prepare(algo, {})["policy"]
+    kwargs = {**SMALL[algo], "policy_kwargs": {**SMALL[algo].get("policy_kwargs", {}), "net_arch": [16]}}
+    model = cls(name, env, seed=0, **kwargs)
+    path = tmp_path / f"{algo}.zip"
+    model.save(path)
+    write_spaces(path, model.observation_space, model.action_space, env)
+    assert detect_algorithm(path) == algo
+    loaded = load_model(path)
+    assert type(loaded) is cls and type(loaded.policy) is type(model.policy)
+    obs, _ = env.reset(seed=1)
+    state = None
+    for _ in range(3):
+        action, state_model = model.predict(obs, state, deterministic=True)
+        assert loaded.predict(obs, state, deterministic=True)[0] == action
+        state = state_model
+        obs = env.step(int(action))[0]
