@@ -9,7 +9,8 @@ Loading without being told the algorithm:
 
 :func:`load_model` reads the ``data`` JSON inside the SB3 ``.zip`` and picks the algorithm from
 the module of the saved ``policy_class`` (``sb3_crowdnav.apg_value...`` → APGValue,
-``stable_baselines3.dqn...`` → DQN) or, for policies shared between algorithms (e.g.
+``stable_baselines3.dqn...`` → DQN), from the class itself for sb3-contrib's QRDQN, RecurrentPPO and MaskablePPO
+(a subclass of their policies, decoded without unpickling), or, for policies shared between algorithms (e.g.
 ``MultiInputPolicy`` of PPO/A2C or our ``ApgDQNPolicy``/``ApgActorCriticPolicy`` in
 ``sb3_crowdnav.nn``), from hyperparameters only one algorithm saves (``clip_range`` → PPO,
 ``target_update_interval`` → DQN, ...). When that fails it tries APGValue, DQN, PPO and A2C in turn.
@@ -54,13 +55,38 @@ PRETRAINED_SHA256 = {
 
 
 def algorithms() -> dict[str, type]:
-    """Algorithm name → class: ``apg_value``, ``dqn``, ``dqfd`` (DQN + demonstrations), ``ppo``, ``a2c``."""
+    """Algorithm name → class: ``apg_value``, ``dqn``, ``dqfd`` (DQN + demonstrations), ``ppo``, ``a2c``, and
+    sb3-contrib's ``qrdqn``, ``recurrentppo`` and ``maskableppo``."""
+    from sb3_contrib import QRDQN, MaskablePPO, RecurrentPPO
     from stable_baselines3 import A2C, DQN, PPO
 
     from sb3_crowdnav.apg_value import APGValue
     from sb3_crowdnav.imitation.dqfd import DQfD
 
-    return {"apg_value": APGValue, "dqn": DQN, "dqfd": DQfD, "ppo": PPO, "a2c": A2C}
+    return {"apg_value": APGValue, "dqn": DQN, "dqfd": DQfD, "ppo": PPO, "a2c": A2C, "qrdqn": QRDQN,
+            "recurrentppo": RecurrentPPO, "maskableppo": MaskablePPO}
+
+
+def _contrib_algorithm(policy_class: Any) -> str | None:
+    """The sb3-contrib algorithm of a saved ``policy_class`` entry, from the class itself (decoded without unpickling:
+    our ``Apg*Policy`` aliases live in ``sb3_crowdnav.nn``, so the module name alone does not tell)."""
+    import base64
+
+    from sb3_contrib.common.maskable.policies import MaskableActorCriticPolicy
+    from sb3_contrib.common.recurrent.policies import RecurrentActorCriticPolicy
+    from sb3_contrib.qrdqn.policies import QRDQNPolicy
+
+    import sb3_crowdnav.nn.policies  # noqa: F401  (the decoder only resolves classes already imported)
+    from sb3_crowdnav.serialization import UnsafeModelFileError, decode
+
+    if not isinstance(policy_class, dict) or ":serialized:" not in policy_class:
+        return None
+    try:
+        cls = decode(base64.b64decode(policy_class[":serialized:"]))
+    except (UnsafeModelFileError, ValueError, TypeError, KeyError, IndexError):
+        return None
+    bases = {"qrdqn": QRDQNPolicy, "recurrentppo": RecurrentActorCriticPolicy, "maskableppo": MaskableActorCriticPolicy}
+    return next((name for name, base in bases.items() if isinstance(cls, type) and issubclass(cls, base)), None)
 
 
 def resolve_model_path(path: str | Path) -> Path:
@@ -88,6 +114,8 @@ def detect_algorithm(path: str | Path) -> str | None:
     module = policy_class.get("__module__", "") if isinstance(policy_class, dict) else ""
     if "apg_value" in module or "imitation_episodes" in data:
         return "apg_value"
+    if (contrib := _contrib_algorithm(policy_class)) is not None:  # before PPO's and DQN's keys, which they share
+        return contrib
     if module.startswith("stable_baselines3.dqn"):
         return "dqn"
     if module.startswith("stable_baselines3.ppo") or "clip_range" in data:
@@ -115,7 +143,8 @@ def _load(cls: type, path: Path, env: Any, device: str, trusted: bool, spaces_fr
 
 def load_model(path: str | Path, env: Any = None, algo: str | None = None, device: str = "cpu", trusted: bool = False,
                spaces_from: Any = None, **kwargs: Any):
-    """Load a saved APGValue / DQN / PPO / A2C model, detecting the algorithm unless ``algo`` is given.
+    """Load a saved APGValue / DQN / PPO / A2C / QRDQN / RecurrentPPO / MaskablePPO model, detecting the algorithm
+    unless ``algo`` is given.
 
     Nothing in the file is unpickled (:mod:`sb3_crowdnav.serialization`): a file whose entries need it is refused
     with :class:`~sb3_crowdnav.serialization.UnsafeModelFileError` naming the entry.
@@ -124,7 +153,7 @@ def load_model(path: str | Path, env: Any = None, algo: str | None = None, devic
     :param env: passed to ``Algorithm.load`` (``None`` is enough to ``predict`` a model this package saved; a
         plain SB3 file needs the env, whose spaces replace the file's pickled ones after a shape check); a model of
         another world than the env's is refused (:func:`world_mismatch`)
-    :param algo: ``"apg_value"``, ``"dqn"``, ``"ppo"`` or ``"a2c"`` to skip detection
+    :param algo: a key of :func:`algorithms` (``"apg_value"``, ``"dqn"``, ``"ppo"``, ``"qrdqn"``, ...) to skip detection
     :param trusted: use SB3's own load, which unpickles; only for files you made yourself
     :param spaces_from: an env (not attached to the model) whose spaces stand in for a plain SB3 file's pickled ones
     """

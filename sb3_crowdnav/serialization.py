@@ -9,7 +9,7 @@ values only:
 - class references (``policy_class``, the buffer classes, optimiser and activation classes inside
   ``policy_kwargs``) are *decoded*, not unpickled: :func:`decode` walks the pickle's opcodes and accepts
   literals, containers and references to an allow-list of classes that are already imported
-  (SB3 / sb3_crowdnav policies, extractors and buffers, torch optimisers and activations), never calling
+  (SB3 / sb3-contrib / sb3_crowdnav policies, extractors and buffers, torch optimisers and activations), never calling
   anything but SB3's ``TrainFreq`` and its unit; any other opcode or name is refused, naming the entry;
 - the observation and action spaces come from a plain JSON member ``sb3_crowdnav.json`` that this
   package writes next to ``data`` when it saves a model (:func:`write_spaces`), or else from the env the
@@ -45,7 +45,7 @@ SPACES_MEMBER = "sb3_crowdnav.json"
 DROPPED = ("_last_obs", "_last_original_obs", "_last_episode_starts", "ep_info_buffer", "ep_success_buffer")
 RECOMPUTED = ("lr_schedule", "exploration_schedule")  # rebuilt by the algorithm's _setup_model from plain numbers
 SCHEDULES = ("clip_range", "clip_range_vf", "learning_rate")
-ALLOWED_PREFIXES = ("sb3_crowdnav.", "stable_baselines3.", "torch.optim.", "torch.nn.modules.")
+ALLOWED_PREFIXES = ("sb3_crowdnav.", "stable_baselines3.", "sb3_contrib.", "torch.optim.", "torch.nn.modules.")
 
 
 class UnsafeModelFileError(ValueError):

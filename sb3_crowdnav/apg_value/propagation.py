@@ -45,6 +45,49 @@ class Propagated:
     static: dict[str, np.ndarray] = field(default_factory=dict)  # the warehouse's keys, per action (B, A, ...)
 
 
+def robot_moves(world: World, robot: np.ndarray,
+                table: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The robot's position [m], heading [rad] and velocity [m/s] one Δt ahead under each of the world's actions, by
+    the env's own kinematics and limits (:func:`~sb3_crowdnav.sim.actions.apply_action`).
+
+    :param robot: (B, 9) robot rows of observations
+    :param table: ``world.action_table(1.0)`` when the caller keeps it (it is recomputed otherwise)
+    :return: (B, A, 2), (B, A), (B, A, 2)
+    """
+    robot = np.asarray(robot, dtype=np.float64)
+    speed_fractions, directions = world.action_table(1.0) if table is None else table
+    speeds = robot[:, Robot.V_PREF, None] * speed_fractions[None, :]  # (B, A)
+    return apply_action(robot[:, None, Robot.POS], robot[:, None, Robot.HEADING], robot[:, None, Robot.GOAL], speeds,
+                        directions[None, :], world.kinematics, world.time_step, robot[:, None, Robot.VEL],
+                        world.max_acceleration, world.max_turn_rate)
+
+
+def swept_hits(pos0: np.ndarray, new_pos: np.ndarray, radius: np.ndarray, static: dict[str, np.ndarray]) -> np.ndarray:
+    """Whether the robot's disc, swept from ``pos0`` to each ``new_pos``, touches an observed rack or wall segment:
+    the env's rule (:func:`~sb3_crowdnav.sim.geometry.swept_clearance` below the robot's radius) on the segments of
+    the observation.
+
+    :param pos0: (B, 2) [m]; :param new_pos: (B, A, 2) [m]; :param radius: (B,) [m]
+    :param static: the observation's ``obstacles`` (B, S*4) and ``obstacles_mask`` (B, S)
+    :return: (B, A) bool
+    """
+    b, n_actions = new_pos.shape[:2]
+    segments = np.asarray(static["obstacles"], dtype=np.float64).reshape(b, 1, -1, SEGMENT_DIM)
+    seg_mask = np.asarray(static["obstacles_mask"]).reshape(b, 1, -1)
+    start = np.broadcast_to(np.asarray(pos0, dtype=np.float64)[:, None, :], (b, n_actions, 2))
+    return swept_clearance(start, new_pos, segments, seg_mask) < np.asarray(radius, dtype=np.float64)[:, None]
+
+
+def wall_hits(world: World, robot: np.ndarray, static: dict[str, np.ndarray]) -> np.ndarray:
+    """(B, A) bool: the lookahead's prediction that each action makes the robot touch a rack or a wall during the
+    next step (:func:`robot_moves`, then :func:`swept_hits`), from observations of a world of static obstacles."""
+    if not world.has_static_world:
+        raise ValueError("wall_hits needs a world of static obstacles (the warehouse); this world has none")
+    robot = np.asarray(robot, dtype=np.float64)
+    new_pos = robot_moves(world, robot)[0]
+    return swept_hits(robot[:, Robot.POS], new_pos, robot[:, Robot.RADIUS], static)
+
+
 class PropagationModel:
     """Propagates observations of a crowd env under every action.
 
@@ -92,12 +135,8 @@ class PropagationModel:
         pos0, goal = robot[:, Robot.POS], robot[:, Robot.GOAL]
         heading0, v_pref, radius = robot[:, Robot.HEADING], robot[:, Robot.V_PREF], robot[:, Robot.RADIUS]
 
-        speeds = v_pref[:, None] * self.speed_fractions[None, :]  # (B, A)
-        world = self.world
-        new_pos, new_heading, vel = apply_action(
-            pos0[:, None, :], heading0[:, None], goal[:, None, :], speeds, self.directions[None, :],
-            world.kinematics, self.time_step, robot[:, None, Robot.VEL], world.max_acceleration, world.max_turn_rate,
-        )  # (B, A, 2), (B, A), (B, A, 2)
+        table = (self.speed_fractions, self.directions)
+        new_pos, new_heading, vel = robot_moves(self.world, robot, table)  # (B, A, 2), (B, A), (B, A, 2)
 
         latest = hist[:, -1].copy()  # (B, M, 5)
         hpos0 = hist[:, -1, :, Human.POS]
@@ -124,10 +163,8 @@ class PropagationModel:
                                                    *human_args))
         propagated_static: dict[str, np.ndarray] = {}
         if static and self.world.has_static_world:  # the same segment geometry as the env, the same waypoint rule
-            segments = np.asarray(static["obstacles"], dtype=np.float64).reshape(b, 1, -1, SEGMENT_DIM)
             seg_mask = np.asarray(static["obstacles_mask"]).reshape(b, 1, -1)
-            hit = swept_clearance(np.broadcast_to(pos0[:, None, :], (*full, 2)), new_pos, segments, seg_mask) \
-                < radius[:, None]
+            hit = swept_hits(pos0, new_pos, radius, static)
             terms = with_obstacle_collision(terms, hit, self.world.obstacle_collision_penalty)
             waypoints = np.asarray(static["waypoints"], dtype=np.float64).reshape(b, 1, -1, 2)
             terms = with_route_progress(terms, np.broadcast_to(pos0[:, None, :], (*full, 2)), new_pos,

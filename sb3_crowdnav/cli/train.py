@@ -17,7 +17,7 @@ from sb3_crowdnav.cli import common
 from sb3_crowdnav.cli.common import UsageError
 from sb3_crowdnav.training.run_folder import write_json
 
-ALGOS = ("apg_value", "dqn", "dqfd", "ppo")
+ALGOS = ("apg_value", "dqn", "dqfd", "ppo", "qrdqn", "recurrentppo", "maskableppo")
 # flags of a --variant run (the paper's schedule) with the ScheduleConfig field each one sets
 SCHEDULE_FLAGS = {
     "rl_episodes": "--rl-episodes", "n_envs": "--n-envs", "learning_rate": "--learning-rate",
@@ -166,8 +166,12 @@ def _dry_run(algo: str, cfg: dict[str, Any], env_id: str, env_kwargs: dict[str, 
     from stable_baselines3.common.env_util import make_vec_env
 
     from sb3_crowdnav.models import algorithms
+    from sb3_crowdnav.training.hyperparams import env_wrapper_class
 
-    env = make_vec_env(env_id, n_envs=1, env_kwargs=env_kwargs)
+    try:
+        env = make_vec_env(env_id, n_envs=1, env_kwargs=env_kwargs, wrapper_class=env_wrapper_class(algo))
+    except ValueError as exc:  # MaskablePPO's wall masks in a world without walls
+        raise UsageError(f"--algo {algo} --env {env_id}: {exc}") from None
     kwargs = {**cfg["kwargs"], **({"policy_kwargs": cfg["policy_kwargs"]} if cfg["policy_kwargs"] else {})}
     try:
         algorithms()[algo](cfg["policy"], env, **kwargs)

@@ -82,8 +82,9 @@ def make_policy(spec: Any, env: gym.Env | None = None, allow_env_mismatch: bool 
     ``"random"`` or ``"random:SEED"`` → :class:`RandomPolicy`; ``"pretrained:NAME"`` → a model
     shipped with the package (:func:`sb3_crowdnav.pretrained`); a file ``.onnx`` → an exported graph run by
     :class:`~sb3_crowdnav.deploy.OnnxPolicy`; any other string → a saved model
-    loaded with :func:`~sb3_crowdnav.models.load_model`. A model trained in another world than ``env`` (time step,
-    kinematics, rotation range) is refused unless ``allow_env_mismatch``. A
+    loaded with :func:`~sb3_crowdnav.models.load_model` (a MaskablePPO one acts with its wall masks:
+    :class:`~sb3_crowdnav.apg_value.action_masks.WallMaskedPolicy`). A model trained in another world than ``env``
+    (time step, kinematics, rotation range) is refused unless ``allow_env_mismatch``. A
     :class:`~sb3_crowdnav.safety.ProtectiveField` wraps the policy in a
     :class:`~sb3_crowdnav.safety.ProtectedPolicy` (it needs ``env``).
     """
@@ -125,7 +126,22 @@ def _make_policy(spec: Any, env: gym.Env | None, allow_env_mismatch: bool) -> An
         check_spaces(model.observation_space, env.observation_space, path)
         if not allow_env_mismatch:
             check_world(path, env)
-    return model
+    return _with_masks(model, path, env)
+
+
+def _with_masks(model: Any, path: str, env: gym.Env | None) -> Any:
+    """A MaskablePPO model acting with the wall masks it was trained with (of the env's world, else the file's)."""
+    from sb3_contrib import MaskablePPO
+
+    if not isinstance(model, MaskablePPO):
+        return model
+    from sb3_crowdnav.apg_value.action_masks import WallMaskedPolicy
+    from sb3_crowdnav.serialization import read_world, world_of
+
+    world = world_of(env) if env is not None else read_world(path)
+    if world is None:
+        raise ValueError(f"{path} is a MaskablePPO model: its wall masks need the env it acts in")
+    return WallMaskedPolicy(model, world)
 
 
 def check_world(model_or_path: Any, env: gym.Env) -> None:

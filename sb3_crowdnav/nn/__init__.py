@@ -23,7 +23,14 @@ from sb3_crowdnav.nn.extractors import (
 from sb3_crowdnav.nn.interactions import angular_pedestrian_grid, local_occupancy_map, social_forces
 from sb3_crowdnav.nn.layers import MLP, set_onednn_inference, set_onednn_training
 from sb3_crowdnav.nn.perf import configure_cpu, tune_malloc
-from sb3_crowdnav.nn.policies import APG_POLICIES, ApgActorCriticPolicy, ApgDQNPolicy
+from sb3_crowdnav.nn.policies import (
+    APG_POLICIES,
+    ApgActorCriticPolicy,
+    ApgDQNPolicy,
+    ApgMaskablePolicy,
+    ApgQRDQNPolicy,
+    ApgRecurrentPolicy,
+)
 from sb3_crowdnav.nn.transforms import (
     HUMAN_FEATURES,
     ROBOT_FEATURES,
@@ -43,6 +50,9 @@ __all__ = [
     "ApgActorCriticPolicy",
     "ApgDQNPolicy",
     "ApgExtractor",
+    "ApgMaskablePolicy",
+    "ApgQRDQNPolicy",
+    "ApgRecurrentPolicy",
     "CadrlExtractor",
     "CrowdFeaturesExtractor",
     "HumanFeat",

@@ -17,7 +17,8 @@ every algorithm (:data:`sb3_crowdnav.nn.APG_POLICIES` for SB3's). ``policy_kwarg
 string; strings are evaluated by :func:`safe_eval`, which knows only ``dict``, literals, ``nn.<Module>``
 and the feature-extractor names of :data:`sb3_crowdnav.nn.EXTRACTORS` (``apg``, ``cadrl``, ... and
 their class names). ``lin_<x>`` for ``learning_rate``/``clip_range`` is rl-zoo3's linear schedule,
-built with SB3's ``LinearSchedule``.
+built with SB3's ``LinearSchedule``. ``maskableppo``'s envs are wrapped in
+:class:`~sb3_crowdnav.apg_value.action_masks.WallActionMasker` (its file may name it as ``env_wrapper`` for rl-zoo3).
 
 Why not rl-zoo3's own reading (its ``ExperimentManager``): it evaluates ``policy_kwargs`` strings with
 ``eval`` (a hyperparameter file could run code), and it brings its wrappers, normalisation and frame
@@ -36,7 +37,11 @@ from typing import Any
 from sb3_crowdnav.sim.validation import check_int
 
 DEFAULT_POLICIES = {"apg_value": "ApgPolicy", "dqn": "MultiInputPolicy", "dqfd": "MultiInputPolicy", "ppo": "MultiInputPolicy",
-                    "a2c": "MultiInputPolicy"}
+                    "a2c": "MultiInputPolicy", "qrdqn": "MultiInputPolicy", "recurrentppo": "MultiInputLstmPolicy",
+                    "maskableppo": "MultiInputPolicy"}
+# the env wrapper an algorithm needs, which train_from_hyperparams applies itself (an rl-zoo3 file names it as
+# env_wrapper for rl-zoo3; here that entry is accepted for this algorithm only)
+ALGO_WRAPPERS = {"maskableppo": "sb3_crowdnav.apg_value.action_masks.WallActionMasker"}
 ZOO_ONLY_KEYS = ("env_wrapper", "callback", "vec_env_wrapper", "frame_stack")
 SCHEDULE_KEYS = ("learning_rate", "clip_range", "clip_range_vf")
 _BINOPS = {ast.Add: operator.add, ast.Sub: operator.sub, ast.Mult: operator.mul, ast.Div: operator.truediv}
@@ -193,6 +198,8 @@ def prepare(algo: str, hyperparams: Mapping[str, Any]) -> dict[str, Any]:
     """Split rl-zoo3 hyperparameters into ``policy``, ``policy_kwargs``, ``env_kwargs``, ``n_envs``,
     ``n_timesteps`` and the algorithm's constructor ``kwargs``; ``ValueError`` on what is not supported."""
     hp = dict(hyperparams)
+    if algo in ALGO_WRAPPERS and hp.get("env_wrapper") == ALGO_WRAPPERS[algo]:
+        del hp["env_wrapper"]  # applied by train_from_hyperparams (env_wrapper_class)
     bad = [k for k in ZOO_ONLY_KEYS if hp.get(k)]
     if bad:
         raise ValueError(f"{bad} are not supported by sb3-crowdnav train; use python -m rl_zoo3.train for them")
@@ -243,6 +250,15 @@ def _mapping(name: str, value: Any, names: Mapping[str, Any]) -> dict[str, Any]:
     return value
 
 
+def env_wrapper_class(algo: str) -> type | None:
+    """The wrapper every env of ``algo`` gets (:data:`ALGO_WRAPPERS`: MaskablePPO's wall masks), or None."""
+    if algo not in ALGO_WRAPPERS:
+        return None
+    from sb3_crowdnav.apg_value.action_masks import WallActionMasker
+
+    return WallActionMasker
+
+
 def train_from_hyperparams(algo: str, hyperparams: Mapping[str, Any], out_dir: str | Path, env_id: str = "CrowdNav-v0",
           timesteps: int | None = None, seed: int = 0, progress_bar: bool = False, verbose: int = 0,
           env_overrides: Mapping[str, Any] | None = None, imitation_episodes: int = 0, imitation_epochs: int = 10,
@@ -271,7 +287,7 @@ def train_from_hyperparams(algo: str, hyperparams: Mapping[str, Any], out_dir: s
     env_kwargs = {**cfg["env_kwargs"], **dict(env_overrides or {})}
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    env = make_vec_env(env_id, n_envs=cfg["n_envs"], seed=seed, env_kwargs=env_kwargs)
+    env = make_vec_env(env_id, n_envs=cfg["n_envs"], seed=seed, env_kwargs=env_kwargs, wrapper_class=env_wrapper_class(algo))
     kwargs = dict(cfg["kwargs"])
     if cfg["policy_kwargs"]:
         kwargs["policy_kwargs"] = cfg["policy_kwargs"]
@@ -314,4 +330,5 @@ def train_from_hyperparams(algo: str, hyperparams: Mapping[str, Any], out_dir: s
     return model, model_path
 
 
-__all__ = ["DEFAULT_POLICIES", "load_hyperparams", "policy_kwargs_names", "prepare", "safe_eval", "train_from_hyperparams"]
+__all__ = ["ALGO_WRAPPERS", "DEFAULT_POLICIES", "env_wrapper_class", "load_hyperparams", "policy_kwargs_names", "prepare",
+           "safe_eval", "train_from_hyperparams"]

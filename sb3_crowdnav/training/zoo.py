@@ -6,7 +6,8 @@ does exactly that and then hands the command line to rl-zoo3 unchanged, so every
 works (``--storage sqlite:///tune.db --study-name apg -optimize`` spreads tuning over machines
 through a shared database). ``--gym-packages sb3_crowdnav`` is added when missing.
 
-Its ``ppo``, ``a2c`` and ``dqn`` are SB3's algorithms that also know ``policy: 'ApgPolicy'`` (the APG
+Its ``ppo``, ``a2c`` and ``dqn`` are SB3's algorithms, and ``qrdqn``, ``recurrentppo`` (also rl-zoo3's ``ppo_lstm``)
+and ``maskableppo`` sb3-contrib's, that also know ``policy: 'ApgPolicy'`` (the APG
 encoder's :data:`~sb3_crowdnav.nn.APG_POLICIES`), so the package's hyperparameter files run here; SB3's
 own classes, and plain ``python -m rl_zoo3.train``, are left as they are (there, write ``MultiInputPolicy``
 with ``policy_kwargs: "dict(features_extractor_class=...)"``).
@@ -14,6 +15,7 @@ with ``policy_kwargs: "dict(features_extractor_class=...)"``).
     sb3-crowdnav-zoo train --algo apg_value --env CrowdNav-v0 -conf zoo_hyperparams/apg_value.yml
     sb3-crowdnav-zoo enjoy --algo apg_value --env CrowdNav-v0 -f logs/ --no-render
     sb3-crowdnav-zoo train --algo ppo --env CrowdNav-v0 -conf zoo_hyperparams/ppo.yml
+    sb3-crowdnav-zoo train --algo maskableppo --env CrowdNavWarehouse-v0 -conf zoo_hyperparams/maskableppo.yml
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from __future__ import annotations
 import sys
 from typing import Any, ClassVar
 
+from sb3_contrib import QRDQN, MaskablePPO, RecurrentPPO
 from stable_baselines3 import A2C, DQN, PPO
 from stable_baselines3.common.policies import BasePolicy
 
@@ -63,12 +66,35 @@ class ZooDQN(DQN):
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {**DQN.policy_aliases, "ApgPolicy": APG_POLICIES["dqn"]}
 
 
-ZOO_ALGOS: dict[str, type] = {"ppo": ZooPPO, "a2c": ZooA2C, "dqn": ZooDQN}
+class ZooQRDQN(QRDQN):
+    """sb3-contrib's QRDQN for which ``"ApgPolicy"`` names :class:`~sb3_crowdnav.nn.ApgQRDQNPolicy`."""
+
+    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {**QRDQN.policy_aliases, "ApgPolicy": APG_POLICIES["qrdqn"]}
+
+
+class ZooRecurrentPPO(RecurrentPPO):
+    """sb3-contrib's RecurrentPPO for which ``"ApgPolicy"`` names :class:`~sb3_crowdnav.nn.ApgRecurrentPolicy`."""
+
+    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {**RecurrentPPO.policy_aliases,
+                                                              "ApgPolicy": APG_POLICIES["recurrentppo"]}
+
+
+class ZooMaskablePPO(MaskablePPO):
+    """sb3-contrib's MaskablePPO for which ``"ApgPolicy"`` names :class:`~sb3_crowdnav.nn.ApgMaskablePolicy`."""
+
+    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {**MaskablePPO.policy_aliases,
+                                                              "ApgPolicy": APG_POLICIES["maskableppo"]}
+
+
+# this package's algorithm names; rl-zoo3's own name of RecurrentPPO (ppo_lstm) resolves "ApgPolicy" too
+ZOO_ALGOS: dict[str, type] = {"ppo": ZooPPO, "a2c": ZooA2C, "dqn": ZooDQN, "qrdqn": ZooQRDQN,
+                              "recurrentppo": ZooRecurrentPPO, "ppo_lstm": ZooRecurrentPPO, "maskableppo": ZooMaskablePPO}
 
 
 def register() -> None:
-    """Add ``apg_value`` to rl-zoo3's algorithm table and tuning samplers, and let its ``ppo``, ``a2c`` and
-    ``dqn`` resolve ``"ApgPolicy"`` (:data:`ZOO_ALGOS`; saved models load with SB3's own classes); idempotent."""
+    """Add ``apg_value``, ``recurrentppo`` and ``maskableppo`` to rl-zoo3's algorithm table (and APGValue to its tuning
+    samplers), and let its ``ppo``, ``a2c``, ``dqn``, ``qrdqn`` and ``ppo_lstm`` resolve ``"ApgPolicy"``
+    (:data:`ZOO_ALGOS`; saved models load with SB3's and sb3-contrib's own classes); idempotent."""
     try:
         from rl_zoo3 import hyperparams_opt, utils
     except ImportError as exc:  # pragma: no cover - depends on the extra
