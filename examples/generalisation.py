@@ -48,7 +48,7 @@ from sb3_crowdnav.sim.population import MEASURED_POPULATION
 from sb3_crowdnav.training import VALIDATION_SEED_OFFSET
 
 ENV = "CrowdNav-v0"
-MODELS = ("apg_rl", "lm_rl", "sf_rl", "cadrl", "ppo_apg", "dqn_apg", "apg_crl", "apg_carl")
+MODELS = ("apg_rl", "apg_robust", "lm_rl", "sf_rl", "cadrl", "ppo_apg", "dqn_apg", "apg_crl", "apg_carl")
 POLICIES = (*(f"pretrained:{name}" for name in MODELS), "orca-constrained")
 HEADLINE = ("APG_RL", "ORCA-constrained")  # the README's rows (table labels)
 FIRST = ("pretrained:apg_rl", "orca-constrained")  # their policies, run first

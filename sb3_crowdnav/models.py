@@ -38,6 +38,7 @@ PRETRAINED = {
     "dqn_apg": "dqn",
     "apg_warehouse": "apg_value",
     "ppo_warehouse": "ppo",
+    "apg_robust": "apg_value",
 }
 # name -> SHA-256 of weights/<name>.zip, checked before every load (examples/ship_model.py prints it)
 PRETRAINED_SHA256 = {
@@ -51,6 +52,7 @@ PRETRAINED_SHA256 = {
     "dqn_apg": "4002a0bdffcb70e967655d430a72a5d1f45a04918dacf247f0c87c78d7ebf94e",
     "ppo_warehouse": "e71d387a6b327616c7d26df7b92ed14f7166616286530fcc8ed31c5a293df208",
     "apg_warehouse": "e1e2ae06da71b01fe614afe609866df603dda9f5a74e1f10030430387395254c",
+    "apg_robust": "43fd62697dfcbf7f6d319560d738f03b7698f197f50ec3b156a10ff64be89668",
 }
 
 
