@@ -135,7 +135,7 @@ def _quiet() -> Iterator[None]:
 def to_onnx(decision: th.nn.Module, schema: ObservationSchema) -> Any:
     """The ``onnx.ModelProto`` of a decision module (:mod:`sb3_crowdnav.deploy.graph`), inputs named by the
     observation's keys with a dynamic batch dimension."""
-    require("onnx", "export_onnx")
+    onnx = require("onnx", "export_onnx")
     op = require("onnxscript", "export_onnx").opset18
 
     def hypot(x, y):
@@ -144,6 +144,19 @@ def to_onnx(decision: th.nn.Module, schema: ObservationSchema) -> Any:
     def stable_sort(x, stable=None, dim: int = -1, descending: bool = False):
         count = op.Gather(op.Shape(x), op.Constant(value_ints=[dim]))
         return op.TopK(x, count, axis=dim, largest=descending, sorted=True)  # ties in index order, as stable
+
+    def lstm_last_state(sequence, lengths, weight_ih, weight_hh, bias_ih, bias_hh, hidden_size: int):
+        # ONNX's gate order is (input, output, forget, cell), torch's (input, forget, cell, output)
+        order = op.Constant(value_ints=[g * hidden_size + k for g in (0, 3, 1, 2) for k in range(hidden_size)])
+        first = op.Constant(value_ints=[0])
+
+        def gates(weight):
+            return op.Unsqueeze(op.Gather(weight, order, axis=0), first)
+
+        bias = op.Concat(gates(bias_ih), gates(bias_hh), axis=1)
+        _, last, _ = op.LSTM(op.Transpose(sequence, perm=[1, 0, 2]), gates(weight_ih), gates(weight_hh), bias,
+                             op.Cast(lengths, to=onnx.TensorProto.INT32), hidden_size=hidden_size)
+        return op.Squeeze(last, first)  # Y_h: the state after each row's own length
 
     example = example_observation(schema)
     batch = th.export.Dim("batch")
@@ -155,7 +168,8 @@ def to_onnx(decision: th.nn.Module, schema: ObservationSchema) -> Any:
                 decision, (), kwargs={"observation": example}, dynamo=True, opset_version=OPSET, verbose=False,
                 input_names=list(example), output_names=list(OUTPUT_NAMES),
                 dynamic_shapes={"observation": {key: {0: batch} for key in example}},
-                custom_translation_table={th.ops.aten.hypot.default: hypot, th.ops.aten.sort.stable: stable_sort},
+                custom_translation_table={th.ops.aten.hypot.default: hypot, th.ops.aten.sort.stable: stable_sort,
+                                          th.ops.sb3_crowdnav.lstm_last_state.default: lstm_last_state},
             )
     finally:
         for module, mode in modes:

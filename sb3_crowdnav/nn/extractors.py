@@ -192,7 +192,7 @@ class ApgExtractor(CrowdFeaturesExtractor):
                 pooled.addcmul_(weights[:, m], z[:, m])
         e_o = linear(pooled, self.psi_h_out)  # (B, L, D) = Σ_m softmax(alpha)_m h_m, Eq. 8
 
-        h_o = lstm_last_state(self.lstm, e_o, lengths, self.max_humans)  # (B, hidden); rows past a length are not read
+        h_o = lstm_last_state(self.lstm, e_o, lengths)  # (B, hidden); rows past a length are not read
         return th.cat((robot_feats, h_o), dim=1)
 
 
@@ -246,7 +246,7 @@ class _SortedLstmExtractor(CrowdFeaturesExtractor):
 
     def _pool(self, robot_feats: th.Tensor, inputs: th.Tensor, lengths: th.Tensor) -> th.Tensor:
         """inputs (B, L, F) sorted farthest first -> (B, 7 + hidden)."""
-        return th.cat((robot_feats, lstm_last_state(self.lstm, self.embedding(inputs), lengths, self.max_humans)), dim=1)
+        return th.cat((robot_feats, lstm_last_state(self.lstm, self.embedding(inputs), lengths)), dim=1)
 
 
 class LstmRlExtractor(_SortedLstmExtractor):
