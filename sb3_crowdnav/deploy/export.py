@@ -132,11 +132,43 @@ def _quiet() -> Iterator[None]:
         logger.setLevel(level)
 
 
+PLACEHOLDER_DOMAIN = "sb3_crowdnav"  # the domain of graph.values_per_observation until the export replaces it
+
+
+class _ValueNetwork(th.nn.Module):
+    """A lookahead's value network as a module of the observation dict alone: V of each row, (N,)."""
+
+    def __init__(self, value_net: th.nn.Module) -> None:
+        super().__init__()
+        self.value_net = value_net
+
+    def forward(self, observation: dict[str, th.Tensor]) -> th.Tensor:
+        return self.value_net(observation)
+
+
 def to_onnx(decision: th.nn.Module, schema: ObservationSchema) -> Any:
     """The ``onnx.ModelProto`` of a decision module (:mod:`sb3_crowdnav.deploy.graph`), inputs named by the
-    observation's keys with a dynamic batch dimension."""
+    observation's keys with a dynamic batch dimension.
+
+    A lookahead's value network is exported on its own and runs in the graph as the body of a ``Scan`` over the
+    batch's observations, on one observation's A propagated states at a time (:func:`_splice_values`)."""
+    proto = _export(decision, schema, OUTPUT_NAMES)
+    if isinstance(decision, LookaheadDecision):
+        _splice_values(proto, _export(_ValueNetwork(decision.value_net), schema, ("value",)), schema)
+    return proto
+
+
+def _export(module: th.nn.Module, schema: ObservationSchema, output_names: tuple[str, ...]) -> Any:
+    """torch's ONNX export of ``module(observation)`` with the translations the exporter lacks."""
     onnx = require("onnx", "export_onnx")
-    op = require("onnxscript", "export_onnx").opset18
+    onnxscript = require("onnxscript", "export_onnx")
+    op = onnxscript.opset18
+    schema_ = onnx.defs.OpSchema
+    placeholder = onnxscript.values.Op(onnxscript.values.Opset(PLACEHOLDER_DOMAIN, 1), "ValuesPerObservation", schema_(
+        "ValuesPerObservation", PLACEHOLDER_DOMAIN, 1,
+        inputs=[schema_.FormalParameter("observation", "T", param_option=schema_.FormalParameterOption.Variadic)],
+        outputs=[schema_.FormalParameter("values", "T")], type_constraints=[("T", ["tensor(float)"], "")],
+        attributes=[schema_.Attribute("n_actions", schema_.AttrType.INT, "")]))
 
     def hypot(x, y):
         return op.Sqrt(op.Add(op.Mul(x, x), op.Mul(y, y)))
@@ -158,27 +190,72 @@ def to_onnx(decision: th.nn.Module, schema: ObservationSchema) -> Any:
                              op.Cast(lengths, to=onnx.TensorProto.INT32), hidden_size=hidden_size)
         return op.Squeeze(last, first)  # Y_h: the state after each row's own length
 
+    def values_per_observation(observation, n_actions: int):
+        return placeholder(*observation, n_actions=n_actions)
+
     example = example_observation(schema)
     batch = th.export.Dim("batch")
-    modes = [(module, module.training) for module in decision.modules()]  # the model's own, restored after
-    decision.eval()
+    modes = [(module, module.training) for module in module.modules()]  # the model's own, restored after
+    module.eval()
     try:
         with _quiet(), th.no_grad():
             program = th.onnx.export(
-                decision, (), kwargs={"observation": example}, dynamo=True, opset_version=OPSET, verbose=False,
-                input_names=list(example), output_names=list(OUTPUT_NAMES),
+                module, (), kwargs={"observation": example}, dynamo=True, opset_version=OPSET, verbose=False,
+                input_names=list(example), output_names=list(output_names),
                 dynamic_shapes={"observation": {key: {0: batch} for key in example}},
                 custom_translation_table={th.ops.aten.hypot.default: hypot, th.ops.aten.sort.stable: stable_sort,
-                                          th.ops.sb3_crowdnav.lstm_last_state.default: lstm_last_state},
+                                          th.ops.sb3_crowdnav.lstm_last_state.default: lstm_last_state,
+                                          th.ops.sb3_crowdnav.values_per_observation.default: values_per_observation},
             )
     finally:
-        for module, mode in modes:
-            module.training = mode
+        for submodule, mode in modes:
+            submodule.training = mode
     proto = program.model_proto
     names = [value.name for value in proto.graph.input]
     if names != list(example):  # the dict's order is the inputs' order; a reordering would swap tensors of a shape
         raise RuntimeError(f"the exported graph's inputs are {names}, expected {list(example)}")
     return proto
+
+
+def _splice_values(proto: Any, value_net: Any, schema: ObservationSchema) -> None:
+    """Replace the decision's placeholder for V (:func:`~sb3_crowdnav.deploy.graph.values_per_observation`) by
+    ``Scan(body=value_net)`` over the batch's observations, in place.
+
+    The placeholder takes the B x A propagated tensors (B * A, n) in the schema's key order, the value network's
+    inputs; each becomes (B, A, n), the ``Scan`` feeds the body one observation's (A, n) and stacks its V (A,).
+    """
+    onnx = require("onnx", "export_onnx")
+    helper, graph = onnx.helper, proto.graph
+    stubs = [index for index, node in enumerate(graph.node) if node.domain == PLACEHOLDER_DOMAIN]
+    if len(stubs) != 1:
+        raise RuntimeError(f"the exported decision holds {len(stubs)} placeholders of its value network, expected 1")
+    stub = graph.node[stubs[0]]
+    n_actions = helper.get_attribute_value(next(a for a in stub.attribute if a.name == "n_actions"))
+    body = onnx.compose.add_prefix_graph(value_net.graph, "value_net/")  # no name shadows one of the decision's
+    for value in body.input:  # one observation's A states per iteration
+        value.type.tensor_type.shape.dim[0].dim_value = n_actions
+    nodes, per_observation = [], []
+    for key, name in zip(schema.shapes, stub.input, strict=True):
+        shape = helper.make_tensor(f"{name}/per_observation_shape", onnx.TensorProto.INT64, [3],
+                                   [-1, n_actions, *schema.shapes[key]])
+        graph.initializer.append(shape)
+        nodes.append(helper.make_node("Reshape", [name, shape.name], [f"{name}/per_observation"]))
+        per_observation.append(f"{name}/per_observation")
+    values = stub.output[0]
+    flat = helper.make_tensor(f"{values}/flat_shape", onnx.TensorProto.INT64, [1], [-1])
+    graph.initializer.append(flat)
+    nodes.append(helper.make_node("Scan", per_observation, [f"{values}/per_observation"],
+                                  num_scan_inputs=len(per_observation), body=body, name="value_net_per_observation"))
+    nodes.append(helper.make_node("Reshape", [f"{values}/per_observation", flat.name], [values]))
+    spliced = [*graph.node[:stubs[0]], *nodes, *graph.node[stubs[0] + 1:]]
+    del graph.node[:]
+    graph.node.extend(spliced)
+    proto.functions.extend(value_net.functions)
+    domains = {entry.domain for entry in proto.opset_import}
+    proto.opset_import.extend(entry for entry in value_net.opset_import if entry.domain not in domains)
+    kept = [entry for entry in proto.opset_import if entry.domain != PLACEHOLDER_DOMAIN]
+    del proto.opset_import[:]
+    proto.opset_import.extend(kept)
 
 
 __all__ = ["example_observation", "export_onnx", "to_onnx"]
