@@ -4,9 +4,11 @@ The graph goes from the observation's tensors (the env's ``Dict`` keys as named 
 ``batch`` dynamic) to ``action`` (the greedy action index, int64) and ``action_values`` (the values it maximises):
 for ``APGValue`` the whole lookahead (:mod:`sb3_crowdnav.deploy.graph`), for SB3's DQN the Q network, for PPO/A2C
 the actor. It is written by torch's ONNX exporter (``torch.onnx.export(..., dynamo=True)``) in opset
-:data:`~sb3_crowdnav.deploy.metadata.OPSET`, with two translations it lacks: ``hypot`` (as ``sqrt(x² + y²)``) and
-the stable ``sort`` (as ``TopK``, which orders ties by index, as a stable sort does). The file holds the weights
-(no external data) and :class:`~sb3_crowdnav.deploy.metadata.GraphMetadata`'s entries.
+:data:`~sb3_crowdnav.deploy.metadata.OPSET`, with the translations it lacks: ``hypot`` (as ``sqrt(x² + y²)``), the
+stable ``sort`` (as ``TopK``, which orders ties by index, as a stable sort does) and the extractors' LSTM operator
+(as ONNX's ``LSTM`` with ``sequence_lens``). A lookahead's value network runs as the body of a ``Scan`` over the
+batch's observations (:func:`to_onnx`). The file holds the weights (no external data) and
+:class:`~sb3_crowdnav.deploy.metadata.GraphMetadata`'s entries.
 """
 
 from __future__ import annotations
