@@ -225,7 +225,7 @@ ROWS_PER_ITERATION = 2400  # the rows of the value network's largest layers a Sc
 
 
 def observations_per_iteration(decision: LookaheadDecision, schema: ObservationSchema) -> int:
-    """How many observations' A propagated states one iteration of the value network's ``Scan`` takes.
+    """At most how many observations' A propagated states one iteration of the value network's ``Scan`` takes.
 
     An iteration's layers run on about :data:`ROWS_PER_ITERATION` rows at most (pedestrian slots x history steps
     the encoder reads x states), whose activations stay in the CPU's caches: ``apg_rl``'s value network (80 states
@@ -244,12 +244,13 @@ def observations_per_iteration(decision: LookaheadDecision, schema: ObservationS
 
 def _splice_values(proto: Any, value_net: Any, schema: ObservationSchema, per_iteration: int) -> None:
     """Replace the decision's placeholder for V (:func:`~sb3_crowdnav.deploy.graph.values_per_observation`) by
-    ``Scan(body=value_net)`` over the batch's observations, ``per_iteration`` at a time, in place.
+    ``Scan(body=value_net)`` over the batch's observations, at most ``per_iteration`` at a time, in place.
 
     The placeholder takes the B x A propagated tensors (B * A, n) in the schema's key order, the value network's
-    inputs; each becomes (B, A, n), padded with copies of the last observation to a multiple of ``per_iteration``
-    observations and cut into (B', per_iteration * A, n); the ``Scan`` feeds the body one such block, stacks its V
-    and the rows of the padding are cut off.
+    inputs. For B observations the graph runs ``I = ceil(B / per_iteration)`` iterations of ``k = ceil(B / I)``
+    observations (one observation is one iteration of one, never a padded block): each tensor becomes (B, A, n),
+    is padded with copies of the last observation to I x k observations (fewer than I copies) and cut into
+    (I, k * A, n); the ``Scan`` feeds the body one block and stacks its V, and the padding's values are cut off.
     """
     onnx = require("onnx", "export_onnx")
     helper, graph, int64 = onnx.helper, proto.graph, onnx.TensorProto.INT64
@@ -258,10 +259,9 @@ def _splice_values(proto: Any, value_net: Any, schema: ObservationSchema, per_it
         raise RuntimeError(f"the exported decision holds {len(stubs)} placeholders of its value network, expected 1")
     stub = graph.node[stubs[0]]
     n_actions = helper.get_attribute_value(next(a for a in stub.attribute if a.name == "n_actions"))
-    rows = per_iteration * n_actions
     body = onnx.compose.add_prefix_graph(value_net.graph, "value_net/")  # no name shadows one of the decision's
     for value in body.input:  # one block of states per iteration
-        value.type.tensor_type.shape.dim[0].dim_value = rows
+        value.type.tensor_type.shape.dim[0].dim_param = "block"
     values = stub.output[0]
     nodes = []
 
@@ -273,37 +273,42 @@ def _splice_values(proto: Any, value_net: Any, schema: ObservationSchema, per_it
         nodes.append(helper.make_node(op_type, inputs, [f"{values}/{output}"], **attributes))
         return f"{values}/{output}"
 
-    if per_iteration > 1:  # pads = [0, 0, 0, (k - B mod k) mod k, 0, 0]
-        batch = node("Div", [node("Shape", [stub.input[0]], "rows", start=0, end=1), constant("n_actions", [n_actions])],
-                     "batch")
-        k = constant("per_iteration", [per_iteration])
-        padding = node("Mod", [node("Sub", [k, node("Mod", [batch, k], "rest")], "missing"), k], "padding")
-        pads = node("Concat", [constant("pads_before", [0, 0, 0]), padding, constant("pads_after", [0, 0])], "pads",
-                    axis=0)
+    one = constant("one", [1])
+
+    def ceil_div(numerator: str, denominator: str, output: str) -> str:  # (a + b - 1) // b of positive int64
+        minus_one = node("Sub", [denominator, one], f"{output}_minus_one")
+        return node("Div", [node("Add", [numerator, minus_one], f"{output}_sum"), denominator], output)
+
+    rows = node("Shape", [stub.input[0]], "rows", start=0, end=1)  # B * A
+    actions = constant("n_actions", [n_actions])
+    batch = node("Div", [rows, actions], "batch")
+    iterations = ceil_div(batch, constant("per_iteration", [per_iteration]), "iterations")
+    per_block = ceil_div(batch, iterations, "per_block")
+    padding = node("Sub", [node("Mul", [iterations, per_block], "padded"), batch], "padding")
+    pads = node("Concat", [constant("pads_before", [0, 0, 0]), padding, constant("pads_after", [0, 0])], "pads", axis=0)
+    block_rows = node("Mul", [per_block, actions], "block_rows")
     blocks = []
     for key, name in zip(schema.shapes, stub.input, strict=True):
-        width = schema.shapes[key][0]
-        per_observation = node("Reshape", [name, constant(f"{key}/observations", [-1, n_actions, width])],
-                               f"{key}/observations")
-        if per_iteration > 1:
-            per_observation = node("Pad", [per_observation, pads], f"{key}/padded", mode="edge")
-        blocks.append(node("Reshape", [per_observation, constant(f"{key}/blocks", [-1, rows, width])], f"{key}/blocks"))
+        width = constant(f"{key}/width", [schema.shapes[key][0]])
+        observations = constant(f"{key}/observations", [-1, n_actions, schema.shapes[key][0]])
+        per_observation = node("Reshape", [name, observations], f"{key}/observations")
+        padded = node("Pad", [per_observation, pads], f"{key}/padded", mode="edge")
+        shape = node("Concat", [iterations, block_rows, width], f"{key}/block_shape", axis=0)
+        blocks.append(node("Reshape", [padded, shape], f"{key}/blocks"))
     scanned = node("Scan", blocks, "blocks", num_scan_inputs=len(blocks), body=body)
     nodes[-1].name = "value_net_per_observation"
     flat = node("Reshape", [scanned, constant("flat", [-1])], "flat")
-    if per_iteration > 1:  # the padding's rows cut off
-        flat = node("Slice", [flat, constant("start", [0]), node("Shape", [stub.input[0]], "end", start=0, end=1)],
-                    "kept")
-    nodes.append(helper.make_node("Identity", [flat], [values]))
+    kept = node("Slice", [flat, constant("start", [0]), rows], "kept")  # the padding's rows cut off
+    nodes.append(helper.make_node("Identity", [kept], [values]))
     spliced = [*graph.node[:stubs[0]], *nodes, *graph.node[stubs[0] + 1:]]
     del graph.node[:]
     graph.node.extend(spliced)
     proto.functions.extend(value_net.functions)
     domains = {entry.domain for entry in proto.opset_import}
     proto.opset_import.extend(entry for entry in value_net.opset_import if entry.domain not in domains)
-    kept = [entry for entry in proto.opset_import if entry.domain != PLACEHOLDER_DOMAIN]
+    imports = [entry for entry in proto.opset_import if entry.domain != PLACEHOLDER_DOMAIN]
     del proto.opset_import[:]
-    proto.opset_import.extend(kept)
+    proto.opset_import.extend(imports)
 
 
 __all__ = ["example_observation", "export_onnx", "to_onnx"]
