@@ -221,17 +221,19 @@ def _export(module: th.nn.Module, schema: ObservationSchema, output_names: tuple
     return proto
 
 
-ROWS_PER_ITERATION = 2400  # the rows of the value network's largest layers a Scan iteration aims at (see below)
+ROWS_PER_ITERATION = 6400  # the most rows of the value network's layers a Scan iteration takes (see below)
 
 
 def observations_per_iteration(decision: LookaheadDecision, schema: ObservationSchema) -> int:
     """At most how many observations' A propagated states one iteration of the value network's ``Scan`` takes.
 
-    An iteration's layers run on about :data:`ROWS_PER_ITERATION` rows at most (pedestrian slots x history steps
-    the encoder reads x states), whose activations stay in the CPU's caches: ``apg_rl``'s value network (80 states
-    x 5 steps x 6 pedestrians per observation) ran 1.8x faster one observation at a time than on a batch of 64 in
-    one pass, ``sf_rl``'s (80 x 6 rows per observation) 1.6x faster four at a time; smaller iterations lose more to
-    the per-operator overhead than they gain.
+    An iteration's layers run on at most :data:`ROWS_PER_ITERATION` rows (pedestrian slots x history steps the
+    encoder reads x states) and one observation at least, so that their activations stay in the CPU's caches:
+    ``apg_rl``'s value network (80 states x 5 steps x 6 pedestrians per observation) ran 1.8x faster one
+    observation at a time than on a batch of 64 in one pass; ``sf_rl``'s graph (80 x 6 rows per observation) was
+    fastest with 4 to 8 observations an iteration, 1.1-1.2x its speed without the ``Scan``; smaller iterations
+    lose more to the per-operator overhead than they gain. This gives 1 observation for the APG encoders, 8 for
+    SF, LM and LSTM-RL, 80 for CADRL (a batch of up to 80 in one iteration).
     """
     net = decision.value_net
     extractor = (net.members[0] if hasattr(net, "members") else net).features_extractor
