@@ -348,15 +348,17 @@ def test_the_lstm_operator_is_the_eager_lstm():
 
 
 @pytest.mark.slow
-def test_round_trip_of_several_observations_per_iteration(tmp_path):
-    """An untrained SF policy: its value network's Scan takes several observations per iteration, and batches that
-    are not a multiple of it (padded with copies of the last observation) give the PyTorch values row for row."""
+@pytest.mark.parametrize("extractor", ["SfExtractor", "LmExtractor"])
+def test_round_trip_of_several_observations_per_iteration(tmp_path, extractor):
+    """Untrained SF and LM policies (LM's attention written in halves in a graph): their value network's Scan takes
+    several observations per iteration, and batches that are not a multiple of it (padded with copies of the last
+    observation) give the PyTorch values row for row."""
     from sb3_crowdnav.deploy import OnnxPolicy, export_onnx
     from sb3_crowdnav.deploy.export import observations_per_iteration
-    from sb3_crowdnav.nn.extractors import SfExtractor
+    from sb3_crowdnav.nn import extractors
 
     env = gym.make("CrowdNav-v0")
-    policy = _policy(env, features_extractor_class=SfExtractor)
+    policy = _policy(env, features_extractor_class=getattr(extractors, extractor))
     per_iteration = observations_per_iteration(LookaheadDecision(policy), ObservationSchema.from_space(env.observation_space))
     assert per_iteration > 1
     graph = OnnxPolicy(export_onnx(policy, tmp_path / "sf.onnx", env=env), env)

@@ -25,7 +25,16 @@ from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from torch import nn
 
 from sb3_crowdnav.nn.interactions import angular_pedestrian_grid, local_occupancy_map, social_forces
-from sb3_crowdnav.nn.layers import check_arch, compact_width, linear, lstm_last_state, masked_softmax, mlp, sort_farthest_first
+from sb3_crowdnav.nn.layers import (
+    check_arch,
+    compact_width,
+    exporting,
+    linear,
+    lstm_last_state,
+    masked_softmax,
+    mlp,
+    sort_farthest_first,
+)
 from sb3_crowdnav.nn.static_world import StaticWorldEncoder
 from sb3_crowdnav.nn.transforms import (
     HUMAN_FEATURE_DIM,
@@ -356,6 +365,24 @@ class SarlExtractor(CrowdFeaturesExtractor):
         """Additional per-pedestrian inputs (B, L, extra_dim); none for SARL."""
         return None
 
+    def _scores(self, e: th.Tensor, e_mean: th.Tensor) -> th.Tensor:
+        """ψ_alpha([e_i, mean e]): (B, L, E), (B, 1, E) -> (B, L, 1).
+
+        In an exported graph ψ_alpha's first layer runs as its two halves, the pedestrians' product plus the mean's
+        (once per row, broadcast), without the concatenation: the same function to float32 rounding, and
+        ``lm_rl``'s batch of 64 about 10 % faster in ONNX Runtime. Eager code concatenates, as it was trained.
+        """
+        if not exporting():
+            return self.psi_alpha(th.cat((e, e_mean.expand_as(e)), dim=-1))
+        first, width = self.psi_alpha.layers[0], e.shape[-1]
+        own = nn.functional.linear(e.reshape(-1, width), first.weight[:, :width], first.bias)
+        mean = nn.functional.linear(e_mean.reshape(-1, width), first.weight[:, width:])
+        x = own.reshape(*e.shape[:-1], -1) + mean.reshape(e_mean.shape[0], 1, -1)
+        x = th.relu(x) if self.psi_alpha.relu[0] else x
+        for layer, relu in zip(self.psi_alpha.layers[1:], self.psi_alpha.relu[1:], strict=True):
+            x = linear(x, layer, relu)
+        return x
+
     def forward(self, observations: dict[str, th.Tensor]) -> th.Tensor:
         robot_feats, human_feats, valid, _ = self._robot_centric(observations, latest_only=True)
         latest = human_feats[:, -1]  # (B, L, 7)
@@ -365,7 +392,7 @@ class SarlExtractor(CrowdFeaturesExtractor):
         mask = valid[..., None]  # (B, L, 1)
         count = mask.sum(dim=1, keepdim=True).clamp(min=1)
         e_mean = th.where(mask, e, th.zeros((), dtype=e.dtype)).sum(dim=1, keepdim=True) / count  # (B, 1, E)
-        scores = self.psi_alpha(th.cat((e, e_mean.expand_as(e)), dim=-1))  # (B, L, 1)
+        scores = self._scores(e, e_mean)  # (B, L, 1)
         if scores.shape[1] == 0:  # nobody present in the whole batch
             return th.cat((robot_feats, robot_feats.new_zeros(robot_feats.shape[0], self.psi_h.output_dim)), dim=1)
         weights = masked_softmax(scores, mask, dim=1)  # (B, L, 1), 0 past a row's count
