@@ -366,12 +366,9 @@ class SarlExtractor(CrowdFeaturesExtractor):
         return None
 
     def _scores(self, e: th.Tensor, e_mean: th.Tensor) -> th.Tensor:
-        """ψ_alpha([e_i, mean e]): (B, L, E), (B, 1, E) -> (B, L, 1).
-
-        In an exported graph ψ_alpha's first layer runs as its two halves, the pedestrians' product plus the mean's
-        (once per row, broadcast), without the concatenation: the same function to float32 rounding, and
-        ``lm_rl``'s batch of 64 about 10 % faster in ONNX Runtime. Eager code concatenates, as it was trained.
-        """
+        """ψ_alpha([e_i, mean e]): (B, L, E), (B, 1, E) -> (B, L, 1). In an exported graph its first layer runs as
+        its two halves, the pedestrians' product plus the mean's (once per row), without the concatenation: the same
+        function to float32 rounding, ``lm_rl``'s batch about 10 % faster in ONNX Runtime. Eager code concatenates."""
         if not exporting():
             return self.psi_alpha(th.cat((e, e_mean.expand_as(e)), dim=-1))
         first, width = self.psi_alpha.layers[0], e.shape[-1]
