@@ -155,10 +155,12 @@ def to_onnx(decision: th.nn.Module, schema: ObservationSchema) -> Any:
 
     A lookahead's value network is exported on its own and runs in the graph as the body of a ``Scan`` over the
     batch's observations, on one observation's A propagated states at a time (:func:`_splice_values`)."""
-    proto = _export(decision, schema, OUTPUT_NAMES)
+    per_iteration = observations_per_iteration(decision, schema) if isinstance(decision, LookaheadDecision) else None
     if isinstance(decision, LookaheadDecision):
-        _splice_values(proto, _export(_ValueNetwork(decision.value_net), schema, ("value",)), schema,
-                       observations_per_iteration(decision, schema))
+        decision.scan = per_iteration is not None
+    proto = _export(decision, schema, OUTPUT_NAMES)
+    if per_iteration is not None:
+        _splice_values(proto, _export(_ValueNetwork(decision.value_net), schema, ("value",)), schema, per_iteration)
     return proto
 
 
@@ -224,8 +226,10 @@ def _export(module: th.nn.Module, schema: ObservationSchema, output_names: tuple
 ROWS_PER_ITERATION = 6400  # the most rows of the value network's layers a Scan iteration takes (see below)
 
 
-def observations_per_iteration(decision: LookaheadDecision, schema: ObservationSchema) -> int:
-    """At most how many observations' A propagated states one iteration of the value network's ``Scan`` takes.
+def observations_per_iteration(decision: LookaheadDecision, schema: ObservationSchema) -> int | None:
+    """At most how many observations' A propagated states one iteration of the value network's ``Scan`` takes;
+    None: no ``Scan``, the network inline (CADRL, whose one row per state keeps a batch's activations small: there
+    the ``Scan``'s copy of the inputs made the batch of 64 6 % slower than ONNX Runtime's single pass).
 
     An iteration's layers run on at most :data:`ROWS_PER_ITERATION` rows (pedestrian slots x history steps the
     encoder reads x states) and one observation at least, so that their activations stay in the CPU's caches:
@@ -233,14 +237,14 @@ def observations_per_iteration(decision: LookaheadDecision, schema: ObservationS
     observation at a time than on a batch of 64 in one pass; ``sf_rl``'s graph (80 x 6 rows per observation) was
     fastest with 4 to 8 observations an iteration, 1.1-1.2x its speed without the ``Scan``; smaller iterations
     lose more to the per-operator overhead than they gain. This gives 1 observation for the APG encoders, 8 for
-    SF, LM and LSTM-RL, 80 for CADRL (a batch of up to 80 in one iteration).
+    SF, LM and LSTM-RL.
     """
     net = decision.value_net
     extractor = (net.members[0] if hasattr(net, "members") else net).features_extractor
     if isinstance(extractor, CadrlExtractor):  # one row per state: the nearest pedestrian
-        rows = 1
-    else:  # a row per pedestrian slot and, for the APG encoder, per history step (the others read the latest)
-        rows = schema.max_humans * (schema.history_length if isinstance(extractor, ApgExtractor) else 1)
+        return None
+    # a row per pedestrian slot and, for the APG encoder, per history step (the others read the latest)
+    rows = schema.max_humans * (schema.history_length if isinstance(extractor, ApgExtractor) else 1)
     return max(1, ROWS_PER_ITERATION // (decision.propagation.world.n_actions * rows))
 
 

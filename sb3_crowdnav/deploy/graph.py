@@ -55,6 +55,7 @@ class LookaheadDecision(nn.Module):
     """A :class:`~sb3_crowdnav.apg_value.ValueLookaheadPolicy`'s greedy decision (see the module docstring)."""
 
     kind = "lookahead"
+    scan = True  # in an exported graph V is the placeholder the export replaces by a Scan (False: the network inline)
 
     def __init__(self, policy: ValueLookaheadPolicy) -> None:
         super().__init__()
@@ -77,7 +78,7 @@ class LookaheadDecision(nn.Module):
         """V of the B x A propagated states (rows b-major), (B * A,). In an exported graph a placeholder
         (:func:`values_per_observation`, the propagated tensors in the schema's key order) that the export replaces
         by the value network run on one observation's A states (or a few observations') at a time."""
-        if exporting():
+        if exporting() and self.scan:
             return values_per_observation([observation[key] for key in self.keys], n_actions)
         return self.value_net(observation)
 
