@@ -332,6 +332,47 @@ def test_round_trip_with_limits_a_stop_and_every_reward_term(tmp_path):
     _assert_same_but_ties(actions, expected)
 
 
+def test_the_lstm_operator_is_the_eager_lstm():
+    """The LSTM as one operator (what the graph holds) gives the eager extractors' last states, length 0 included."""
+    from sb3_crowdnav.nn.layers import lstm_last_state, lstm_last_state_op
+
+    th.manual_seed(0)
+    lstm = th.nn.LSTM(4, 3, batch_first=True)
+    sequence, lengths = th.randn(6, 5, 4), th.tensor([3, 0, 5, 1, 2, 5])
+    with th.no_grad():
+        op = lstm_last_state_op(sequence, lengths, lstm.weight_ih_l0, lstm.weight_hh_l0, lstm.bias_ih_l0,
+                                lstm.bias_hh_l0, 3)
+        eager = lstm_last_state(lstm, sequence, lengths)
+    th.testing.assert_close(th.where(lengths[:, None] > 0, op, 0.0), eager, rtol=0, atol=1e-6)
+    assert th.equal(eager[1], th.zeros(3))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("extractor", ["SfExtractor", "LmExtractor"])
+def test_round_trip_of_several_observations_per_iteration(tmp_path, extractor):
+    """Untrained SF and LM policies (LM's attention written in halves in a graph): their value network's Scan takes
+    several observations per iteration, and batches that are not a multiple of it (padded with copies of the last
+    observation) give the PyTorch values row for row."""
+    from sb3_crowdnav.deploy import OnnxPolicy, export_onnx
+    from sb3_crowdnav.deploy.export import observations_per_iteration
+    from sb3_crowdnav.nn import extractors
+
+    env = gym.make("CrowdNav-v0")
+    policy = _policy(env, features_extractor_class=getattr(extractors, extractor))
+    per_iteration = observations_per_iteration(LookaheadDecision(policy), ObservationSchema.from_space(env.observation_space))
+    assert per_iteration > 1
+    graph = OnnxPolicy(export_onnx(policy, tmp_path / "sf.onnx", env=env), env)
+    obs = _observations(env, 2 * per_iteration + 1)
+    obs["humans_mask"][1] = 0.0  # nobody present: an LSTM over no item
+    empty = {**obs, "humans_mask": np.zeros_like(obs["humans_mask"])}  # nobody in the whole batch: one masked slot
+    for count, source in ((1, obs), (per_iteration - 1, obs), (per_iteration, empty), (2 * per_iteration + 1, obs)):
+        batch = {k: v[:count] for k, v in source.items()}
+        expected = policy.action_values(batch)
+        actions, values, _ = graph.run(batch)
+        np.testing.assert_allclose(values, expected, rtol=0, atol=1e-5)
+        _assert_same_but_ties(actions, expected)
+
+
 @pytest.mark.slow
 def test_evaluate_gives_the_records_of_the_original(graphs):
     from sb3_crowdnav.evaluation.runner import run_episodes

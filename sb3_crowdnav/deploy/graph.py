@@ -28,6 +28,7 @@ from sb3_crowdnav.apg_value.policies import ValueLookaheadPolicy
 from sb3_crowdnav.deploy.propagation import F64, GraphPropagation, f64
 from sb3_crowdnav.nn import ApgActorCriticPolicy, ApgDQNPolicy
 from sb3_crowdnav.nn.extractors import CrowdFeaturesExtractor
+from sb3_crowdnav.nn.layers import exporting
 from sb3_crowdnav.sim.observation import ObservationSchema, Robot
 
 # the SB3 policy classes whose greedy action is exported (subclasses may act otherwise: recurrent, masked, ...)
@@ -35,15 +36,32 @@ Q_POLICIES = (DQNPolicy, MultiInputPolicy, ApgDQNPolicy)
 ACTOR_POLICIES = (ActorCriticPolicy, MultiInputActorCriticPolicy, ApgActorCriticPolicy)
 
 
+@th.library.custom_op("sb3_crowdnav::values_per_observation", mutates_args=())
+def values_per_observation(observation: list[th.Tensor], n_actions: int) -> th.Tensor:
+    """A placeholder in the traced decision for V of B x A propagated states ``observation`` (each (B * A, n), in
+    the schema's key order), (B * A,). :func:`~sb3_crowdnav.deploy.export.to_onnx` replaces it by an ONNX ``Scan``
+    of the value network over the B observations: on one observation's A states (a few observations' for the small
+    encoders) the layers' activations stay in the CPU's caches, which made ``apg_rl``'s value network 1.8x faster in
+    ONNX Runtime than in one pass over the 5,120 states of a batch of 64."""
+    raise RuntimeError("values_per_observation is a placeholder of an exported graph and is never run")
+
+
+@values_per_observation.register_fake
+def _values_per_observation_shape(observation, n_actions):
+    return observation[0].new_empty(observation[0].shape[0])
+
+
 class LookaheadDecision(nn.Module):
     """A :class:`~sb3_crowdnav.apg_value.ValueLookaheadPolicy`'s greedy decision (see the module docstring)."""
 
     kind = "lookahead"
+    scan = True  # in an exported graph V is the placeholder the export replaces by a Scan (False: the network inline)
 
     def __init__(self, policy: ValueLookaheadPolicy) -> None:
         super().__init__()
         schema = ObservationSchema.from_space(policy.observation_space)
         self.propagation = GraphPropagation(policy.world, schema, policy.gamma, policy.pedestrian_model)
+        self.keys = tuple(schema.shapes)  # the observation's keys in the schema's order, the value network's inputs
         self.value_net = policy.value_net
         world = policy.world
         self.ceiling = world.has_static_world and policy.gamma < 1
@@ -56,10 +74,18 @@ class LookaheadDecision(nn.Module):
         step = time_step * v_pref
         return th.maximum(progress_reward * step / (1 - th.pow(gamma, step)), success)
 
+    def values(self, observation: dict[str, th.Tensor], n_actions: int) -> th.Tensor:
+        """V of the B x A propagated states (rows b-major), (B * A,). In an exported graph a placeholder
+        (:func:`values_per_observation`, the propagated tensors in the schema's key order) that the export replaces
+        by the value network run on one observation's A states (or a few observations') at a time."""
+        if exporting() and self.scan:
+            return values_per_observation([observation[key] for key in self.keys], n_actions)
+        return self.value_net(observation)
+
     def forward(self, observation: dict[str, th.Tensor]) -> tuple[th.Tensor, th.Tensor]:
         prop = self.propagation(observation)
         batch, n_actions = prop.reward.shape
-        v = self.value_net(prop.observation).reshape(batch, n_actions).to(F64)
+        v = self.values(prop.observation, n_actions).reshape(batch, n_actions).to(F64)
         if self.ceiling:
             v = th.minimum(v, self.value_ceiling(observation["robot"][:, Robot.V_PREF].to(F64))[:, None])
         q = prop.reward + prop.discount[:, None] * th.where(prop.terminal, 0.0, v)

