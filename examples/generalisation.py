@@ -50,7 +50,7 @@ from sb3_crowdnav.training import VALIDATION_SEED_OFFSET
 ENV = "CrowdNav-v0"
 MODELS = ("apg_rl", "apg_robust", "lm_rl", "sf_rl", "cadrl", "ppo_apg", "dqn_apg", "apg_crl", "apg_carl")
 POLICIES = (*(f"pretrained:{name}" for name in MODELS), "orca-constrained")
-HEADLINE = ("APG_RL", "ORCA-constrained")  # the README's rows (table labels)
+HEADLINE = ("APG_RL", "APG_ROBUST", "ORCA-constrained")  # the README's rows (table labels)
 FIRST = ("pretrained:apg_rl", "orca-constrained")  # their policies, run first
 HELD_OUT = ("eth", "hotel")  # scenes never used for training or model selection
 SEEDS = {"test": TEST_SEED_OFFSET, "validation": VALIDATION_SEED_OFFSET}  # --seeds -> first episode seed
