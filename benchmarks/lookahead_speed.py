@@ -20,17 +20,20 @@ from sb3_crowdnav.apg_value import APGValue
 from sb3_crowdnav.nn import EXTRACTORS, configure_cpu
 
 
-def observations(n_envs: int, count: int) -> list[dict[str, np.ndarray]]:
-    """Real mid-episode observations (ORCA robot driving), batched over n_envs."""
+def observations(n_envs: int, count: int, env_id: str = "CrowdNav-v0", env_kwargs: dict | None = None,
+                 seed: int = 0) -> list[dict[str, np.ndarray]]:
+    """``count`` batches of ``n_envs`` real mid-episode observations (an ORCA robot driving) of ``env_id``, its
+    episodes from ``seed`` on (also used by onnx_latency.py)."""
     from sb3_crowdnav import OrcaPolicy
 
-    vec = make_vec_env("CrowdNav-v0", n_envs=n_envs, seed=0)
+    vec = make_vec_env(env_id, n_envs=n_envs, seed=seed, env_kwargs=env_kwargs)
     orca = OrcaPolicy.from_env(vec)
     obs = vec.reset()
     out = []
     for _ in range(count):
         out.append({k: v.copy() for k, v in obs.items()})
         obs, *_ = vec.step(orca.predict(obs)[0])
+    vec.close()
     return out
 
 

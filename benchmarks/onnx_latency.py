@@ -20,10 +20,9 @@ import time
 from pathlib import Path
 
 import numpy as np
-from stable_baselines3.common.env_util import make_vec_env
+from lookahead_speed import observations  # (this folder: the script's own path comes first on sys.path)
 
 import sb3_crowdnav  # noqa: F401  (registers the envs)
-from sb3_crowdnav import OrcaPolicy
 from sb3_crowdnav.deploy import OnnxPolicy, export_onnx
 from sb3_crowdnav.deploy.runtime import OPTIMIZATION_LEVELS
 from sb3_crowdnav.evaluation.runner import TEST_SEED_OFFSET
@@ -31,19 +30,6 @@ from sb3_crowdnav.models import available_pretrained, check_pretrained, pretrain
 from sb3_crowdnav.nn import configure_cpu
 
 WAREHOUSE = ("CrowdNavWarehouse-v0", {"actions": "paper", "max_acceleration": None, "max_turn_rate": None})
-
-
-def observations(env_id: str, env_kwargs: dict, n_envs: int, count: int) -> list[dict[str, np.ndarray]]:
-    """``count`` batches of ``n_envs`` mid-episode observations of test episodes, an ORCA robot driving."""
-    vec = make_vec_env(env_id, n_envs=n_envs, seed=TEST_SEED_OFFSET, env_kwargs=env_kwargs)
-    orca = OrcaPolicy.from_env(vec)
-    obs = vec.reset()
-    out = []
-    for _ in range(count):
-        out.append({k: v.copy() for k, v in obs.items()})
-        obs, *_ = vec.step(orca.predict(obs)[0])
-    vec.close()
-    return out
 
 
 def timed(policy, obs) -> float:
@@ -87,8 +73,9 @@ def main() -> None:
                 export_onnx(check_pretrained(name), path)
             model = pretrained(name)
             graph = OnnxPolicy(path, optimization=args.optimization)
-            one = medians(model, graph, observations(env_id, env_kwargs, 1, args.decisions), single=True)
-            many = medians(model, graph, observations(env_id, env_kwargs, args.batch, args.batches), single=False)
+            seen = (env_id, env_kwargs, TEST_SEED_OFFSET)
+            one = medians(model, graph, observations(1, args.decisions, *seen), single=True)
+            many = medians(model, graph, observations(args.batch, args.batches, *seen), single=False)
             rows.append((name, *one, *many))
             print(f"{name}: one {one[0]:.2f} / {one[1]:.2f} ms, batch {many[0]:.1f} / {many[1]:.1f} ms", flush=True)
     print(f"\nmedian decision time [ms], one thread each, ONNX Runtime optimisation {args.optimization!r}\n")

@@ -117,21 +117,25 @@ def single_crowd(args: argparse.Namespace) -> CrowdSpec | None:
     return specs[0] if len(specs) == 1 else None
 
 
+def parse_env_kwargs(text: str) -> dict[str, Any]:
+    """``--env-kwargs``: a Python literal of a mapping, read by
+    :func:`~sb3_crowdnav.training.hyperparams.safe_eval` (literals and ``dict(...)`` only: no code runs)."""
+    from sb3_crowdnav.training.hyperparams import safe_eval
+
+    try:
+        kwargs = safe_eval(text, {"dict": dict})
+    except ValueError as exc:
+        raise UsageError(f"--env-kwargs: {exc} (write a mapping as \"dict(time_limit=30)\" or "
+                         "\"{'time_limit': 30}\")") from None
+    if not isinstance(kwargs, dict):
+        raise UsageError(f"--env-kwargs must be a dict, got {text!r}")
+    return kwargs
+
+
 def env_kwargs_from_args(args: argparse.Namespace, crowd: bool = True) -> dict[str, Any]:
     """The env's keyword arguments of the env options; with ``crowd``, also the one ``--crowd`` (more are refused:
     only ``benchmark`` compares crowds, and it reads them with :func:`crowd_specs`)."""
-    from sb3_crowdnav.training.hyperparams import safe_eval
-
-    kwargs: dict[str, Any] = {}
-    if args.env_kwargs:
-        try:
-            extra = safe_eval(args.env_kwargs, {"dict": dict})
-        except ValueError as exc:
-            raise UsageError(f"--env-kwargs: {exc} (write a mapping as \"dict(time_limit=30)\" or "
-                             "\"{'time_limit': 30}\")") from None
-        if not isinstance(extra, dict):
-            raise UsageError(f"--env-kwargs must be a dict, got {args.env_kwargs!r}")
-        kwargs.update(extra)
+    kwargs: dict[str, Any] = parse_env_kwargs(args.env_kwargs) if args.env_kwargs else {}
     flags = {"num_humans": ("--humans", args.humans), "max_humans": ("--max-humans", args.max_humans),
              "reward": ("--reward", args.reward), "kinematics": ("--kinematics", args.kinematics),
              "human_policy": ("--human-policy", args.human_policy),

@@ -61,17 +61,9 @@ def _env(args: argparse.Namespace) -> Any:
         return None
     import gymnasium as gym
 
-    from sb3_crowdnav.cli.common import check_env
-    from sb3_crowdnav.training.hyperparams import safe_eval
+    from sb3_crowdnav.cli.common import check_env, parse_env_kwargs
 
-    kwargs: dict[str, Any] = {}
-    if args.export_env_kwargs:
-        try:
-            kwargs = safe_eval(args.export_env_kwargs, {"dict": dict})
-        except ValueError as exc:
-            raise UsageError(f"--env-kwargs: {exc}") from None
-        if not isinstance(kwargs, dict):
-            raise UsageError(f"--env-kwargs must be a dict, got {args.export_env_kwargs!r}")
+    kwargs = parse_env_kwargs(args.export_env_kwargs) if args.export_env_kwargs else {}
     check_env(args.export_env, kwargs)
     return gym.make(args.export_env, **kwargs)
 
