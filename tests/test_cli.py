@@ -159,6 +159,20 @@ def test_train_with_imitation_and_checkpoints(tmp_path, capsys):
     assert json.loads((out / "config.json").read_text())["imitation_episodes"] == 2
 
 
+def test_a_wall_time_budget_stops_training_before_its_timesteps(tmp_path):
+    yml = tmp_path / "ppo.yml"
+    yml.write_text("CrowdNav-v0:\n  policy: ApgPolicy\n  policy_kwargs: 'dict(net_arch=[16])'\n  n_steps: 32\n"
+                   "  batch_size: 32\n  n_epochs: 1\n")
+    out = tmp_path / "run"  # 0.001 min: the budget is spent before the first step ends, so one rollout is collected
+    assert main(["train", "--algo", "ppo", "--hyperparams", str(yml), "--timesteps", "100000", "--out", str(out),
+                 "--wall-time", "0.001", *FAST]) == 0
+    config = json.loads((out / "config.json").read_text())
+    assert config["timesteps"] < 100 and config["timesteps_asked"] == 100000 and config["wall_time_budget_s"] == 0.06
+    from stable_baselines3 import PPO
+
+    assert PPO.load(out / "ppo.zip").num_timesteps == config["timesteps"]
+
+
 def test_imitation_flag_is_refused_for_apg_value(tmp_path, capsys):
     yml = tmp_path / "apg.yml"
     yml.write_text("CrowdNav-v0:\n  imitation_episodes: 0\n")

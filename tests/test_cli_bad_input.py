@@ -130,6 +130,8 @@ def test_bad_policies(tmp_path, capsys, command, args, fragment):
     (["train", "--algo", "ppo", "--hyperparams", "Y/lr.yml", "--timesteps", "0", "--out", "T"], "--timesteps"),
     (["train", "--algo", "ppo", "--hyperparams", "Y/lr.yml", "--checkpoint-freq", "-1", "--out", "T"],
      "--checkpoint-freq"),
+    (["train", "--algo", "ppo", "--hyperparams", "Y/lr.yml", "--wall-time", "0", "--out", "T"], "--wall-time"),
+    (["train", "--variant", "apg_rl", "--wall-time", "5", "--out", "T"], "--wall-time"),
     (["train", "--algo", "ppo", "--hyperparams", "Y/bad.yml", "--out", "T"], "is not valid YAML"),
     (["train", "--algo", "ppo", "--hyperparams", "Y/hostile.yml", "--out", "T"], "python/object/apply"),
     (["train", "--algo", "ppo", "--hyperparams", "Y/lr.yml", "--out", "T"], "learning rate schedule"),

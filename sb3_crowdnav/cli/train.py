@@ -29,7 +29,8 @@ SCHEDULE_FLAGS = {
     "exploration_initial_eps": "--epsilon-start", "exploration_final_eps": "--epsilon-end",
     "pedestrian_model": "--pedestrian-model",
 }
-HYPERPARAMS_FLAGS = {"algo": "--algo", "timesteps": "--timesteps", "checkpoint_freq": "--checkpoint-freq"}
+HYPERPARAMS_FLAGS = {"algo": "--algo", "timesteps": "--timesteps", "checkpoint_freq": "--checkpoint-freq",
+                     "wall_time": "--wall-time"}
 
 
 def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
@@ -63,7 +64,8 @@ def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
 
     g = p.add_argument_group("the paper's schedule (--variant)")
     g.add_argument("--rl-episodes", type=common.positive_int,
-                   help="RL episodes in total (default: the variant's: 10000, apg_robust and apg_warehouse 3000, apg_warehouse_paper 6000)")
+                   help="RL episodes in total (default: the variant's: 10000, apg_robust and apg_warehouse 3000, "
+                        "apg_warehouse_paper 6000)")
     g.add_argument("--n-envs", type=common.positive_int, help="training envs, one batched lookahead (default: 1)")
     g.add_argument("--learning-rate", type=common.positive_float, help="RL learning rate (default: 0.001, Table 1)")
     g.add_argument("--train-freq", type=common.positive_int,
@@ -107,6 +109,10 @@ def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
     g.add_argument("--timesteps", type=common.positive_int, help="total timesteps (default: n_timesteps of the file)")
     g.add_argument("--checkpoint-freq", type=common.nonneg_int,
                    help="save DIR/checkpoints/ every this many env steps (default: 0, only the final model)")
+    g.add_argument("--wall-time", type=common.positive_float, metavar="MIN",
+                   help="stop training after this many minutes of wall time since the command started (imitation "
+                        "included), whatever the timesteps reached: a baseline with the wall time of the run it is "
+                        "compared with (config.json records the timesteps reached)")
     p.set_defaults(func=cmd_train)
 
 
@@ -209,15 +215,17 @@ def _train_hyperparams(args: argparse.Namespace) -> int:
     _dry_run(args.algo, cfg, args.env, env_kwargs)
     common.check_out(args.out)
     start = time.perf_counter()
-    _, path = train_from_hyperparams(
+    model, path = train_from_hyperparams(
         args.algo, hp, args.out, env_id=args.env, timesteps=args.timesteps, seed=args.seed,
         progress_bar=common.progress_enabled(args), verbose=args.verbose or 0, env_overrides=common.env_kwargs_from_args(args),
         imitation_episodes=imitation_episodes, imitation_epochs=imitation_epochs,
         imitation_learning_rate=1e-3 if args.imitation_learning_rate is None else args.imitation_learning_rate,
-        checkpoint_freq=args.checkpoint_freq or 0)
+        checkpoint_freq=args.checkpoint_freq or 0, wall_time=None if args.wall_time is None else 60 * args.wall_time)
     config = {"algo": args.algo, "env": args.env, "hyperparams": hp, "env_kwargs": env_kwargs, "seed": args.seed,
-              "timesteps": args.timesteps or cfg["n_timesteps"], "imitation_episodes": imitation_episodes,
-              "imitation_epochs": imitation_epochs, "wall_time_s": round(time.perf_counter() - start, 1)}
+              "timesteps": model.num_timesteps, "timesteps_asked": args.timesteps or cfg["n_timesteps"],
+              "wall_time_budget_s": None if args.wall_time is None else 60 * args.wall_time,
+              "imitation_episodes": imitation_episodes, "imitation_epochs": imitation_epochs,
+              "wall_time_s": round(time.perf_counter() - start, 1)}
     write_json(Path(args.out) / "config.json", json.loads(json.dumps(config, default=str)))
     print(f"trained {args.algo} for {config['timesteps']} steps in {config['wall_time_s']} s -> {path} "
           f"(TensorBoard logs: {Path(args.out) / 'tb'})")

@@ -1,4 +1,5 @@
-"""The paper schedule's callback: stop after an episode budget, checkpoint, validate and keep the best model."""
+"""The paper schedule's callback (stop after an episode budget, checkpoint, validate and keep the best model) and a
+wall-time budget for hyperparameter-file runs."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ from typing import Any
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_crowdnav.evaluation import run_episodes, summarize
-from sb3_crowdnav.sim.validation import check_choice
+from sb3_crowdnav.sim.validation import check_choice, check_positive
 from sb3_crowdnav.training.run_folder import (
     atomic_write,
     buffer_path,
@@ -147,3 +148,22 @@ class EpisodeCheckpoint(BaseCallback):
             if self.eval_episodes:
                 self.validate()
         return episodes < self.max_episodes
+
+
+class WallTimeBudget(BaseCallback):
+    """Stop ``learn`` at the first env step after ``seconds`` of wall time since ``start`` (a ``time.perf_counter()``
+    reading, so that an imitation phase before ``learn`` counts): a baseline gets the same wall time as the run it
+    is compared with. ``stopped`` says whether the budget, not the timestep total, ended training."""
+
+    def __init__(self, seconds: float, start: float | None = None):
+        super().__init__()
+        check_positive("seconds", seconds, " [s]")
+        self.seconds, self.start, self.stopped = float(seconds), start, False
+
+    def _on_training_start(self) -> None:
+        if self.start is None:
+            self.start = time.perf_counter()
+
+    def _on_step(self) -> bool:
+        self.stopped = time.perf_counter() - self.start >= self.seconds
+        return not self.stopped

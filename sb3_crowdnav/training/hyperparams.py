@@ -30,11 +30,12 @@ from __future__ import annotations
 
 import ast
 import operator
+import time
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from sb3_crowdnav.sim.validation import check_int
+from sb3_crowdnav.sim.validation import check_int, check_positive
 
 DEFAULT_POLICIES = {"apg_value": "ApgPolicy", "dqn": "MultiInputPolicy", "dqfd": "MultiInputPolicy", "ppo": "MultiInputPolicy",
                     "a2c": "MultiInputPolicy", "qrdqn": "MultiInputPolicy", "recurrentppo": "MultiInputLstmPolicy",
@@ -262,7 +263,7 @@ def env_wrapper_class(algo: str) -> type | None:
 def train_from_hyperparams(algo: str, hyperparams: Mapping[str, Any], out_dir: str | Path, env_id: str = "CrowdNav-v0",
           timesteps: int | None = None, seed: int = 0, progress_bar: bool = False, verbose: int = 0,
           env_overrides: Mapping[str, Any] | None = None, imitation_episodes: int = 0, imitation_epochs: int = 10,
-          imitation_learning_rate: float = 1e-3, checkpoint_freq: int = 0):
+          imitation_learning_rate: float = 1e-3, checkpoint_freq: int = 0, wall_time: float | None = None):
     """Train ``algo`` with rl-zoo3 hyperparameters; save ``out_dir/<algo>.zip`` and TensorBoard logs in ``out_dir/tb``.
 
     Training envs are seeded ``seed, seed + 1, ...`` (``make_vec_env``), far from the test seeds
@@ -271,8 +272,12 @@ def train_from_hyperparams(algo: str, hyperparams: Mapping[str, Any], out_dir: s
     With ``imitation_episodes`` > 0 (PPO, A2C, DQN), the model first imitates that many episodes of
     the ORCA robot (:mod:`sb3_crowdnav.imitation`); APGValue has its own ``imitation_episodes``
     hyperparameter instead. ``checkpoint_freq`` > 0 saves ``out_dir/checkpoints/`` every that many
-    env steps (SB3's ``CheckpointCallback``; with the replay buffer for off-policy algorithms).
+    env steps (SB3's ``CheckpointCallback``; with the replay buffer for off-policy algorithms). ``wall_time`` [s]
+    stops training at the first env step after that much wall time since this call began (imitation included;
+    :class:`~sb3_crowdnav.training.callbacks.WallTimeBudget`), whatever the timesteps reached: the model's
+    ``num_timesteps`` says how many.
     """
+    start = time.perf_counter()
     from stable_baselines3.common.env_util import make_vec_env
 
     from sb3_crowdnav.models import algorithms
@@ -294,6 +299,8 @@ def train_from_hyperparams(algo: str, hyperparams: Mapping[str, Any], out_dir: s
     for name, value, minimum in (("imitation_episodes", imitation_episodes, 0), ("imitation_epochs", imitation_epochs, 1),
                                  ("checkpoint_freq", checkpoint_freq, 0)):
         check_int(name, value, minimum)
+    if wall_time is not None:
+        check_positive("wall_time", wall_time, " [s]")
     if imitation_episodes and algo not in ("ppo", "a2c", "dqn", "dqfd"):
         raise ValueError(f"imitation_episodes is for ppo, a2c, dqn and dqfd; {algo} sets imitation in its hyperparameters")
     if algo == "dqfd" and not imitation_episodes:
@@ -314,13 +321,17 @@ def train_from_hyperparams(algo: str, hyperparams: Mapping[str, Any], out_dir: s
             print(f"imitation: {len(demos)} transitions of {imitation_episodes} ORCA episodes {demos.outcomes}; "
                   f"loss per epoch {[round(x, 4) for x in losses]}")
         env.reset()
-    callback = None
+    callbacks = []
     if checkpoint_freq:
         from stable_baselines3.common.callbacks import CheckpointCallback
 
-        callback = CheckpointCallback(max(checkpoint_freq // cfg["n_envs"], 1), str(out / "checkpoints"), name_prefix=algo,
-                                      save_replay_buffer=hasattr(model, "replay_buffer"))
-    model.learn(total_timesteps=int(n_timesteps), progress_bar=progress_bar, callback=callback)
+        callbacks.append(CheckpointCallback(max(checkpoint_freq // cfg["n_envs"], 1), str(out / "checkpoints"),
+                                            name_prefix=algo, save_replay_buffer=hasattr(model, "replay_buffer")))
+    if wall_time is not None:
+        from sb3_crowdnav.training.callbacks import WallTimeBudget
+
+        callbacks.append(WallTimeBudget(wall_time, start))
+    model.learn(total_timesteps=int(n_timesteps), progress_bar=progress_bar, callback=callbacks or None)
     model_path = out / f"{algo}.zip"
     model.save(model_path)
     from sb3_crowdnav.serialization import write_spaces
