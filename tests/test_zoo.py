@@ -37,6 +37,25 @@ def test_hyperparameter_files_carry_the_paper_settings():
         assert set(section) <= allowed
 
 
+ALGO_OF_FILE = {"ppo_from_demonstrations": "ppo", "dqn_from_demonstrations": "dqn"}
+ENTRIES = [(path.name, env_id) for path in sorted(HYPER.glob("*.yml")) for env_id in yaml.safe_load(path.read_text())]
+
+
+@pytest.mark.parametrize(("name", "env_id"), ENTRIES)
+def test_every_hyperparameter_entry_prepares_and_its_env_builds(name, env_id):
+    import gymnasium as gym
+
+    from sb3_crowdnav.training.hyperparams import load_hyperparams, prepare
+
+    algo = ALGO_OF_FILE.get(name[:-4], name[:-4])
+    cfg = prepare(algo, load_hyperparams(HYPER / name, env_id))  # refuses an unknown or unsupported key
+    env = gym.make(env_id, **cfg["env_kwargs"])
+    try:
+        env.reset(seed=0)
+    finally:
+        env.close()
+
+
 def test_register_adds_apg_value_to_rl_zoo3():
     from rl_zoo3 import hyperparams_opt, utils
 
