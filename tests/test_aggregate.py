@@ -7,8 +7,8 @@ import pytest
 
 pytest.importorskip("rliable", reason="the results extra: pip install 'sb3_crowdnav[results]'")
 
-from sb3_crowdnav.cli import main  # noqa: E402
-from sb3_crowdnav.evaluation.aggregate import SeedScore, aggregate, interval_estimates, read_seed_score  # noqa: E402
+from sb3_crowdnav.cli import main
+from sb3_crowdnav.evaluation.aggregate import SeedScore, aggregate, interval_estimates, read_seed_score
 
 EPISODES = tuple(range(1_000_000, 1_000_010))
 REPS = 200
@@ -16,7 +16,8 @@ REPS = 200
 
 def _scores(method, successes, column="test", returns=None, episodes=EPISODES):
     returns = returns if returns is not None else [0.1 * s for s in successes]
-    return [SeedScore(method, column, seed, s, r, episodes) for seed, (s, r) in enumerate(zip(successes, returns))]
+    pairs = enumerate(zip(successes, returns, strict=True))
+    return [SeedScore(method, column, seed, s, r, episodes) for seed, (s, r) in pairs]
 
 
 def _row(result, method, column):

@@ -124,7 +124,7 @@ def score_matrix(scores: Iterable[SeedScore], method: str, columns: Sequence[str
 def _arch_under_pandas_3() -> Iterator[None]:
     """While rliable imports: pandas 2's form of ``deprecate_kwarg(old, new)`` for arch < 8 (rliable 1.2.0 pins
     ``arch < 8``; arch 7.2 decorates a method with it at import, and pandas 3 takes the warning class first). pandas'
-    own function is given back at once; docs/decisions.md, "Aggregates over seeds", says why."""
+    own function is given back at once; docs/decisions.md, "Aggregates over seeds and sweeps on Ray", says why."""
     import pandas.util._decorators as decorators
 
     original = decorators.deprecate_kwarg
