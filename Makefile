@@ -15,7 +15,7 @@ $(STAMP): setup.cfg pyproject.toml
 	$(BIN)/pip install -q --upgrade pip
 	# torch first and pinned: an unpinned torch pulls several GB of CUDA wheels
 	$(BIN)/pip install -q "$(TORCH)"
-	$(BIN)/pip install -q -e ".[tests,zoo,gif,deploy]"
+	$(BIN)/pip install -q -e ".[tests,zoo,gif,deploy,results]"
 	$(BIN)/pip install -q --no-deps $(JUPEDSIM)
 	touch $(STAMP)
 
@@ -32,6 +32,8 @@ docs: $(STAMP)
 	$(BIN)/python -m sphinx -W --keep-going -q -b html docs docs/_build/html
 
 slow: $(STAMP)
+	# Ray (the cluster extra, ~250 MB, ~15 s to install) for the sweep's tests; its start-up (~10 s) keeps them slow
+	$(BIN)/pip install -q -e ".[cluster]"
 	$(BIN)/python -m pytest -q -m slow
 
 lint: $(STAMP)

@@ -1,4 +1,4 @@
-"""The ``sb3-crowdnav`` command line: ``evaluate``, ``benchmark``, ``render``, ``train`` and ``export``.
+"""The ``sb3-crowdnav`` command line: ``evaluate``, ``benchmark``, ``render``, ``train``, ``export``, ``aggregate``, ``sweep``.
 
 Run ``sb3-crowdnav <command> --help`` for the options of each command. Policies are given as
 ``orca`` (``orca-constrained``), ``random`` (or ``random:SEED``), ``pretrained:NAME`` or the path
@@ -6,22 +6,25 @@ of a saved model ``.zip`` (APGValue, DQN, PPO; the algorithm is detected). Test 
 uses ``env.reset(seed=1_000_000 + i)`` (``--seed-offset``), disjoint from training seeds.
 ``train --variant NAME`` runs the paper's schedule of a variant; ``train --hyperparams FILE``
 trains from an rl-zoo3 hyperparameter file; ``export --policy SPEC --out FILE.onnx`` writes a model's decision as
-one ONNX graph, which ``evaluate --policy FILE.onnx`` runs. Bad arguments exit with status 2 and a one-line message.
+one ONNX graph, which ``evaluate --policy FILE.onnx`` runs. ``aggregate`` reads evaluations of several training seeds
+and aggregates them with rliable; ``sweep GRID.yaml`` runs a grid of ``train`` runs and their evaluations on Ray.
+Bad arguments exit with status 2 and a one-line message.
 """
 
 from __future__ import annotations
 
 import argparse
 
-from sb3_crowdnav.cli import evaluate, export, train
+from sb3_crowdnav.cli import aggregate, evaluate, export, sweep, train
 from sb3_crowdnav.cli.common import DEFAULT_ENV_ID, Parser, UsageError, common_options, env_options
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The ``sb3-crowdnav`` argument parser."""
+def build_parser(parser_class: type[Parser] = Parser) -> argparse.ArgumentParser:
+    """The ``sb3-crowdnav`` argument parser; its subcommands' parsers are of ``parser_class`` too (``sweep`` reads a
+    grid's cells with one whose errors raise instead of exiting)."""
     from sb3_crowdnav.version import __version__
 
-    parser = Parser(prog="sb3-crowdnav", description=__doc__.split("\n\n")[0].replace("``", ""),
+    parser = parser_class(prog="sb3-crowdnav", description=__doc__.split("\n\n")[0].replace("``", ""),
                     formatter_class=argparse.RawDescriptionHelpFormatter,
                     epilog="Run 'sb3-crowdnav <command> --help' for the options of a command.")
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
@@ -31,6 +34,8 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_parsers(sub, parents)
     train.add_parser(sub, parents)
     export.add_parser(sub, [common_options()])
+    aggregate.add_parser(sub, [common_options()])
+    sweep.add_parser(sub, [common_options()])
     return parser
 
 

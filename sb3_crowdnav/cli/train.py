@@ -124,17 +124,24 @@ def _refuse(args: argparse.Namespace, flags: dict[str, str], mode: str) -> None:
 
 def cmd_train(args: argparse.Namespace) -> int:
     if args.variant is not None:
-        _refuse(args, HYPERPARAMS_FLAGS, "--variant (it is for --hyperparams runs)")
-        return _train_variant(args)
-    _refuse(args, SCHEDULE_FLAGS, "--hyperparams (it is for --variant runs)")
-    if args.algo is None:
-        raise UsageError(f"--hyperparams needs --algo, one of {', '.join(ALGOS)}")
-    return _train_hyperparams(args)
+        return _train_variant(args, _variant_config(args))
+    return _train_hyperparams(args, _hyperparams_config(args))
 
 
-def _train_variant(args: argparse.Namespace) -> int:
-    from sb3_crowdnav.training.schedule import VARIANTS, ScheduleConfig, config_dict, train_schedule
+def check_train(args: argparse.Namespace) -> None:
+    """Every check ``train`` makes of its arguments, without writing or training anything (``sweep`` checks each
+    cell with it before the first one starts); a bad argument raises :class:`UsageError`."""
+    if args.variant is not None:
+        _variant_config(args)
+    else:
+        _hyperparams_config(args)
 
+
+def _variant_config(args: argparse.Namespace) -> Any:
+    """The checked :class:`~sb3_crowdnav.training.schedule.ScheduleConfig` of a ``--variant`` run."""
+    from sb3_crowdnav.training.schedule import VARIANTS, ScheduleConfig
+
+    _refuse(args, HYPERPARAMS_FLAGS, "--variant (it is for --hyperparams runs)")
     variant = VARIANTS[args.variant]
     if args.env is not None and args.env != variant.env_id:
         raise UsageError(f"--env {args.env}: variant {args.variant} trains on {variant.env_id}")
@@ -154,6 +161,12 @@ def _train_variant(args: argparse.Namespace) -> int:
     common.check_env(variant.env_id, config.training_env_kwargs, common.single_crowd(args))
     if args.from_imitation is not None and not args.from_imitation.is_file():
         raise UsageError(f"--from-imitation: no saved model at {str(args.from_imitation)!r}")
+    return config
+
+
+def _train_variant(args: argparse.Namespace, config: Any) -> int:
+    from sb3_crowdnav.training.schedule import config_dict, train_schedule
+
     common.check_out(args.out)
     args.out.mkdir(parents=True, exist_ok=True)
     write_json(args.out / "config.json", json.loads(json.dumps(config_dict(config), default=str)))
@@ -187,10 +200,14 @@ def _dry_run(algo: str, cfg: dict[str, Any], env_id: str, env_kwargs: dict[str, 
         env.close()
 
 
-def _train_hyperparams(args: argparse.Namespace) -> int:
+def _hyperparams_config(args: argparse.Namespace) -> dict[str, Any]:
+    """The checked file, env and imitation settings of a ``--hyperparams`` run (the algorithm built once)."""
     from sb3_crowdnav.models import algorithms
-    from sb3_crowdnav.training.hyperparams import load_hyperparams, prepare, train_from_hyperparams
+    from sb3_crowdnav.training.hyperparams import load_hyperparams, prepare
 
+    _refuse(args, SCHEDULE_FLAGS, "--hyperparams (it is for --variant runs)")
+    if args.algo is None:
+        raise UsageError(f"--hyperparams needs --algo, one of {', '.join(ALGOS)}")
     if args.algo not in algorithms():
         raise UsageError(f"--algo {args.algo}: the algorithm cannot be imported in this installation")
     common.check_env(args.env, {})  # a crowd env at all, before its entry in the file is looked for
@@ -213,6 +230,15 @@ def _train_hyperparams(args: argparse.Namespace) -> int:
     if imitation_episodes and imitation_epochs < 1:
         raise UsageError(f"--imitation-epochs: expected a positive integer with --imitation-episodes, got {imitation_epochs}")
     _dry_run(args.algo, cfg, args.env, env_kwargs)
+    return {"hp": hp, "cfg": cfg, "env_kwargs": env_kwargs, "imitation_episodes": imitation_episodes,
+            "imitation_epochs": imitation_epochs}
+
+
+def _train_hyperparams(args: argparse.Namespace, checked: dict[str, Any]) -> int:
+    from sb3_crowdnav.training.hyperparams import train_from_hyperparams
+
+    hp, cfg, env_kwargs = checked["hp"], checked["cfg"], checked["env_kwargs"]
+    imitation_episodes, imitation_epochs = checked["imitation_episodes"], checked["imitation_epochs"]
     common.check_out(args.out)
     start = time.perf_counter()
     model, path = train_from_hyperparams(

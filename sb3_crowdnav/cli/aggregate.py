@@ -1,0 +1,82 @@
+"""``sb3-crowdnav aggregate``: evaluations of several training seeds per method, aggregated with rliable."""
+
+from __future__ import annotations
+
+import argparse
+import re
+from pathlib import Path
+from typing import Any
+
+from sb3_crowdnav.cli.common import UsageError, check_out, nonneg_int, positive_int
+
+RESULT = re.compile(r"(?P<method>[^/@=]+)(?:/(?P<column>[^/@=]+))?@(?P<seed>\d+)=(?P<path>.+)")
+RESULT_GRAMMAR = "METHOD[/COLUMN]@SEED=PATH"
+DEFAULT_COLUMN = "test"
+
+
+def _confidence(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not 0 < value < 1:
+        raise argparse.ArgumentTypeError(f"expected a number in (0, 1), got {text!r}")
+    return value
+
+
+def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
+    """Add ``aggregate`` to the subcommands ``sub``."""
+    p = sub.add_parser(
+        "aggregate", parents=parents, help="aggregate evaluations over training seeds with rliable (IQM, intervals)",
+        description="Read one episodes CSV per method, column and training seed (what 'sb3-crowdnav evaluate --out DIR' "
+                    "writes as DIR/episodes.csv) and print per-seed rows, the interquartile mean of success and return "
+                    "per method and column with stratified bootstrap confidence intervals, and the probability of "
+                    "improvement between methods, all computed with rliable (install: pip install "
+                    "'sb3_crowdnav[results]'). Every seed of every method needs the same columns and test episodes.")
+    p.add_argument("results", nargs="+", metavar=RESULT_GRAMMAR,
+                   help=f"one evaluation: the method, the column (default: {DEFAULT_COLUMN}), the training seed and the "
+                        "episodes CSV or the folder holding episodes.csv, e.g. APG_RL@0=runs/apg_rl_0/eval")
+    p.add_argument("--reps", type=positive_int, default=2000, help="bootstrap resamples per interval (default: 2000)")
+    p.add_argument("--confidence", type=_confidence, default=0.95, help="coverage of the intervals (default: 0.95)")
+    p.add_argument("--bootstrap-seed", type=nonneg_int, default=0, help="seed of the bootstrap (default: 0)")
+    p.add_argument("--out", type=Path, metavar="DIR",
+                   help="also write aggregate.md, aggregate.csv, aggregate_per_seed.csv and aggregate_improvement.csv")
+    p.add_argument("--markdown-into", type=Path, metavar="FILE",
+                   help="replace the block between <!-- NAME:begin --> and <!-- NAME:end --> in FILE with the tables")
+    p.add_argument("--block", default="seeds", metavar="NAME", help="the block's NAME (default: seeds)")
+    p.set_defaults(func=cmd_aggregate)
+
+
+def parse_result(text: str) -> tuple[str, str, int, Path]:
+    """``METHOD[/COLUMN]@SEED=PATH`` -> (method, column, seed, path)."""
+    match = RESULT.fullmatch(text.strip())
+    if match is None:
+        raise UsageError(f"expected {RESULT_GRAMMAR}, e.g. APG_RL@0=runs/apg_rl_0/eval, got {text!r}")
+    return (match["method"].strip(), (match["column"] or DEFAULT_COLUMN).strip(), int(match["seed"]),
+            Path(match["path"].strip()))
+
+
+def cmd_aggregate(args: argparse.Namespace) -> int:
+    from sb3_crowdnav.evaluation.aggregate import aggregate, check_block, read_seed_score, write_block
+
+    parsed = [parse_result(text) for text in args.results]
+    if args.out is not None:
+        check_out(args.out)
+    if args.markdown_into is not None:
+        try:
+            check_block(args.markdown_into, args.block)
+        except ValueError as exc:
+            raise UsageError(f"--markdown-into: {exc}") from None
+    try:
+        scores = [read_seed_score(path, method, column, seed) for method, column, seed, path in parsed]
+        result = aggregate(scores, reps=args.reps, confidence=args.confidence, random_seed=args.bootstrap_seed)
+    except (FileNotFoundError, ValueError, ImportError) as exc:
+        raise UsageError(str(exc)) from None
+    print(result.to_markdown(), end="")
+    if args.out is not None:
+        written = result.save(args.out / "aggregate")
+        print(f"\nwrote {', '.join(p.name for p in written)} in {args.out}")
+    if args.markdown_into is not None:
+        write_block(args.markdown_into, args.block, result.to_markdown())
+        print(f"wrote the tables into {args.markdown_into}")
+    return 0

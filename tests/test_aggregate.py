@@ -1,0 +1,145 @@
+"""Aggregates over training seeds with rliable: values computed here independently, refusals, the CLI."""
+
+import math
+
+import numpy as np
+import pytest
+
+pytest.importorskip("rliable", reason="the results extra: pip install 'sb3_crowdnav[results]'")
+
+from sb3_crowdnav.cli import main
+from sb3_crowdnav.evaluation.aggregate import SeedScore, aggregate, interval_estimates, read_seed_score
+
+EPISODES = tuple(range(1_000_000, 1_000_010))
+REPS = 200
+
+
+def _scores(method, successes, column="test", returns=None, episodes=EPISODES):
+    returns = returns if returns is not None else [0.1 * s for s in successes]
+    pairs = enumerate(zip(successes, returns, strict=True))
+    return [SeedScore(method, column, seed, s, r, episodes) for seed, (s, r) in pairs]
+
+
+def _row(result, method, column):
+    return next(r for r in result.rows if r.method == method and r.column == column)
+
+
+def test_iqm_is_the_mean_of_the_middle_half():
+    values = [0.9, 0.1, 0.6, 0.5, 0.7, 0.2, 1.0, 0.3]  # 8 seeds: the 2 lowest and the 2 highest are cut
+    middle = sorted(values)[2:6]
+    result = aggregate(_scores("A", values), reps=REPS)
+    row = _row(result, "A", "test")
+    assert row.success_iqm == pytest.approx(np.mean(middle))
+    assert row.seeds == 8 and row.episodes == len(EPISODES)
+    assert min(values) <= row.success_ci[0] <= row.success_iqm <= row.success_ci[1] <= max(values)
+
+
+def test_iqm_of_three_seeds_is_their_mean_and_over_columns_pools_them():
+    scores = _scores("A", [0.2, 0.5, 0.8], "a") + _scores("A", [0.4, 0.4, 0.4], "b")
+    result = aggregate(scores, reps=REPS)
+    assert _row(result, "A", "a").success_iqm == pytest.approx(0.5)
+    pooled = sorted([0.2, 0.5, 0.8, 0.4, 0.4, 0.4])[1:5]  # 6 scores: one cut at each end
+    assert _row(result, "A", "all").success_iqm == pytest.approx(np.mean(pooled))
+    assert _row(result, "A", "b").success_ci == pytest.approx((0.4, 0.4))  # every resample is the same
+
+
+def test_probability_of_improvement():
+    scores = _scores("A", [0.9, 0.95, 0.92]) + _scores("B", [0.5, 0.6, 0.55]) + _scores("C", [0.5, 0.6, 0.55])
+    result = aggregate(scores, reps=REPS)
+    pairs = {(i.method, i.other): i for i in result.improvements}
+    assert pairs["A", "B"].probability == 1.0 and pairs["A", "B"].ci == (1.0, 1.0) and pairs["A", "B"].resolved
+    assert pairs["B", "C"].probability == 0.5 and not pairs["B", "C"].resolved  # the same scores
+    assert set(pairs) == {("A", "B"), ("A", "C"), ("B", "C")}
+    # P(X > Y) counted by hand: two of X's seeds beat every seed of Y, the third ties them (one half)
+    mixed = aggregate(_scores("X", [0.6, 0.6, 0.55]) + _scores("Y", [0.55, 0.55, 0.55]), reps=REPS).improvements[0]
+    assert mixed.probability == pytest.approx((1 + 1 + 0.5) / 3)
+
+
+def test_a_method_with_one_seed_has_no_interval():
+    result = aggregate(_scores("A", [0.9, 0.8]) + _scores("MaskablePPO", [0.7]), reps=REPS)
+    assert _row(result, "MaskablePPO", "test").success_ci is None
+    assert _row(result, "MaskablePPO", "test").success_iqm == pytest.approx(0.7)
+    assert result.improvements == ()
+    text = result.to_markdown()
+    assert "0.700 (1 seed)" in text and "MaskablePPO: one seed" in text
+    with pytest.raises(ValueError, match="at least 2 seeds, got 1"):
+        interval_estimates({"m": np.ones((1, 1))}, np.mean, REPS, 0.95, 0)
+
+
+def test_the_same_tables_every_time_and_the_callers_generator_untouched():
+    import pandas.util._decorators as decorators
+
+    original = decorators.deprecate_kwarg  # adapted while rliable imports arch (docs/decisions.md), then given back
+    scores = _scores("A", [0.2, 0.9, 0.5, 0.7]) + _scores("B", [0.3, 0.4, 0.8, 0.1])
+    np.random.seed(123)
+    before = np.random.get_state()[1].copy()
+    first = aggregate(scores, reps=REPS)
+    assert np.array_equal(np.random.get_state()[1], before)
+    assert decorators.deprecate_kwarg is original
+    assert aggregate(scores, reps=REPS) == first
+    assert aggregate(scores, reps=REPS, random_seed=1).rows != first.rows
+
+
+@pytest.mark.parametrize("scores, fragment", [
+    ([], "no results"),
+    (_scores("A", [0.5, 0.6]) + _scores("A", [0.5]), "given twice"),
+    (_scores("A", [0.5, 0.6], "a") + _scores("A", [0.5], "b"), "same columns"),
+    (_scores("A", [0.5, 0.6], "a") + _scores("B", [0.5, 0.6], "b"), "same columns"),
+    (_scores("A", [0.5, 0.6]) + _scores("B", [0.5, 0.6], episodes=EPISODES[:5]), "same test episodes"),
+    (_scores("A", [0.5, 0.6]) + _scores("B", [0.5, 0.6], returns=[math.nan, math.nan]), "all or none"),
+])
+def test_inconsistent_input_is_refused(scores, fragment):
+    with pytest.raises(ValueError, match=fragment):
+        aggregate(scores, reps=REPS)
+
+
+def _episodes_csv(path, outcomes, first_seed=1_000_000):
+    lines = ["seed,outcome,discounted_return"]
+    lines += [f"{first_seed + i},{o},{0.3 if o == 'success' else 0.0}" for i, o in enumerate(outcomes)]
+    path.mkdir(parents=True, exist_ok=True)
+    (path / "episodes.csv").write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_read_seed_score(tmp_path):
+    folder = _episodes_csv(tmp_path / "e", ["success", "collision", "success", "timeout"])
+    score = read_seed_score(folder, "A", "test", 3)
+    assert (score.success, score.discounted_return, score.episodes, score.seed) == (0.5, pytest.approx(0.15), 4, 3)
+    assert read_seed_score(folder / "episodes.csv", "A", "test", 3) == score
+
+
+def test_cli_tables_and_markdown_block(tmp_path, capsys):
+    results = []
+    for method, wins in (("A", [4, 3, 4]), ("B", [1, 0, 1])):
+        for seed, k in enumerate(wins):
+            folder = _episodes_csv(tmp_path / method / str(seed), ["success"] * k + ["collision"] * (4 - k))
+            results.append(f"{method}@{seed}={folder}")
+    doc = tmp_path / "results.md"
+    doc.write_text("# Results\n<!-- seeds:begin -->\nold\n<!-- seeds:end -->\nafter\n")
+    assert main(["aggregate", *results, "--reps", str(REPS), "--out", str(tmp_path / "out"),
+                 "--markdown-into", str(doc)]) == 0
+    out = capsys.readouterr().out
+    assert "| A | test | 3 | 4 | 0.917 [0.750, 1.000] |" in out  # 3 seeds: the mean of 1, 0.75, 1
+    assert "| A | B | test | 1.00 [1.00, 1.00] | yes |" in out
+    text = doc.read_text()
+    assert "old" not in text and text.endswith("<!-- seeds:end -->\nafter\n") and "| B | test | 0 | 4 | 0.250 |" in text
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == [
+        "aggregate.csv", "aggregate.md", "aggregate_improvement.csv", "aggregate_per_seed.csv"]
+
+
+@pytest.mark.parametrize("argv, fragment", [
+    (["A0=x"], "METHOD[/COLUMN]@SEED=PATH"),
+    (["A@0=missing"], "no episodes CSV"),
+    (["A@0={a}", "A@1={b}"], "same test episodes"),
+    (["A@0={a}", "--markdown-into", "{doc}"], "no block between <!-- seeds:begin -->"),
+])
+def test_cli_refusals(tmp_path, capsys, argv, fragment):
+    a = _episodes_csv(tmp_path / "a", ["success"] * 3)
+    b = _episodes_csv(tmp_path / "b", ["success"] * 2)
+    (tmp_path / "doc.md").write_text("no block\n")
+    argv = [x.format(a=a, b=b, doc=tmp_path / "doc.md") for x in argv]
+    with pytest.raises(SystemExit) as exc:
+        main(["aggregate", *argv])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert fragment in err and len(err.strip().splitlines()) == 1

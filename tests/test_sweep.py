@@ -1,0 +1,166 @@
+"""``sb3-crowdnav sweep``: grid refusals, the cell states read from the folders, and a tiny real sweep on Ray."""
+
+import json
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from sb3_crowdnav.cli import main
+from sb3_crowdnav.cli.common import UsageError
+from sb3_crowdnav.cli.grid import cell_state, cells, eval_argv, load_grid
+
+HYPERPARAMS = Path(__file__).resolve().parents[1] / "zoo_hyperparams" / "ppo.yml"
+TINY_APG = ("{imitation_episodes: 2, imitation_epochs: 1, rl_episodes: 2, checkpoint_episodes: 1, eval_episodes: 1, "
+            "exploration_episodes: 1, overlap: off, buffer_size: 1000}")
+GRID = f"""\
+seeds: [0, 1]
+methods:
+  APG_RL: {{variant: apg_rl, train: {TINY_APG}}}
+  PPO: {{hyperparams: {HYPERPARAMS}, algo: ppo, train: {{timesteps: 64}}}}
+envs:
+  few: {{num_humans: 2}}
+evaluate:
+  episodes: 2
+  columns: {{same: {{}}, more: {{num_humans: 4}}}}
+"""
+
+
+def _grid(tmp_path, text=GRID):
+    path = tmp_path / "grid.yaml"
+    path.write_text(textwrap.dedent(text))
+    return path
+
+
+def _refused(capsys, argv):
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1, err
+    return err
+
+
+@pytest.mark.parametrize("change, fragment", [
+    (("seeds: [0, 1]", "seed: [0, 1]"), "unknown key 'seed'; allowed: seeds, methods, envs, train, evaluate"),
+    (("seeds: [0, 1]", "seeds: [0, -1]"), "seeds: expected integers >= 0"),
+    (("seeds: [0, 1]", "seeds: [1, 1]"), "a seed is given twice"),
+    (("variant: apg_rl", "variant: apg_xl"), "methods.APG_RL.variant: expected one of apg_carl"),
+    (("variant: apg_rl", "variant: apg_rl, hyperparams: x.yml"), "give either 'variant'"),
+    (("rl_episodes: 2", "rl_episodez: 2"), "methods.APG_RL.train.rl_episodez: not a train option of a grid; allowed:"),
+    (("algo: ppo", "algo: sac"), "methods.PPO.algo: expected one of apg_value"),
+    (("timesteps: 64", "timesteps: 64, rl_episodes: 3"), "methods.PPO in envs.few: --rl-episodes is not used with "
+                                                         "--hyperparams"),
+    (("rl_episodes: 2", "rl_episodes: -2"), "methods.APG_RL in envs.few: argument --rl-episodes: expected a positive"),
+    (("eval_episodes: 1", "eval_episodes: 0"), "model 'best' needs validation"),
+    (("few: {num_humans: 2}", "few: {num_humanz: 2}"), "num_humanz"),
+    (("few:", "a/b:"), "the name 'a/b' must be letters"),
+    (("episodes: 2", "episodes: 0"), "evaluate.episodes: expected an integer >= 1, got 0"),
+    (("more: {num_humans: 4}", "more: {kinematics: legs}"), "methods.APG_RL in envs.few"),
+    (("ppo.yml", "nothing.yml"), "methods.PPO.hyperparams: no file"),
+])
+def test_bad_grids_are_refused_before_any_work(tmp_path, capsys, change, fragment):
+    path = _grid(tmp_path, GRID.replace(*change))
+    out = tmp_path / "out"
+    err = _refused(capsys, ["sweep", str(path), "--out", str(out), "--dry-run"])
+    assert fragment in err
+    assert not out.exists()
+
+
+def test_cluster_and_local_cpus_are_not_both_given(tmp_path, capsys):
+    err = _refused(capsys, ["sweep", str(_grid(tmp_path)), "--out", str(tmp_path / "o"), "--address", "auto",
+                            "--num-cpus", "2"])
+    assert "--num-cpus" in err
+
+
+def test_dry_run_lists_the_cells(tmp_path, capsys):
+    assert main(["sweep", str(_grid(tmp_path)), "--out", str(tmp_path / "out"), "--dry-run"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines == ["todo     APG_RL/few/seed_0", "todo     APG_RL/few/seed_1", "todo     PPO/few/seed_0",
+                     "todo     PPO/few/seed_1", "4 todo, 0 partial, 0 done"]
+    assert not (tmp_path / "out").exists()
+
+
+def _touch(path, text=""):
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text)
+
+
+def test_cell_state_follows_the_run_folder(tmp_path):
+    """todo -> partial (imitation, a checkpoint, trained) -> done, read from the files alone; other settings refused."""
+    grid = load_grid(_grid(tmp_path))
+    cell = cells(grid, tmp_path / "out")[0]
+    train = cell.folder / "train"
+    assert cell_state(cell, grid) == ("todo", "")
+    _touch(cell.folder / "cell.json", json.dumps({"cell": cell.name, "train": cell.train_argv()[:-5]}))
+    _touch(train / "imitation.zip")
+    assert cell_state(cell, grid) == ("partial", "imitation done; resumes with RL")
+    _touch(train / "config.json", json.dumps({"rl_episodes": 2}))
+    _touch(train / "checkpoint_1.zip")
+    _touch(train / "replay_buffer_1.npz")
+    assert cell_state(cell, grid) == ("partial", "resumes at RL episode 1 of 2")
+    _touch(train / "final.zip")
+    _touch(train / "best.zip")
+    assert cell_state(cell, grid) == ("partial", "resumes at RL episode 1 of 2")  # not finished: progress.json says
+    _touch(train / "progress.json", json.dumps({"episodes": 2, "finished": True}))
+    assert cell_state(cell, grid) == ("partial", "trained; to evaluate: same, more")
+    for column, humans in (("same", 2), ("more", 4)):
+        folder = cell.folder / "eval" / column
+        _touch(folder / "episodes.csv")
+        meta = {"episodes": 2, "seeds": [1_000_000, 1_000_001], "env_kwargs": {"num_humans": humans},
+                "policies": {"APG_RL": str(train / "best.zip")}}
+        _touch(folder / "meta.json", json.dumps(meta))
+        if column == "same":
+            assert cell_state(cell, grid) == ("partial", "trained; to evaluate: more")
+    assert cell_state(cell, grid) == ("done", "")
+    _touch(cell.folder / "eval" / "more" / "meta.json", json.dumps({**meta, "episodes": 3}))  # other episodes: again
+    assert cell_state(cell, grid) == ("partial", "trained; to evaluate: more")
+
+    changed = load_grid(_grid(tmp_path, GRID.replace("rl_episodes: 2", "rl_episodes: 3")))
+    with pytest.raises(UsageError, match="holds a run started with other settings"):
+        cell_state(cells(changed, tmp_path / "out")[0], changed)
+
+
+def test_a_hyperparams_cell_is_done_when_train_has_written_its_model(tmp_path):
+    grid = load_grid(_grid(tmp_path))
+    cell = cells(grid, tmp_path / "out")[2]
+    assert cell.method.name == "PPO" and cell.model_path.name == "ppo.zip"
+    _touch(cell.train_folder / "tb" / "x")
+    assert cell_state(cell, grid) == ("partial", "started; a --hyperparams run starts over")
+    _touch(cell.model_path)
+    _touch(cell.train_folder / "config.json", json.dumps({"wall_time_s": 1.0}))
+    assert cell_state(cell, grid)[1] == "trained; to evaluate: same, more"
+    argv = eval_argv(cell, grid, "more")  # the file's env_kwargs, the grid env's, then the column's
+    assert argv[argv.index("--env-kwargs") + 1] == "{'num_humans': 4}" and argv[argv.index("--env") + 1] == "CrowdNav-v0"
+
+
+@pytest.mark.slow  # a local Ray instance (~10 s to start) and 4 tiny training runs
+def test_a_sweep_on_ray_resumes_killed_cells_and_skips_finished_ones(tmp_path, capsys, monkeypatch):
+    """2 methods x 2 seeds on a real local Ray (1 CPU, loopback): every worker that runs an APG_RL cell is killed
+    right after imitation; with --retries 0 those cells fail and the sweep exits 1, the rerun resumes them from
+    imitation.zip, and a third run finds every cell done."""
+    ray = pytest.importorskip("ray", reason="the cluster extra: pip install 'sb3_crowdnav[cluster]' (make slow)")
+    monkeypatch.setenv("SB3_CROWDNAV_KILL_AT", "imitation:1")  # inherited by the Ray workers started below
+    ray.init(num_cpus=1, include_dashboard=False, log_to_driver=False, _node_ip_address="127.0.0.1")
+    try:
+        grid, out = str(_grid(tmp_path)), tmp_path / "out"
+        argv = ["sweep", grid, "--out", str(out), "--reps", "100"]
+        assert main([*argv, "--retries", "0"]) == 1
+        captured = capsys.readouterr()
+        assert "failed   APG_RL/few/seed_0" in captured.out and "done     PPO/few/seed_1" in captured.out
+        assert "2 of 4 cells failed: APG_RL/few/seed_0, APG_RL/few/seed_1" in captured.err
+        assert (out / "aggregate.md").is_file()  # the finished cells (PPO) are aggregated already
+
+        assert main(argv) == 0
+        lines = capsys.readouterr().out.splitlines()
+        assert "partial  APG_RL/few/seed_0 (imitation done; resumes with RL)" in lines
+        assert "done     PPO/few/seed_0" in lines and "done     APG_RL/few/seed_1" in " ".join(lines)
+        log = (out / "cells" / "APG_RL" / "few" / "seed_0" / "cell.log").read_text()
+        assert log.count("$ sb3-crowdnav train") == 2 and "done: 2 RL episodes" in log
+        table = (out / "aggregate.md").read_text()
+        assert "| APG_RL | all | 2 | 4 |" in table and "| APG_RL | PPO | all |" in table
+
+        assert main(argv) == 0
+        assert "0 todo, 0 partial, 4 done" in capsys.readouterr().out
+    finally:
+        ray.shutdown()
