@@ -67,15 +67,11 @@ def test_a_method_with_one_seed_has_no_interval():
 
 
 def test_the_same_tables_every_time_and_the_callers_generator_untouched():
-    import pandas.util._decorators as decorators
-
-    original = decorators.deprecate_kwarg  # adapted while rliable imports arch (docs/decisions.md), then given back
     scores = _scores("A", [0.2, 0.9, 0.5, 0.7]) + _scores("B", [0.3, 0.4, 0.8, 0.1])
     np.random.seed(123)
     before = np.random.get_state()[1].copy()
     first = aggregate(scores, reps=REPS)
     assert np.array_equal(np.random.get_state()[1], before)
-    assert decorators.deprecate_kwarg is original
     assert aggregate(scores, reps=REPS) == first
     assert aggregate(scores, reps=REPS, random_seed=1).rows != first.rows
 

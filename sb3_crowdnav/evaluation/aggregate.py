@@ -25,12 +25,10 @@ same on every run.
 
 from __future__ import annotations
 
-import contextlib
 import csv
-import inspect
 import io
 import math
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -120,33 +118,10 @@ def score_matrix(scores: Iterable[SeedScore], method: str, columns: Sequence[str
     return np.array([[by_key[(seed, column)] for column in columns] for seed in seeds], dtype=float)
 
 
-@contextlib.contextmanager
-def _arch_under_pandas_3() -> Iterator[None]:
-    """While rliable imports: pandas 2's form of ``deprecate_kwarg(old, new)`` for arch < 8 (rliable 1.2.0 pins
-    ``arch < 8``; arch 7.2 decorates a method with it at import, and pandas 3 takes the warning class first). pandas'
-    own function is given back at once; docs/decisions.md, "Aggregates over seeds and sweeps on Ray", says why."""
-    import pandas.util._decorators as decorators
-
-    original = decorators.deprecate_kwarg
-    if next(iter(inspect.signature(original).parameters)) != "klass":  # pandas 2: nothing to adapt
-        yield
-        return
-
-    def pandas_2_form(old_arg_name: str, new_arg_name: str | None, *args: Any, **kwargs: Any) -> Any:
-        return original(FutureWarning, old_arg_name, new_arg_name, *args, **kwargs)
-
-    decorators.deprecate_kwarg = pandas_2_form
-    try:
-        yield
-    finally:
-        decorators.deprecate_kwarg = original
-
-
 def _rliable() -> tuple[Any, Any]:
     """rliable's ``library`` and ``metrics`` modules (an install hint when rliable is missing)."""
     try:
-        with _arch_under_pandas_3():
-            from rliable import library, metrics
+        from rliable import library, metrics
     except ImportError as exc:
         raise ImportError(INSTALL_HINT) from exc
     return library, metrics
