@@ -59,3 +59,11 @@ def test_shell_commands_run(tmp_path, page, command):
     result = subprocess.run([sys.executable, "-m", "sb3_crowdnav.cli", *argv[1:]], cwd=tmp_path, capture_output=True,
                             text=True, timeout=300)
     assert result.returncode == 0, result.stderr[-3000:]
+
+
+def test_the_readme_counts_the_shipped_models_and_every_weights_file_is_listed():
+    from sb3_crowdnav.models import PRETRAINED, PRETRAINED_SHA256, WEIGHTS_DIR
+
+    words = {8: "eight", 9: "nine", 10: "ten", 11: "eleven", 12: "twelve", 13: "thirteen", 14: "fourteen"}
+    assert f"| {words[len(PRETRAINED)]} trained models in the package" in (ROOT / "README.md").read_text()
+    assert {p.stem for p in WEIGHTS_DIR.glob("*.zip")} == set(PRETRAINED) == set(PRETRAINED_SHA256)
