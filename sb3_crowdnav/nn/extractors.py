@@ -74,33 +74,54 @@ class CrowdFeaturesExtractor(BaseFeaturesExtractor):
             self.static_world = static
             self.register_forward_hook(_append_static_world)
 
-    def _robot_centric(
+    def _sorted_crowd(
         self, observations: dict[str, th.Tensor], latest_only: bool = False
     ) -> tuple[th.Tensor, th.Tensor, th.Tensor, th.Tensor]:
-        """Robot-centric features of the present pedestrians, compacted and sorted for the LSTM.
+        """The robot and the present pedestrians in the world frame, compacted and sorted for the LSTM.
 
         Pedestrians are ordered by their current centre distance to the robot, farthest first,
         and the padding is cut to the largest number L of present pedestrians in the batch
-        (everything downstream is linear in L instead of ``max_humans``; L = 0 is allowed).
+        (everything downstream is linear in L instead of ``max_humans``; L = 0 is allowed). The order
+        compares squared distances in float64 (exact products of the float32 offsets, one rounding in their
+        sum): an exported graph orders two pedestrians whose distances differ in the last float32 bit as
+        PyTorch does (``hypot`` kernels round differently there).
+
+        :return: robot (B, 9); pedestrians (B, T', L, 5) with T' = 1 when ``latest_only`` else T, whatever the
+            observation holds in the slots past a row's count (zero them before use); ``valid`` (B, L) bool;
+            ``lengths`` (B,) number of present pedestrians
+        """
+        # padded slots keep their content here: the sort puts them last and the caller zeroes them
+        robot, humans, present = split_observation(observations, self.history_length, self.max_humans, zero_padding=False)
+        if latest_only:
+            humans = humans[:, -1:]
+        batch, steps, _, dim = humans.shape
+        offset = (humans[:, -1, :, Human.POS] - robot[:, None, Robot.POS]).double()  # (B, N, 2)
+        dist2 = offset[..., 0] * offset[..., 0] + offset[..., 1] * offset[..., 1]  # NaN in garbage slots: masked
+        order, lengths, valid = sort_farthest_first(dist2, present)
+        width = compact_width(lengths)
+        order, valid = order[:, :width], valid[:, :width]
+        humans = humans.gather(2, order[:, None, :, None].expand(batch, steps, width, dim))  # (B, T', L, 5)
+        return robot, humans, valid, lengths
+
+    @staticmethod
+    def _features(robot: th.Tensor, humans: th.Tensor, valid: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+        """Robot features (B, 7) and pedestrian features (B, T', L, 7) (zero past a row's count) of
+        :meth:`_sorted_crowd`'s output."""
+        robot_feats, human_feats = robot_centric(robot, humans)
+        return robot_feats, th.where(valid[:, None, :, None], human_feats, th.zeros((), dtype=human_feats.dtype))
+
+    def _robot_centric(
+        self, observations: dict[str, th.Tensor], latest_only: bool = False
+    ) -> tuple[th.Tensor, th.Tensor, th.Tensor, th.Tensor]:
+        """Robot-centric features of the present pedestrians, compacted and sorted for the LSTM
+        (:meth:`_sorted_crowd`).
 
         :return: robot features (B, 7); pedestrian features (B, T', L, 7) with T' = 1 when
             ``latest_only`` else T, zero in the slots past a row's count; ``valid`` (B, L) bool;
             ``lengths`` (B,) number of present pedestrians
         """
-        # padded slots keep their content here: the sort puts them last and the final where() zeroes them
-        robot, humans, present = split_observation(observations, self.history_length, self.max_humans, zero_padding=False)
-        if latest_only:
-            humans = humans[:, -1:]
-        batch, steps, _, dim = humans.shape
-        offset = humans[:, -1, :, Human.POS] - robot[:, None, Robot.POS]  # (B, N, 2)
-        dist = th.hypot(offset[..., 0], offset[..., 1])  # (B, N), NaN in garbage slots is masked by the sort
-        order, lengths, valid = sort_farthest_first(dist, present)
-        width = compact_width(lengths)
-        order, valid = order[:, :width], valid[:, :width]
-        humans = humans.gather(2, order[:, None, :, None].expand(batch, steps, width, dim))  # (B, T', L, 5)
-        robot_feats, human_feats = robot_centric(robot, humans)
-        human_feats = th.where(valid[:, None, :, None], human_feats, th.zeros((), dtype=human_feats.dtype))
-        return robot_feats, human_feats, valid, lengths
+        robot, humans, valid, lengths = self._sorted_crowd(observations, latest_only)
+        return (*self._features(robot, humans, valid), valid, lengths)
 
     @staticmethod
     def _joint(robot_feats: th.Tensor, human_feats: th.Tensor) -> th.Tensor:
@@ -176,11 +197,14 @@ class ApgExtractor(CrowdFeaturesExtractor):
         self.bfloat16_inference = False
 
     def forward(self, observations: dict[str, th.Tensor]) -> th.Tensor:
-        robot_feats, human_feats, valid, lengths = self._robot_centric(observations)  # (B, 7), (B, T, L, 7)
+        robot, humans, valid, lengths = self._sorted_crowd(observations)  # world frame: (B, 9), (B, T, L, 5)
+        robot_feats, human_feats = self._features(robot, humans, valid)  # (B, 7), (B, T, L, 7)
         batch, steps, width = human_feats.shape[:3]
-        grid = angular_pedestrian_grid(
-            human_feats[..., HumanFeat.POS], valid[:, None, :].expand(batch, steps, width), self.num_sectors, self.r_max
-        )  # (B, T, L, K)  Eq. 3
+        present = valid[:, None, :].expand(batch, steps, width)
+        # the sectors from the world positions and the robot-to-goal axis, exactly (the same in an exported graph)
+        positions = th.where(present[..., None], humans[..., Human.POS], th.zeros((), dtype=humans.dtype))
+        axis = (robot[:, Robot.GOAL] - robot[:, Robot.POS])[:, None, :].expand(batch, steps, 2)
+        grid = angular_pedestrian_grid(positions, present, self.num_sectors, self.r_max, axis)  # (B, T, L, K)  Eq. 3
         states = th.cat((human_feats, grid), dim=-1)  # (B, T, L, 7 + K), contiguous: Linear's fast path
         if self.bfloat16_inference and not th.is_grad_enabled():
             states = states.to(th.bfloat16)  # the per-(step, pedestrian) layers in bfloat16, the rest in float32

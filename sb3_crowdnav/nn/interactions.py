@@ -38,30 +38,73 @@ def _pairwise_offsets(positions: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
     return x[..., None, :] - x[..., :, None], y[..., None, :] - y[..., :, None]
 
 
+def _edge_vectors(num_sectors: int) -> tuple[list[float], list[float]]:
+    """cos and sin of the K + 1 sector edges k * 2π/K, k = 0 … K, with exact 0 and ±1 on the axes (the edge at
+    0 rad tests y alone, whatever x is)."""
+    angles = [2 * math.pi * k / num_sectors for k in range(num_sectors + 1)]
+    cos = [0.0 if abs(math.cos(a)) < 1e-12 else math.cos(a) for a in angles]
+    sin = [0.0 if abs(math.sin(a)) < 1e-12 else math.sin(a) for a in angles]
+    return cos, sin
+
+
+def sector_of(x: th.Tensor, y: th.Tensor, num_sectors: int) -> th.Tensor:
+    """Sector index k of the directions (x, y) (any shape, float64): the angle phi in [0, 2π) counter-clockwise
+    from the x-axis lies in ``[k * 2π/K, (k + 1) * 2π/K)``; 0 for (0, 0). Long tensor of the same shape.
+
+    Decided by the signs of cross products with the sectors' edge vectors (float64 constants, exact 0 and ±1 on the
+    axes), not by the value of an ``atan2``: products and differences are rounded alike by every IEEE runtime, so
+    PyTorch and an exported graph in ONNX Runtime put a direction on the same side of an edge even 1e-12 rad from
+    it (float32 ``atan2`` kernels differ in the last bit there). A float32 ``atan2`` only guesses the sector; the
+    edges around the guess correct it by one.
+    """
+    if num_sectors <= 2:  # no sector narrower than a half-turn: the half-planes decide alone
+        lower = (y < 0) | ((y == 0) & (x < 0))
+        return lower.long() if num_sectors == 2 else th.zeros_like(x, dtype=th.long)
+    cos, sin = (th.tensor(values, dtype=th.float64, device=x.device) for values in _edge_vectors(num_sectors))
+    guess = th.floor(th.atan2(y.float(), x.float()) * (num_sectors / (2 * math.pi)))  # within one sector
+    k = th.remainder(guess, num_sectors).long().clamp_(0, num_sectors - 1)
+    before_first = cos[k] * y - sin[k] * x < 0  # clockwise of edge k: sector k - 1
+    past_second = cos[k + 1] * y - sin[k + 1] * x >= 0  # on or counter-clockwise of edge k + 1: sector k + 1
+    k = th.where(before_first, k - 1, th.where(past_second, k + 1, k))
+    k = th.remainder(k + num_sectors, num_sectors)
+    return th.where((x == 0) & (y == 0), 0, k)
+
+
 def angular_pedestrian_grid(
-    positions: th.Tensor, present: th.Tensor, num_sectors: int = 12, r_max: float = 3.0
+    positions: th.Tensor, present: th.Tensor, num_sectors: int = 12, r_max: float = 3.0, axis: th.Tensor | None = None
 ) -> th.Tensor:
     """Angular pedestrian grid of every pedestrian (paper Eq. 3).
 
     ``grid[..., i, k] = min(r_max, min{ rho_ij : j present, j != i, phi_ij in sector k })`` and
     ``r_max`` for an empty sector, where (rho_ij, phi_ij) are the polar coordinates of
     pedestrian j around pedestrian i (centre distance [m]). Sector k covers
-    ``phi in [k * 2π/K, (k + 1) * 2π/K)``, with phi measured **counter-clockwise from the
-    x-axis of the frame of** ``positions`` (the robot-to-goal axis for robot-centric positions),
-    k = 0 … K-1. A coincident pedestrian (rho = 0) falls in sector 0. Rows of pedestrians that
-    are not present are all ``r_max``.
+    ``phi in [k * 2π/K, (k + 1) * 2π/K)``, with phi measured **counter-clockwise from** ``axis``
+    (default: the x-axis of the frame of ``positions``; the extractor gives world positions and the
+    robot-to-goal vector), k = 0 … K-1. A coincident pedestrian (rho = 0) falls in sector 0, as does
+    everyone for a zero ``axis``'s default (the x-axis). Rows of pedestrians that are not present are all
+    ``r_max``. The sectors are decided exactly in float64 (:func:`sector_of`), the same in an exported graph.
 
     :param positions: (..., N, 2) pedestrian centres [m]
     :param present: (..., N) bool
     :param num_sectors: K
     :param r_max: grid radius [m]
+    :param axis: (..., 2) the direction of sector 0's first edge in the frame of ``positions`` (any length; a zero
+        vector means the x-axis), or None for the x-axis
     :return: (..., N, K)
     """
     _check_positions(positions, present)
+    if axis is not None and tuple(axis.shape) != (*positions.shape[:-2], 2):
+        raise ValueError(f"expected axis {(*positions.shape[:-2], 2)} for positions {tuple(positions.shape)}, got "
+                         f"{tuple(axis.shape)}")
     dx, dy = _pairwise_offsets(positions)  # (..., N_i, N_j) from i to j
     rho = th.hypot(dx, dy)
-    sector = th.floor(th.atan2(dy, dx) * (num_sectors / (2 * math.pi)))  # in [-K/2, K/2]
-    sector = th.remainder(sector, num_sectors).long().clamp_(0, num_sectors - 1)  # (..., N, N) in [0, K)
+    x, y = _pairwise_offsets(positions.double())  # float64: the offsets of float32 positions exactly
+    if axis is not None:  # the offsets in the axis's frame, scaled by its length
+        ax, ay = (axis[..., c].double()[..., None, None] for c in (0, 1))
+        zero = (ax == 0) & (ay == 0)
+        ax = th.where(zero, 1.0, ax)
+        x, y = ax * x + ay * y, ax * y - ay * x
+    sector = sector_of(x, y, num_sectors)  # (..., N, N) in [0, K)
     dist = th.where(_pair_mask(present), th.clamp(rho, max=r_max), th.full((), r_max, dtype=rho.dtype))
     rows = positions.new_full((*positions.shape[:-1], num_sectors), r_max)  # (..., N, K)
     # scatter each pair's distance into (row i, sector of j) and keep the minimum

@@ -216,7 +216,7 @@ def masked_softmax(scores: th.Tensor, mask: th.Tensor, dim: int) -> th.Tensor:
 def sort_farthest_first(dist: th.Tensor, present: th.Tensor) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
     """Order pedestrians for the LSTM: present ones farthest first (the nearest is seen last), padding after.
 
-    :param dist: (B, N) distance of every slot to the robot
+    :param dist: (B, N) distance of every slot to the robot (or any increasing function of it: the squared distance)
     :param present: (B, N) bool
     :return: ``order`` (B, N) slot index at each sorted position, ``lengths`` (B,) number of present
         pedestrians, ``valid`` (B, N) bool, True at sorted positions holding a present pedestrian
