@@ -196,15 +196,22 @@ class ApgExtractor(CrowdFeaturesExtractor):
         self.lstm = nn.LSTM(interaction[-1], lstm_hidden_size, batch_first=True)
         self.bfloat16_inference = False
 
+    def grid(self, robot: th.Tensor, humans: th.Tensor, valid: th.Tensor) -> th.Tensor:
+        """The APG of every pedestrian and step (Eq. 3), (B, T, L, K), from :meth:`_sorted_crowd`'s world-frame
+        robot (B, 9), pedestrians (B, T, L, 5) and ``valid`` (B, L). Sector 0 starts at the robot-to-goal axis; the
+        sectors are decided from the world positions and that axis exactly
+        (:func:`~sb3_crowdnav.nn.interactions.sector_of`), so an exported graph puts everyone in the same sector."""
+        batch, steps, width = humans.shape[:3]
+        present = valid[:, None, :].expand(batch, steps, width)
+        positions = th.where(present[..., None], humans[..., Human.POS], th.zeros((), dtype=humans.dtype))
+        axis = (robot[:, Robot.GOAL] - robot[:, Robot.POS])[:, None, :].expand(batch, steps, 2)
+        return angular_pedestrian_grid(positions, present, self.num_sectors, self.r_max, axis)
+
     def forward(self, observations: dict[str, th.Tensor]) -> th.Tensor:
         robot, humans, valid, lengths = self._sorted_crowd(observations)  # world frame: (B, 9), (B, T, L, 5)
         robot_feats, human_feats = self._features(robot, humans, valid)  # (B, 7), (B, T, L, 7)
-        batch, steps, width = human_feats.shape[:3]
-        present = valid[:, None, :].expand(batch, steps, width)
-        # the sectors from the world positions and the robot-to-goal axis, exactly (the same in an exported graph)
-        positions = th.where(present[..., None], humans[..., Human.POS], th.zeros((), dtype=humans.dtype))
-        axis = (robot[:, Robot.GOAL] - robot[:, Robot.POS])[:, None, :].expand(batch, steps, 2)
-        grid = angular_pedestrian_grid(positions, present, self.num_sectors, self.r_max, axis)  # (B, T, L, K)  Eq. 3
+        grid = self.grid(robot, humans, valid)  # (B, T, L, K)  Eq. 3
+        steps = grid.shape[1]
         states = th.cat((human_feats, grid), dim=-1)  # (B, T, L, 7 + K), contiguous: Linear's fast path
         if self.bfloat16_inference and not th.is_grad_enabled():
             states = states.to(th.bfloat16)  # the per-(step, pedestrian) layers in bfloat16, the rest in float32
