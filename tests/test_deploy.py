@@ -299,7 +299,7 @@ def test_onnx_policy_takes_action_masks_of_a_masked_graph(tmp_path):
     with pytest.raises(TypeError, match="booleans"):
         policy.predict(batch, action_masks=masks * 0.5)
     _toy_graph(tmp_path / "toy.onnx")
-    with pytest.raises(ValueError, match="takes no action masks: .*ApgDQNPolicy"):
+    with pytest.raises(ValueError, match=r"takes no action masks: .*ApgDQNPolicy"):
         OnnxPolicy(tmp_path / "toy.onnx").predict(batch, action_masks=masks)
 
 
