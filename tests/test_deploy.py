@@ -515,8 +515,10 @@ class _CrowdChoices(th.nn.Module):
         self.extractor = extractor
 
     def forward(self, observation: dict[str, th.Tensor]) -> tuple[th.Tensor, th.Tensor]:
+        from sb3_crowdnav.nn import goal_frame_grid
+
         robot, humans, valid, _ = self.extractor._sorted_crowd(observation)
-        grid = self.extractor.grid(robot, humans, valid)
+        grid = goal_frame_grid(robot, humans, valid, self.extractor.num_sectors, self.extractor.r_max)
         return th.where(valid[..., None], humans[:, -1, :, :2], 0.0), grid < self.extractor.r_max
 
 

@@ -24,7 +24,7 @@ from gymnasium import spaces
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from torch import nn
 
-from sb3_crowdnav.nn.interactions import angular_pedestrian_grid, local_occupancy_map, social_forces
+from sb3_crowdnav.nn.interactions import local_occupancy_map, social_forces
 from sb3_crowdnav.nn.layers import (
     check_arch,
     compact_width,
@@ -41,6 +41,7 @@ from sb3_crowdnav.nn.transforms import (
     ROBOT_FEATURE_DIM,
     HumanFeat,
     RobotFeat,
+    goal_frame_grid,
     parse_observation_space,
     robot_centric,
     split_observation,
@@ -74,54 +75,32 @@ class CrowdFeaturesExtractor(BaseFeaturesExtractor):
             self.static_world = static
             self.register_forward_hook(_append_static_world)
 
-    def _sorted_crowd(
-        self, observations: dict[str, th.Tensor], latest_only: bool = False
-    ) -> tuple[th.Tensor, th.Tensor, th.Tensor, th.Tensor]:
-        """The robot and the present pedestrians in the world frame, compacted and sorted for the LSTM.
-
-        Pedestrians are ordered by their current centre distance to the robot, farthest first,
-        and the padding is cut to the largest number L of present pedestrians in the batch
-        (everything downstream is linear in L instead of ``max_humans``; L = 0 is allowed). The order
-        compares squared distances in float64 (exact products of the float32 offsets, one rounding in their
-        sum): an exported graph orders two pedestrians whose distances differ in the last float32 bit as
-        PyTorch does (``hypot`` kernels round differently there).
+    def _sorted_crowd(self, observations: dict[str, th.Tensor], latest_only: bool = False) -> tuple[th.Tensor, ...]:
+        """The robot and the present pedestrians in the world frame, farthest first by their current centre
+        distance (:func:`~sb3_crowdnav.nn.layers.sort_farthest_first`), the padding cut to the largest number L of
+        present pedestrians in the batch (everything downstream is linear in L; L = 0 is allowed).
 
         :return: robot (B, 9); pedestrians (B, T', L, 5) with T' = 1 when ``latest_only`` else T, whatever the
-            observation holds in the slots past a row's count (zero them before use); ``valid`` (B, L) bool;
-            ``lengths`` (B,) number of present pedestrians
+            observation holds past a row's count; ``valid`` (B, L) bool; ``lengths`` (B,) present pedestrians
         """
-        # padded slots keep their content here: the sort puts them last and the caller zeroes them
+        # padded slots keep their content here: the sort puts them last and the callers zero them
         robot, humans, present = split_observation(observations, self.history_length, self.max_humans, zero_padding=False)
         if latest_only:
             humans = humans[:, -1:]
         batch, steps, _, dim = humans.shape
-        offset = (humans[:, -1, :, Human.POS] - robot[:, None, Robot.POS]).double()  # (B, N, 2)
-        dist2 = offset[..., 0] * offset[..., 0] + offset[..., 1] * offset[..., 1]  # NaN in garbage slots: masked
-        order, lengths, valid = sort_farthest_first(dist2, present)
+        order, lengths, valid = sort_farthest_first(humans[:, -1, :, Human.POS] - robot[:, None, Robot.POS], present)
         width = compact_width(lengths)
         order, valid = order[:, :width], valid[:, :width]
         humans = humans.gather(2, order[:, None, :, None].expand(batch, steps, width, dim))  # (B, T', L, 5)
         return robot, humans, valid, lengths
 
-    @staticmethod
-    def _features(robot: th.Tensor, humans: th.Tensor, valid: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
-        """Robot features (B, 7) and pedestrian features (B, T', L, 7) (zero past a row's count) of
-        :meth:`_sorted_crowd`'s output."""
-        robot_feats, human_feats = robot_centric(robot, humans)
-        return robot_feats, th.where(valid[:, None, :, None], human_feats, th.zeros((), dtype=human_feats.dtype))
-
-    def _robot_centric(
-        self, observations: dict[str, th.Tensor], latest_only: bool = False
-    ) -> tuple[th.Tensor, th.Tensor, th.Tensor, th.Tensor]:
-        """Robot-centric features of the present pedestrians, compacted and sorted for the LSTM
-        (:meth:`_sorted_crowd`).
-
-        :return: robot features (B, 7); pedestrian features (B, T', L, 7) with T' = 1 when
-            ``latest_only`` else T, zero in the slots past a row's count; ``valid`` (B, L) bool;
-            ``lengths`` (B,) number of present pedestrians
-        """
+    def _robot_centric(self, observations: dict[str, th.Tensor], latest_only: bool = False) -> tuple[th.Tensor, ...]:
+        """:meth:`_sorted_crowd` as robot features (B, 7) and pedestrian features (B, T', L, 7), zero past a row's
+        count, with ``valid`` and ``lengths``."""
         robot, humans, valid, lengths = self._sorted_crowd(observations, latest_only)
-        return (*self._features(robot, humans, valid), valid, lengths)
+        robot_feats, human_feats = robot_centric(robot, humans)
+        human_feats = th.where(valid[:, None, :, None], human_feats, th.zeros((), dtype=human_feats.dtype))
+        return robot_feats, human_feats, valid, lengths
 
     @staticmethod
     def _joint(robot_feats: th.Tensor, human_feats: th.Tensor) -> th.Tensor:
@@ -196,21 +175,11 @@ class ApgExtractor(CrowdFeaturesExtractor):
         self.lstm = nn.LSTM(interaction[-1], lstm_hidden_size, batch_first=True)
         self.bfloat16_inference = False
 
-    def grid(self, robot: th.Tensor, humans: th.Tensor, valid: th.Tensor) -> th.Tensor:
-        """The APG of every pedestrian and step (Eq. 3), (B, T, L, K), from :meth:`_sorted_crowd`'s world-frame
-        robot (B, 9), pedestrians (B, T, L, 5) and ``valid`` (B, L). Sector 0 starts at the robot-to-goal axis; the
-        sectors are decided from the world positions and that axis exactly
-        (:func:`~sb3_crowdnav.nn.interactions.sector_of`), so an exported graph puts everyone in the same sector."""
-        batch, steps, width = humans.shape[:3]
-        present = valid[:, None, :].expand(batch, steps, width)
-        positions = th.where(present[..., None], humans[..., Human.POS], th.zeros((), dtype=humans.dtype))
-        axis = (robot[:, Robot.GOAL] - robot[:, Robot.POS])[:, None, :].expand(batch, steps, 2)
-        return angular_pedestrian_grid(positions, present, self.num_sectors, self.r_max, axis)
-
     def forward(self, observations: dict[str, th.Tensor]) -> th.Tensor:
         robot, humans, valid, lengths = self._sorted_crowd(observations)  # world frame: (B, 9), (B, T, L, 5)
-        robot_feats, human_feats = self._features(robot, humans, valid)  # (B, 7), (B, T, L, 7)
-        grid = self.grid(robot, humans, valid)  # (B, T, L, K)  Eq. 3
+        robot_feats, human_feats = robot_centric(robot, humans)  # (B, 7), (B, T, L, 7)
+        human_feats = th.where(valid[:, None, :, None], human_feats, th.zeros((), dtype=human_feats.dtype))
+        grid = goal_frame_grid(robot, humans, valid, self.num_sectors, self.r_max)  # (B, T, L, K)  Eq. 3
         steps = grid.shape[1]
         states = th.cat((human_feats, grid), dim=-1)  # (B, T, L, 7 + K), contiguous: Linear's fast path
         if self.bfloat16_inference and not th.is_grad_enabled():
