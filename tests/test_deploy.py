@@ -472,12 +472,19 @@ def test_round_trip_of_several_observations_per_iteration(tmp_path, extractor):
 
 
 @pytest.mark.slow
-def test_evaluate_gives_the_records_of_the_original(graphs):
-    from sb3_crowdnav.evaluation.runner import run_episodes
+@pytest.mark.parametrize("name, env_id, env_kwargs", [("apg_rl", "CrowdNav-v0", {}),
+                                                     ("apg_warehouse", "CrowdNavWarehouse-v0", WAREHOUSE_PAPER)])
+def test_evaluate_gives_the_records_of_the_original(graphs, tmp_path, capsys, name, env_id, env_kwargs):
+    """``sb3-crowdnav evaluate`` writes the same episodes.csv, byte for byte, from the graph and from the model."""
+    from sb3_crowdnav.cli import main
 
-    original = run_episodes("pretrained:apg_rl", 3)
-    exported = run_episodes(str(graphs["apg_rl"]), 3)
-    assert [r.to_dict() for r in exported] == [r.to_dict() for r in original]
+    options = ["--env", env_id, "--episodes", "3", "--seed-offset", "2000000", "--no-progress"]
+    options += ["--env-kwargs", repr(env_kwargs)] if env_kwargs else []
+    for tag, policy in (("model", f"pretrained:{name}"), ("graph", str(graphs[name]))):
+        assert main(["evaluate", "--policy", policy, *options, "--out", str(tmp_path / tag)]) == 0
+    capsys.readouterr()
+    csv = (tmp_path / "model" / "episodes.csv").read_bytes()
+    assert csv.count(b"\n") == 4 and (tmp_path / "graph" / "episodes.csv").read_bytes() == csv
 
 
 @pytest.mark.slow
