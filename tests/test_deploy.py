@@ -82,16 +82,66 @@ def test_the_graph_decision_is_the_policys(case):
 
 
 def test_unsupported_models_are_refused_by_name():
-    from sb3_contrib import QRDQN
+    from sb3_contrib import QRDQN, RecurrentPPO
     from stable_baselines3 import PPO
 
+    from sb3_crowdnav.nn import ApgRecurrentPolicy
+
     env = gym.make("CrowdNav-v0")
-    with pytest.raises(ValueError, match=r"QRDQN .*cannot be exported"):
+    with pytest.raises(ValueError, match=r"QRDQN \(MultiInputPolicy\) encodes the observation with CombinedExtractor"):
         decision_module(QRDQN("MultiInputPolicy", env, learning_starts=0, buffer_size=10))
     with pytest.raises(ValueError, match="CombinedExtractor"):
         decision_module(PPO("MultiInputPolicy", env, n_steps=8, batch_size=8))
+    recurrent = RecurrentPPO(ApgRecurrentPolicy, env, n_steps=8, batch_size=8, policy_kwargs=dict(lstm_hidden_size=4))
+    with pytest.raises(ValueError, match=r"RecurrentPPO \(ApgRecurrentPolicy\) cannot be exported: .*LSTM state"):
+        decision_module(recurrent)
     with pytest.raises(ValueError, match="Linear cannot be exported"):
         decision_module(th.nn.Linear(2, 2))
+
+
+def _contrib_models():
+    """A freshly initialised QR-DQN (open floor) and MaskablePPO (warehouse, wall masks) with the APG encoder."""
+    from sb3_contrib import QRDQN, MaskablePPO
+
+    from sb3_crowdnav.apg_value.action_masks import WallActionMasker
+    from sb3_crowdnav.nn import ApgMaskablePolicy, ApgQRDQNPolicy
+
+    env, warehouse = gym.make("CrowdNav-v0"), gym.make("CrowdNavWarehouse-v0")
+    qrdqn = QRDQN(ApgQRDQNPolicy, env, seed=0, buffer_size=10, learning_starts=0, policy_kwargs=dict(n_quantiles=8))
+    maskable = MaskablePPO(ApgMaskablePolicy, WallActionMasker(warehouse), seed=0, n_steps=8, batch_size=8)
+    return {"qrdqn": (qrdqn, env), "maskableppo": (maskable, warehouse)}
+
+
+def _masks(model, obs: dict[str, np.ndarray], seed: int = 0) -> np.ndarray:
+    """Random action masks, every row with an allowed action, and the unmasked greedy action masked in half the rows."""
+    rng = np.random.default_rng(seed)
+    masks = rng.random((len(obs["robot"]), model.action_space.n)) < 0.5
+    masks[np.arange(len(masks)), rng.integers(model.action_space.n, size=len(masks))] = True
+    greedy = model.predict(obs, deterministic=True)[0]
+    half = np.arange(len(masks)) % 2 == 0
+    masks[half, greedy[half]] = False
+    masks[half & ~masks.any(axis=1), (greedy[half & ~masks.any(axis=1)] + 1) % model.action_space.n] = True
+    return masks
+
+
+@pytest.mark.parametrize("algo", ["qrdqn", "maskableppo"])
+def test_the_contrib_decisions_act_as_their_models(algo):
+    """QR-DQN: argmax of the mean over the quantiles; MaskablePPO: argmax of the masked logits, as their predict."""
+    model, env = _contrib_models()[algo]
+    obs = _observations(env, 120)
+    decision = decision_module(model).eval()
+    tensors = {k: th.as_tensor(v) for k, v in obs.items()}
+    with th.no_grad():
+        if algo == "qrdqn":
+            actions = decision(tensors)[0].numpy()
+            np.testing.assert_array_equal(actions, model.predict(obs, deterministic=True)[0])
+            return
+        masks = _masks(model, obs)
+        actions, values = decision(tensors, th.as_tensor(masks))
+    expected = model.predict(obs, deterministic=True, action_masks=masks)[0]
+    assert (expected != model.predict(obs, deterministic=True)[0]).sum() >= len(expected) // 2  # the masks matter
+    np.testing.assert_array_equal(actions.numpy(), expected)
+    assert (values.numpy()[~masks] == -1e8).all()
 
 
 def test_export_refuses_before_any_work(tmp_path):
@@ -203,6 +253,54 @@ def test_onnx_policy_predicts_like_sb3(tmp_path):
         policy.predict(env.reset())
     with pytest.raises(ValueError, match="greedy"):
         policy.predict(batch, deterministic=False)
+
+
+def _toy_masked_graph(path):
+    """A MaskablePPO-like graph: action_values = where(action_masks, robot @ W, -1e8), action = argmax."""
+    onnx = pytest.importorskip("onnx")
+    pytest.importorskip("onnxruntime")
+    from onnx import TensorProto, helper, numpy_helper
+
+    meta = _metadata(kind="masked_logits", policy="ApgMaskablePolicy")
+    n = meta.world.n_actions
+    weights = np.random.default_rng(0).normal(size=(9, n)).astype(np.float32)
+    inputs = [helper.make_tensor_value_info(k, TensorProto.FLOAT, ["batch", s[0]]) for k, s in meta.schema.shapes.items()]
+    graph = helper.make_graph(
+        [helper.make_node("MatMul", ["robot", "w"], ["logits"]),
+         helper.make_node("Where", ["action_masks", "logits", "masked"], ["action_values"]),
+         helper.make_node("ArgMax", ["action_values"], ["action"], axis=1, keepdims=0)],
+        "toy", [*inputs, helper.make_tensor_value_info("action_masks", TensorProto.BOOL, ["batch", n])],
+        [helper.make_tensor_value_info("action", TensorProto.INT64, ["batch"]),
+         helper.make_tensor_value_info("action_values", TensorProto.FLOAT, ["batch", n])],
+        initializer=[numpy_helper.from_array(weights, "w"), numpy_helper.from_array(np.float32(-1e8), "masked")])
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 18)])
+    helper.set_model_props(model, meta.props())
+    onnx.save_model(model, str(path))
+    return weights
+
+
+def test_onnx_policy_takes_action_masks_of_a_masked_graph(tmp_path):
+    from sb3_crowdnav.deploy import OnnxPolicy
+
+    weights = _toy_masked_graph(tmp_path / "masked.onnx")
+    env = gym.make("CrowdNav-v0")
+    policy = OnnxPolicy(tmp_path / "masked.onnx", env)
+    batch = _observations(env, 6)
+    logits = batch["robot"] @ weights
+    masks = np.ones_like(logits, dtype=bool)
+    masks[np.arange(6), logits.argmax(axis=1)] = False  # the best action forbidden
+    actions, _ = policy.predict(batch, action_masks=masks)
+    np.testing.assert_array_equal(actions, np.where(masks, logits, -np.inf).argmax(axis=1))
+    np.testing.assert_array_equal(policy.predict(batch)[0], logits.argmax(axis=1))  # no masks: every action allowed
+    one, _ = policy.predict({k: v[0] for k, v in batch.items()}, action_masks=masks[0].astype(int))
+    assert one == actions[0]
+    with pytest.raises(ValueError, match=r"action_masks must have the shape \(6, 80\)"):
+        policy.predict(batch, action_masks=masks[0])
+    with pytest.raises(TypeError, match="booleans"):
+        policy.predict(batch, action_masks=masks * 0.5)
+    _toy_graph(tmp_path / "toy.onnx")
+    with pytest.raises(ValueError, match=r"takes no action masks: .*ApgDQNPolicy"):
+        OnnxPolicy(tmp_path / "toy.onnx").predict(batch, action_masks=masks)
 
 
 def test_onnx_policy_refuses_another_world_naming_the_fields(tmp_path):
@@ -374,9 +472,105 @@ def test_round_trip_of_several_observations_per_iteration(tmp_path, extractor):
 
 
 @pytest.mark.slow
-def test_evaluate_gives_the_records_of_the_original(graphs):
-    from sb3_crowdnav.evaluation.runner import run_episodes
+@pytest.mark.parametrize("name, env_id, env_kwargs", [("apg_rl", "CrowdNav-v0", {}),
+                                                     ("apg_warehouse", "CrowdNavWarehouse-v0", WAREHOUSE_PAPER)])
+def test_evaluate_gives_the_records_of_the_original(graphs, tmp_path, capsys, name, env_id, env_kwargs):
+    """``sb3-crowdnav evaluate`` writes the same episodes.csv, byte for byte, from the graph and from the model."""
+    from sb3_crowdnav.cli import main
 
-    original = run_episodes("pretrained:apg_rl", 3)
-    exported = run_episodes(str(graphs["apg_rl"]), 3)
-    assert [r.to_dict() for r in exported] == [r.to_dict() for r in original]
+    options = ["--env", env_id, "--episodes", "3", "--seed-offset", "2000000", "--no-progress"]
+    options += ["--env-kwargs", repr(env_kwargs)] if env_kwargs else []
+    for tag, policy in (("model", f"pretrained:{name}"), ("graph", str(graphs[name]))):
+        assert main(["evaluate", "--policy", policy, *options, "--out", str(tmp_path / tag)]) == 0
+    capsys.readouterr()
+    csv = (tmp_path / "model" / "episodes.csv").read_bytes()
+    assert csv.count(b"\n") == 4 and (tmp_path / "graph" / "episodes.csv").read_bytes() == csv
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("algo", ["qrdqn", "maskableppo"])
+def test_round_trip_of_a_contrib_model(tmp_path, algo):
+    """QR-DQN's and MaskablePPO's graphs act as the models' predict (MaskablePPO with and without masks), and
+    ``evaluate`` of a MaskablePPO graph acts with the env's wall masks, as its model does."""
+    from sb3_crowdnav.deploy import OnnxPolicy, export_onnx
+    from sb3_crowdnav.evaluation.runner import run_episodes
+    from sb3_crowdnav.serialization import write_spaces
+
+    model, env = _contrib_models()[algo]
+    graph = OnnxPolicy(export_onnx(model, tmp_path / f"{algo}.onnx", env=env), env)
+    obs = _observations(env, 300, seed=1)
+    np.testing.assert_array_equal(graph.predict(obs)[0], model.predict(obs, deterministic=True)[0])
+    if algo == "qrdqn":
+        return
+    masks = _masks(model, obs)
+    actions, values, _ = graph.run(obs, masks)
+    np.testing.assert_array_equal(actions, model.predict(obs, deterministic=True, action_masks=masks)[0])
+    assert (values[~masks] == -1e8).all()
+    model.save(tmp_path / "maskable.zip")
+    write_spaces(tmp_path / "maskable.zip", model.observation_space, model.action_space, env)
+    kwargs = dict(env_id="CrowdNavWarehouse-v0", seed_offset=2_000_000)
+    original = run_episodes(str(tmp_path / "maskable.zip"), 2, **kwargs)
+    assert [r.to_dict() for r in run_episodes(str(tmp_path / f"{algo}.onnx"), 2, **kwargs)] == \
+        [r.to_dict() for r in original]
+
+
+class _CrowdChoices(th.nn.Module):
+    """The APG extractor's discrete choices: the pedestrians in the LSTM's order and the grid's sectors."""
+
+    def __init__(self, extractor) -> None:
+        super().__init__()
+        self.extractor = extractor
+
+    def forward(self, observation: dict[str, th.Tensor]) -> tuple[th.Tensor, th.Tensor]:
+        from sb3_crowdnav.nn import goal_frame_grid
+
+        robot, humans, valid, _ = self.extractor._sorted_crowd(observation)
+        grid = goal_frame_grid(robot, humans, valid, self.extractor.num_sectors, self.extractor.r_max)
+        return th.where(valid[..., None], humans[:, -1, :, :2], 0.0), grid < self.extractor.r_max
+
+
+def _edge_cases(env: gym.Env, count: int, seed: int = 0) -> dict[str, np.ndarray]:
+    """Observations whose pedestrians sit, in float32, on the grid's sector edges around each other (seen from the
+    robot-to-goal axis) and at distances from the robot equal or 1 ulp apart."""
+    from sb3_crowdnav.sim.observation import Human, Robot
+
+    rng = np.random.default_rng(seed)
+    obs = _observations(env, count, seed)
+    schema = ObservationSchema.from_space(env.observation_space)
+    humans = schema.humans_view(obs["humans"].copy())  # (B, T, M, 5)
+    robot = obs["robot"]
+    goal_angle = np.arctan2(*(robot[:, Robot.GOAL] - robot[:, Robot.POS]).T[::-1])
+    base = robot[:, None, Robot.POS] + rng.uniform(-3, 3, size=(count, 2)).astype(np.float32)[:, None]  # (B, 1, 2)
+    edges = goal_angle[:, None] + 2 * np.pi * rng.integers(12, size=(count, 4)) / 12  # (B, 4)
+    radius = rng.uniform(0.3, 2.5, size=(count, 4))
+    people = np.concatenate([base, base + np.stack((radius * np.cos(edges), radius * np.sin(edges)), -1)], axis=1)
+    people = people.astype(np.float32)  # (B, 5, 2): one pedestrian and four on edges around it
+    offset = people[:, 1] - robot[:, Robot.POS]  # a sixth at the second's distance: mirrored, or 1 ulp off
+    twin = robot[:, Robot.POS] + np.where(rng.random((count, 1)) < 0.5, offset[:, ::-1],
+                                          np.nextafter(offset, np.float32(np.inf)))
+    people = np.concatenate([people, twin[:, None].astype(np.float32)], axis=1)  # (B, 6, 2)
+    humans[:, :, :6, Human.POS] = people[:, None]
+    obs["humans"] = humans.reshape(count, -1)
+    obs["humans_mask"][:, :6] = 1.0
+    return obs
+
+
+@pytest.mark.slow
+def test_the_graph_makes_the_extractors_discrete_choices(tmp_path):
+    """Pedestrians on sector edges and at (near-)equal distances: ONNX Runtime orders them and puts them in sectors as
+    PyTorch does (a float32 atan2 or hypot kernel of either would differ there)."""
+    ort = pytest.importorskip("onnxruntime")
+    from sb3_crowdnav.deploy.export import _export
+    from sb3_crowdnav.nn import ApgExtractor
+
+    env = gym.make("CrowdNav-v0")
+    schema = ObservationSchema.from_space(env.observation_space)
+    module = _CrowdChoices(ApgExtractor(env.observation_space, (8,), (8, 4), (8, 1), 4))
+    session = ort.InferenceSession(_export(module, schema, ("order", "occupied")).SerializeToString(),
+                                   providers=["CPUExecutionProvider"])
+    obs = _edge_cases(env, 400)
+    with th.no_grad():
+        order, occupied = module({k: th.as_tensor(v) for k, v in obs.items()})
+    got = session.run(None, obs)
+    np.testing.assert_array_equal(got[0], order.numpy())
+    np.testing.assert_array_equal(got[1], occupied.numpy())

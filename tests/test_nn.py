@@ -21,6 +21,7 @@ from sb3_crowdnav.nn import (
     robot_centric,
     social_forces,
 )
+from sb3_crowdnav.nn.interactions import sector_of
 from sb3_crowdnav.nn.layers import set_onednn_inference, set_onednn_training
 from sb3_crowdnav.sim.observation import HUMAN_DIM, ROBOT_DIM, Human, Robot
 
@@ -151,6 +152,46 @@ def test_apg_wrong_shapes_raise():
         angular_pedestrian_grid(th.zeros(2, 4, 3), th.ones(2, 4, dtype=th.bool))
     with pytest.raises(ValueError, match="present"):
         angular_pedestrian_grid(th.zeros(2, 4, 2), th.ones(2, 5, dtype=th.bool))
+
+
+@pytest.mark.parametrize("num_sectors", [1, 2, 3, 5, 12])
+def test_sectors_are_those_of_the_angle(num_sectors):
+    rng = np.random.default_rng(num_sectors)
+    x, y = rng.normal(size=(2, 20000)) * rng.choice([1e-6, 1.0, 1e4], size=(2, 20000))
+    expected = np.floor(np.mod(np.arctan2(y, x), 2 * np.pi) / (2 * np.pi / num_sectors)).astype(int) % num_sectors
+    np.testing.assert_array_equal(sector_of(th.as_tensor(x), th.as_tensor(y), num_sectors).numpy(), expected)
+
+
+@pytest.mark.parametrize("num_sectors", [3, 4, 12])
+def test_sectors_are_decided_exactly_at_their_edges(num_sectors):
+    """1e-12 rad either side of every edge (a float32 atan2 rounds both onto it), and on the axes and at (0, 0)."""
+    edges = 2 * np.pi * np.arange(num_sectors) / num_sectors
+    for offset, shift in ((1e-12, 0), (-1e-12, -1)):
+        radius = np.array([1e-3, 1.0, 7.3])[:, None]
+        x, y = radius * np.cos(edges + offset), radius * np.sin(edges + offset)
+        expected = np.broadcast_to((np.arange(num_sectors) + shift) % num_sectors, x.shape)
+        np.testing.assert_array_equal(sector_of(th.as_tensor(x), th.as_tensor(y), num_sectors).numpy(), expected)
+    axes = th.tensor([[2.0, 0.0], [0.0, 2.0], [-2.0, 0.0], [0.0, -2.0], [0.0, 0.0], [-2.0, -0.0]], dtype=th.float64)
+    expected = [k * num_sectors // 4 for k in range(4)] + [0, num_sectors // 2]  # -0.0: at π, as atan2(0, -2)
+    assert sector_of(axes[:, 0], axes[:, 1], num_sectors).tolist() == expected
+
+
+def test_apg_axis_turns_the_sectors():
+    """Sector 0 starts at ``axis``: positions and axis turned together by a quarter-turn (exact in floats) give the
+    same grid, bit for bit; a zero axis is the x-axis."""
+    g = th.Generator().manual_seed(4)
+    positions, present = 3 * th.randn(5, 2, 6, 2, generator=g), th.rand(5, 2, 6, generator=g) > 0.2
+    axis = th.randn(5, 2, 2, generator=g)
+
+    def turn(v):
+        return th.stack((-v[..., 1], v[..., 0]), dim=-1)
+
+    grid = angular_pedestrian_grid(positions, present, axis=axis)
+    assert th.equal(angular_pedestrian_grid(turn(positions), present, axis=turn(axis)), grid)
+    assert th.equal(angular_pedestrian_grid(positions, present, axis=th.zeros(5, 2, 2)),
+                    angular_pedestrian_grid(positions, present))
+    with pytest.raises(ValueError, match="axis"):
+        angular_pedestrian_grid(positions, present, axis=th.zeros(5, 2))
 
 
 def test_apg_in_extractor_is_in_goal_frame(space):

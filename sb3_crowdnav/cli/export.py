@@ -8,7 +8,8 @@ from typing import Any
 
 from sb3_crowdnav.cli.common import UsageError, check_out
 
-POLICY_HELP = "a shipped model, pretrained:NAME, or the path of a saved model .zip (APGValue, DQN, PPO, A2C)"
+POLICY_HELP = ("a shipped model, pretrained:NAME, or the path of a saved model .zip (APGValue, DQN, PPO, A2C, QRDQN, "
+               "MaskablePPO)")
 
 
 def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:

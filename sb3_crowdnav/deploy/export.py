@@ -3,12 +3,13 @@
 The graph goes from the observation's tensors (the env's ``Dict`` keys as named float32 inputs, batch dimension
 ``batch`` dynamic) to ``action`` (the greedy action index, int64) and ``action_values`` (the values it maximises):
 for ``APGValue`` the whole lookahead (:mod:`sb3_crowdnav.deploy.graph`), for SB3's DQN the Q network, for PPO/A2C
-the actor. It is written by torch's ONNX exporter (``torch.onnx.export(..., dynamo=True)``) in opset
-:data:`~sb3_crowdnav.deploy.metadata.OPSET`, with the translations it lacks: ``hypot`` (as ``sqrt(x² + y²)``), the
-stable ``sort`` (as ``TopK``, which orders ties by index, as a stable sort does) and the extractors' LSTM operator
-(as ONNX's ``LSTM`` with ``sequence_lens``). A lookahead's value network runs as the body of a ``Scan`` over the
-batch's observations (:func:`to_onnx`). The file holds the weights (no external data) and
-:class:`~sb3_crowdnav.deploy.metadata.GraphMetadata`'s entries.
+the actor, for sb3-contrib's QR-DQN the mean of the quantile network, for MaskablePPO the actor with a second input,
+the action masks (every action allowed: a mask of all True). It is written by torch's ONNX
+exporter (``torch.onnx.export(..., dynamo=True)``) in opset :data:`~sb3_crowdnav.deploy.metadata.OPSET`, with the
+translations it lacks: ``hypot`` (as ``sqrt(x² + y²)``), the stable ``sort`` (as ``TopK``, which orders ties by
+index, as a stable sort does) and the extractors' LSTM operator (as ONNX's ``LSTM`` with ``sequence_lens``). A
+lookahead's value network runs as the body of a ``Scan`` over the batch's observations (:func:`to_onnx`). The file
+holds the weights (no external data) and :class:`~sb3_crowdnav.deploy.metadata.GraphMetadata`'s entries.
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ from typing import Any
 
 import torch as th
 
-from sb3_crowdnav.deploy.graph import LookaheadDecision, decision_module, policy_of
+from sb3_crowdnav.deploy.graph import LookaheadDecision, MaskedActorDecision, decision_module, policy_of
 from sb3_crowdnav.deploy.metadata import OPSET, OUTPUT_NAMES, GraphMetadata, require
 from sb3_crowdnav.deploy.runtime import OnnxPolicy
 from sb3_crowdnav.models import load_model, resolve_model_path
@@ -36,9 +37,9 @@ from sb3_crowdnav.sim.world import MOTION_FIELDS, PREDICTION_FIELDS, World, comp
 def export_onnx(model: Any, path: str | Path, *, env: Any = None, world: World | Mapping[str, Any] | None = None) -> Path:
     """Write ``model``'s greedy decision as one ONNX graph at ``path`` (see the module docstring); returns the path.
 
-    :param model: a trained ``APGValue``, ``DQN``, ``PPO`` or ``A2C`` model (or its policy), or the path of one
-        saved as ``.zip`` (loaded without unpickling; its world read from the file). Other models are refused with
-        a ``ValueError`` naming them
+    :param model: a trained ``APGValue``, ``DQN``, ``PPO``, ``A2C``, ``QRDQN`` or ``MaskablePPO`` model (or its
+        policy), or the path of one saved as ``.zip`` (loaded without unpickling; its world read from the file).
+        Other models (``RecurrentPPO``: its LSTM state) are refused with a ``ValueError`` naming them
     :param path: the ``.onnx`` file to write
     :param env: the env the model acts in: its robot's radius and v_pref are recorded (default: the package's robot,
         0.3 m and 1 m/s), and a model trained in another world or on other observation shapes is refused
@@ -200,15 +201,16 @@ def _export(module: th.nn.Module, schema: ObservationSchema, output_names: tuple
         return placeholder(*observation, n_actions=n_actions)
 
     example = example_observation(schema)
+    extra = module.example_inputs(len(example["robot"])) if isinstance(module, MaskedActorDecision) else {}
     batch = th.export.Dim("batch")
     modes = [(module, module.training) for module in module.modules()]  # the model's own, restored after
     module.eval()
     try:
         with _quiet(), th.no_grad():
             program = th.onnx.export(
-                module, (), kwargs={"observation": example}, dynamo=True, opset_version=OPSET, verbose=False,
-                input_names=list(example), output_names=list(output_names),
-                dynamic_shapes={"observation": {key: {0: batch} for key in example}},
+                module, (), kwargs={"observation": example, **extra}, dynamo=True, opset_version=OPSET, verbose=False,
+                input_names=[*example, *extra], output_names=list(output_names),
+                dynamic_shapes={"observation": {key: {0: batch} for key in example}, **{k: {0: batch} for k in extra}},
                 custom_translation_table={th.ops.aten.hypot.default: hypot, th.ops.aten.sort.stable: stable_sort,
                                           th.ops.sb3_crowdnav.lstm_last_state.default: lstm_last_state,
                                           th.ops.sb3_crowdnav.values_per_observation.default: values_per_observation},
@@ -218,9 +220,10 @@ def _export(module: th.nn.Module, schema: ObservationSchema, output_names: tuple
             submodule.training = mode
     proto = program.model_proto
     names = [value.name for value in proto.graph.input]
-    if names != list(example):  # the dict's order is the inputs' order; a reordering would swap tensors of a shape
-        raise RuntimeError(f"the exported graph's inputs are {names}, expected {list(example)}")
+    if names != [*example, *extra]:  # the dict's order is the inputs' order; a reordering would swap tensors of a shape
+        raise RuntimeError(f"the exported graph's inputs are {names}, expected {[*example, *extra]}")
     return proto
+
 
 
 ROWS_PER_ITERATION = 6400  # the most rows of the value network's layers a Scan iteration takes (see below)

@@ -8,9 +8,16 @@ One module per kind of policy, each ``forward(observation) -> (action (B,) int64
   warehouse's value ceiling, ``R + γ^(Δt·v_pref)·V(s')`` in float64 and its argmax (kind ``"lookahead"``);
 * :class:`QDecision`, SB3's DQN policy: the Q network and its argmax (kind ``"q_values"``);
 * :class:`ActorDecision`, SB3's actor-critic policy (PPO, A2C) with discrete actions: the actor's logits and their
-  argmax, the action SB3's ``predict(deterministic=True)`` takes (kind ``"logits"``).
+  argmax, the action SB3's ``predict(deterministic=True)`` takes (kind ``"logits"``);
+* :class:`QuantileDecision`, sb3-contrib's QR-DQN policy: the mean over the quantiles (its Q) and the argmax, the
+  action ``QRDQN.predict`` takes (kind ``"q_values"``);
+* :class:`MaskedActorDecision`, sb3-contrib's MaskablePPO policy: the actor's logits with an action mask applied as
+  sb3-contrib applies it (-1e8 where masked) and their argmax; the mask is a second input, ``action_masks`` (B, A)
+  bool (kind ``"masked_logits"``; the wall masks are computed outside the graph; all True allows every action).
 
-:func:`decision_module` picks the module for a policy, and refuses, naming it, any policy it does not know.
+:func:`decision_module` picks the module for a policy, and refuses, naming it, any policy it does not know; a
+recurrent policy (RecurrentPPO) with a message saying why: its action depends on an LSTM state the graph does not
+carry.
 """
 
 from __future__ import annotations
@@ -19,14 +26,19 @@ from typing import Any
 
 import torch as th
 from gymnasium import spaces
+from sb3_contrib.common.maskable.policies import MaskableActorCriticPolicy, MaskableMultiInputActorCriticPolicy
+from sb3_contrib.common.recurrent.policies import RecurrentActorCriticPolicy
+from sb3_contrib.qrdqn.policies import MultiInputPolicy as QRDQNMultiInputPolicy
+from sb3_contrib.qrdqn.policies import QRDQNPolicy
 from stable_baselines3.common.policies import ActorCriticPolicy, MultiInputActorCriticPolicy
 from stable_baselines3.common.preprocessing import preprocess_obs
 from stable_baselines3.dqn.policies import DQNPolicy, MultiInputPolicy
 from torch import nn
 
 from sb3_crowdnav.apg_value.policies import ValueLookaheadPolicy
+from sb3_crowdnav.deploy.metadata import MASK_INPUT
 from sb3_crowdnav.deploy.propagation import F64, GraphPropagation, f64
-from sb3_crowdnav.nn import ApgActorCriticPolicy, ApgDQNPolicy
+from sb3_crowdnav.nn import ApgActorCriticPolicy, ApgDQNPolicy, ApgMaskablePolicy, ApgQRDQNPolicy
 from sb3_crowdnav.nn.extractors import CrowdFeaturesExtractor
 from sb3_crowdnav.nn.layers import exporting
 from sb3_crowdnav.sim.observation import ObservationSchema, Robot
@@ -34,6 +46,9 @@ from sb3_crowdnav.sim.observation import ObservationSchema, Robot
 # the SB3 policy classes whose greedy action is exported (subclasses may act otherwise: recurrent, masked, ...)
 Q_POLICIES = (DQNPolicy, MultiInputPolicy, ApgDQNPolicy)
 ACTOR_POLICIES = (ActorCriticPolicy, MultiInputActorCriticPolicy, ApgActorCriticPolicy)
+QUANTILE_POLICIES = (QRDQNPolicy, QRDQNMultiInputPolicy, ApgQRDQNPolicy)  # sb3-contrib's QR-DQN
+MASKABLE_POLICIES = (MaskableActorCriticPolicy, MaskableMultiInputActorCriticPolicy, ApgMaskablePolicy)
+MASKED_LOGIT = -1e8  # what sb3-contrib's MaskableCategorical puts in place of a masked action's logit
 
 
 @th.library.custom_op("sb3_crowdnav::values_per_observation", mutates_args=())
@@ -125,15 +140,53 @@ class ActorDecision(nn.Module):
         return logits.argmax(dim=1), logits
 
 
+class QuantileDecision(nn.Module):
+    """sb3-contrib QR-DQN: ``argmax`` of the mean over the quantiles (``QuantileNetwork._predict``)."""
+
+    kind = "q_values"
+
+    def __init__(self, policy: QRDQNPolicy) -> None:
+        super().__init__()
+        self.quantile_net = policy.quantile_net
+
+    def forward(self, observation: dict[str, th.Tensor]) -> tuple[th.Tensor, th.Tensor]:
+        q = self.quantile_net(observation).mean(dim=1)  # (B, n_quantiles, A) -> (B, A)
+        return q.argmax(dim=1), q
+
+
+class MaskedActorDecision(ActorDecision):
+    """sb3-contrib MaskablePPO: the actor's logits, :data:`MASKED_LOGIT` where ``action_masks`` is False (as
+    ``MaskableCategorical.apply_masking``), and their argmax (the mode ``predict(deterministic=True)`` takes)."""
+
+    kind = "masked_logits"
+
+    def __init__(self, policy: MaskableActorCriticPolicy) -> None:
+        super().__init__(policy)
+        self.n_actions = int(policy.action_space.n)
+
+    def example_inputs(self, batch: int) -> dict[str, th.Tensor]:
+        """The inputs beside the observation to trace with: every action allowed, (batch, A) bool."""
+        return {MASK_INPUT: th.ones(batch, self.n_actions, dtype=th.bool)}
+
+    def forward(self, observation: dict[str, th.Tensor], action_masks: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+        logits = super().forward(observation)[1]
+        masked = th.where(action_masks, logits, th.tensor(MASKED_LOGIT, dtype=logits.dtype))
+        return masked.argmax(dim=1), masked
+
+
+Decision = LookaheadDecision | QDecision | ActorDecision | QuantileDecision | MaskedActorDecision
+
+
 def policy_of(model: Any) -> Any:
     """The policy of an SB3 model (``model.policy``), or ``model`` itself when it is a policy."""
     policy = getattr(model, "policy", model)
     return policy if isinstance(policy, nn.Module) else model
 
 
-def decision_module(model: Any) -> LookaheadDecision | QDecision | ActorDecision:
+def decision_module(model: Any) -> Decision:
     """The decision module of a model or policy (see the module docstring); ``ValueError`` naming what is not
-    supported: another algorithm or policy class, another extractor, bfloat16 acting, a non-discrete action space."""
+    supported: another algorithm or policy class, a recurrent policy, another extractor, bfloat16 acting, a
+    non-discrete action space."""
     policy = policy_of(model)
     name = type(policy).__name__ if policy is model else f"{type(model).__name__} ({type(policy).__name__})"
     if isinstance(policy, ValueLookaheadPolicy):
@@ -141,11 +194,19 @@ def decision_module(model: Any) -> LookaheadDecision | QDecision | ActorDecision
             raise ValueError(f"{name} acts with lookahead_dtype={policy.lookahead_dtype!r}; the exported graph is "
                              "float32: call model.policy.set_lookahead_dtype('float32') before exporting")
         return LookaheadDecision(policy)
-    supported = type(policy) in (*Q_POLICIES, *ACTOR_POLICIES)
-    if not supported:
+    if isinstance(policy, RecurrentActorCriticPolicy):
+        raise ValueError(f"{name} cannot be exported: a recurrent policy's action depends on the LSTM state it carries "
+                         "from step to step (and resets at an episode's start), and an exported graph is one stateless "
+                         "decision per observation; export a feed-forward model (PPO, MaskablePPO, DQN, QRDQN, "
+                         "APGValue), whose APG encoder already reads the history of the last steps")
+    kinds = {**dict.fromkeys(Q_POLICIES, QDecision), **dict.fromkeys(ACTOR_POLICIES, ActorDecision),
+             **dict.fromkeys(QUANTILE_POLICIES, QuantileDecision), **dict.fromkeys(MASKABLE_POLICIES, MaskedActorDecision)}
+    if type(policy) not in kinds:
         raise ValueError(f"{name} cannot be exported: supported are APGValue (ValueLookaheadPolicy and its aliases), "
-                         f"DQN ({', '.join(c.__name__ for c in Q_POLICIES)}) and PPO/A2C "
-                         f"({', '.join(c.__name__ for c in ACTOR_POLICIES)})")
+                         f"DQN ({', '.join(c.__name__ for c in Q_POLICIES)}), PPO/A2C "
+                         f"({', '.join(c.__name__ for c in ACTOR_POLICIES)}), QRDQN "
+                         f"({', '.join(c.__name__ for c in QUANTILE_POLICIES)}) and MaskablePPO "
+                         f"({', '.join(c.__name__ for c in MASKABLE_POLICIES)})")
     if not isinstance(policy.action_space, spaces.Discrete):
         raise ValueError(f"{name} has a {type(policy.action_space).__name__} action space; the exporter takes "
                          "Discrete actions (the crowd envs' action table)")
@@ -154,8 +215,8 @@ def decision_module(model: Any) -> LookaheadDecision | QDecision | ActorDecision
         raise ValueError(f"{name} encodes the observation with {getattr(extractor, '__name__', extractor)}; the "
                          "exporter takes this package's crowd encoders (sb3_crowdnav.nn.EXTRACTORS)")
     ObservationSchema.from_space(policy.observation_space)  # a crowd observation, or a message saying how to fix it
-    return QDecision(policy) if type(policy) in Q_POLICIES else ActorDecision(policy)
+    return kinds[type(policy)](policy)
 
 
-__all__ = ["ACTOR_POLICIES", "Q_POLICIES", "ActorDecision", "LookaheadDecision", "QDecision",
-           "decision_module", "policy_of"]
+__all__ = ["ACTOR_POLICIES", "MASKABLE_POLICIES", "QUANTILE_POLICIES", "Q_POLICIES", "ActorDecision", "Decision",
+           "LookaheadDecision", "MaskedActorDecision", "QDecision", "QuantileDecision", "decision_module", "policy_of"]

@@ -29,8 +29,9 @@ FORMAT = 1  # the version of this layout of metadata_props; a reader refuses a n
 OPSET = 18  # the ONNX opset of the exported graphs (torch.onnx's dynamo exporter implements 18 and above)
 PREFIX = "sb3_crowdnav."
 KEYS = ("format", "version", "decision", "world", "observation", "actions", "robot")  # each PREFIX + key
-KINDS = ("lookahead", "q_values", "logits")
+KINDS = ("lookahead", "q_values", "logits", "masked_logits")
 OUTPUT_NAMES = ("action", "action_values")  # the graph's outputs
+MASK_INPUT = "action_masks"  # the input after the observation's of a "masked_logits" graph: (B, A) bool, True: allowed
 INSTALL_HINT = 'pip install "sb3-crowdnav[deploy]"'
 
 
@@ -72,7 +73,9 @@ OUTPUTS = {
     "action": "the greedy action index (B,) int64: the argmax of action_values (the first on ties)",
     "action_values": {"lookahead": "R(s, a) + γ^(Δt·v_pref)·V(s') of every action (B, A) float64",
                       "q_values": "Q(s, a) of every action (B, A) float32",
-                      "logits": "the actor's logits of every action (B, A) float32"},
+                      "logits": "the actor's logits of every action (B, A) float32",
+                      "masked_logits": f"the actor's logits of every action, -1e8 where the input {MASK_INPUT} (B, A) "
+                                       "bool is False (B, A) float32"},
 }
 
 
@@ -80,7 +83,9 @@ OUTPUTS = {
 class GraphMetadata:
     """The contract of an exported decision graph.
 
-    :param kind: what ``action_values`` holds: ``"lookahead"`` (APGValue), ``"q_values"`` (DQN), ``"logits"`` (PPO)
+    :param kind: what ``action_values`` holds: ``"lookahead"`` (APGValue), ``"q_values"`` (DQN, QR-DQN's mean over
+        the quantiles), ``"logits"`` (PPO, A2C), ``"masked_logits"`` (MaskablePPO: a graph with the input
+        :data:`MASK_INPUT` too)
     :param world: the world the model was trained in (Δt, kinematics, action table, limits, reward, waypoint rule)
     :param schema: the observation's layout (T, max_humans and, in the warehouse, segments and waypoints)
     :param robot_radius: the radius of the robot the model was trained for [m]
@@ -126,8 +131,13 @@ class GraphMetadata:
 
     @property
     def keys(self) -> tuple[str, ...]:
-        """The graph's inputs: the observation's keys, in order."""
+        """The observation's keys, in order: the graph's first inputs."""
         return tuple(self.schema.shapes)
+
+    @property
+    def inputs(self) -> tuple[str, ...]:
+        """The graph's inputs: the observation's keys, then :data:`MASK_INPUT` for ``"masked_logits"``."""
+        return (*self.keys, MASK_INPUT) if self.kind == "masked_logits" else self.keys
 
     # ------------------------------------------------------------------ writing
     def props(self) -> dict[str, str]:
@@ -207,4 +217,5 @@ def _same_table(values: Any, table: list[float]) -> bool:
     return array.shape == (len(table),) and bool(np.allclose(array, table, rtol=0, atol=1e-9))
 
 
-__all__ = ["FORMAT", "INSTALL_HINT", "KEYS", "KINDS", "OPSET", "OUTPUT_NAMES", "PREFIX", "GraphMetadata", "require"]
+__all__ = ["FORMAT", "INSTALL_HINT", "KEYS", "KINDS", "MASK_INPUT", "OPSET", "OUTPUT_NAMES", "PREFIX", "GraphMetadata",
+           "require"]

@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from sb3_crowdnav.deploy.metadata import OUTPUT_NAMES, GraphMetadata, require
+from sb3_crowdnav.deploy.metadata import MASK_INPUT, OUTPUT_NAMES, GraphMetadata, require
 from sb3_crowdnav.serialization import world_of
 from sb3_crowdnav.sim.observation import ObservationSchema
 from sb3_crowdnav.sim.validation import check_choice, check_int
@@ -64,14 +64,17 @@ class OnnxPolicy:
 
     def _check_graph(self) -> None:
         """The graph's inputs and outputs are those its metadata describes."""
-        shapes = self.metadata.schema.shapes
+        meta = self.metadata
         inputs = {value.name: (value.shape, value.type) for value in self.session.get_inputs()}
         outputs = [value.name for value in self.session.get_outputs()]
-        expected = {key: ([shape[0]], "tensor(float)") for key, shape in shapes.items()}
+        expected = {key: ([shape[0]], "tensor(float)") for key, shape in meta.schema.shapes.items()}
+        if MASK_INPUT in meta.inputs:
+            expected[MASK_INPUT] = ([meta.world.n_actions], "tensor(bool)")
         got = {name: ([d for d in shape[1:]], kind) for name, (shape, kind) in inputs.items() if len(shape) == 2}
-        if list(inputs) != list(shapes) or got != expected or outputs != list(OUTPUT_NAMES):
+        if list(inputs) != list(meta.inputs) or got != expected or outputs != list(OUTPUT_NAMES):
             raise ValueError(f"{self.path.name}: the graph's inputs {inputs} and outputs {outputs} are not those of its "
-                             f"metadata (float32 inputs {dict(shapes)} with a batch dimension; outputs {OUTPUT_NAMES})")
+                             f"metadata (inputs {({k: v[1] + str(v[0]) for k, v in expected.items()})} with a batch "
+                             f"dimension; outputs {OUTPUT_NAMES})")
 
     # ------------------------------------------------------------------ the contract
     @property
@@ -129,24 +132,49 @@ class OnnxPolicy:
                              f"{shapes} (one observation) or (B, ...) of them with B >= 1")
         return {k: np.ascontiguousarray(a if batched else a[None]) for k, a in arrays.items()}, batched
 
-    def run(self, observation: Any) -> tuple[np.ndarray, np.ndarray, bool]:
-        """The graph's outputs ``(action (B,), action_values (B, A))`` for an observation, and whether it was a batch."""
+    def _mask_feed(self, action_masks: Any, batch: int, batched: bool) -> np.ndarray:
+        """The graph's :data:`~sb3_crowdnav.deploy.metadata.MASK_INPUT`, (B, A) bool, of sb3-contrib's
+        ``action_masks`` (True: allowed), (A,) for one observation or (B, A) for a batch."""
+        meta = self.metadata
+        if MASK_INPUT not in meta.inputs:
+            raise ValueError(f"{self.path.name} takes no action masks: it is the greedy decision of a {meta.policy} "
+                             f"(kind {meta.kind!r}); masks go to a graph exported from a MaskablePPO model")
+        masks = np.asarray(action_masks)
+        if masks.dtype != np.bool_ and not (np.issubdtype(masks.dtype, np.integer) and np.isin(masks, (0, 1)).all()):
+            raise TypeError(f"action_masks must be booleans (True: allowed) or 0/1 integers, got {masks.dtype}")
+        wanted = (batch, meta.world.n_actions) if batched else (meta.world.n_actions,)
+        if masks.shape != wanted:
+            raise ValueError(f"action_masks must have the shape {wanted} of the observation, got {masks.shape}")
+        return np.ascontiguousarray(masks.astype(np.bool_).reshape(batch, -1))
+
+    def run(self, observation: Any, action_masks: Any = None) -> tuple[np.ndarray, np.ndarray, bool]:
+        """The graph's outputs ``(action (B,), action_values (B, A))`` for an observation, and whether it was a batch.
+
+        :param action_masks: a MaskablePPO graph's masks (True: allowed; (A,) or (B, A) like the observation), or
+            None for every action allowed
+        """
         feeds, batched = self._feeds(observation)
+        batch = len(feeds["robot"])
+        if action_masks is not None:
+            feeds[MASK_INPUT] = self._mask_feed(action_masks, batch, batched)
+        elif MASK_INPUT in self.metadata.inputs:  # every action allowed
+            feeds[MASK_INPUT] = np.ones((batch, self.metadata.world.n_actions), dtype=np.bool_)
         action, values = self.session.run(list(OUTPUT_NAMES), feeds)
         return action, values, batched
 
-    def action_values(self, observation: Any) -> np.ndarray:
+    def action_values(self, observation: Any, action_masks: Any = None) -> np.ndarray:
         """The values the greedy action maximises, (B, n_actions) (for one observation (1, n_actions))."""
-        return self.run(observation)[1]
+        return self.run(observation, action_masks)[1]
 
-    def predict(self, observation: Any, state: Any = None, episode_start: Any = None,
-                deterministic: bool = True) -> tuple[np.ndarray, Any]:
-        """The greedy action(s), with SB3's ``predict`` signature: an action for one observation, an array (B,) for
-        a batch; ``state`` comes back as it was given (the graph has none)."""
+    def predict(self, observation: Any, state: Any = None, episode_start: Any = None, deterministic: bool = True,
+                action_masks: Any = None) -> tuple[np.ndarray, Any]:
+        """The greedy action(s), with SB3's ``predict`` signature (and sb3-contrib MaskablePPO's ``action_masks``,
+        for a graph exported from one): an action for one observation, an array (B,) for a batch; ``state`` comes
+        back as it was given (the graph has none)."""
         if not deterministic:
             raise ValueError("an exported graph holds the greedy decision only: deterministic=False (exploration, "
                              "sampled actions) is not in it")
-        action, _, batched = self.run(observation)
+        action, _, batched = self.run(observation, action_masks)
         return (action if batched else action[0]), state
 
     def __repr__(self) -> str:

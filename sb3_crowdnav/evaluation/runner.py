@@ -81,8 +81,8 @@ def make_policy(spec: Any, env: gym.Env | None = None, allow_env_mismatch: bool 
     mapping, the paper's ORCA row); ``"orca-constrained"`` → the same with the constrained mapping;
     ``"random"`` or ``"random:SEED"`` → :class:`RandomPolicy`; ``"pretrained:NAME"`` → a model
     shipped with the package (:func:`sb3_crowdnav.pretrained`); a file ``.onnx`` → an exported graph run by
-    :class:`~sb3_crowdnav.deploy.OnnxPolicy`; any other string → a saved model
-    loaded with :func:`~sb3_crowdnav.models.load_model` (a MaskablePPO one acts with its wall masks:
+    :class:`~sb3_crowdnav.deploy.OnnxPolicy` (one of a MaskablePPO model with the env's wall masks); any other
+    string → a saved model loaded with :func:`~sb3_crowdnav.models.load_model` (a MaskablePPO one acts with its wall masks:
     :class:`~sb3_crowdnav.apg_value.action_masks.WallMaskedPolicy`). A model trained in another world than ``env``
     (time step, kinematics, rotation range) is refused unless ``allow_env_mismatch``. A
     :class:`~sb3_crowdnav.safety.ProtectiveField` wraps the policy in a
@@ -117,7 +117,13 @@ def _make_policy(spec: Any, env: gym.Env | None, allow_env_mismatch: bool) -> An
     if parsed.is_onnx:  # an exported graph: it checks the env's shapes and world itself
         from sb3_crowdnav.deploy import OnnxPolicy
 
-        return OnnxPolicy(str(parsed.argument), env, allow_env_mismatch=allow_env_mismatch)
+        graph = OnnxPolicy(str(parsed.argument), env, allow_env_mismatch=allow_env_mismatch)
+        if graph.metadata.kind != "masked_logits" or env is None:
+            return graph
+        from sb3_crowdnav.apg_value.action_masks import WallMaskedPolicy
+        from sb3_crowdnav.serialization import world_of
+
+        return WallMaskedPolicy(graph, world_of(env))  # a MaskablePPO graph acts with the env's wall masks, as its model
     from sb3_crowdnav.models import check_pretrained, load_model
 
     path = str(check_pretrained(parsed.argument)) if parsed.kind == "pretrained" else str(parsed.argument)

@@ -20,7 +20,7 @@ from sb3_crowdnav.nn.extractors import (
     SarlExtractor,
     SfExtractor,
 )
-from sb3_crowdnav.nn.interactions import angular_pedestrian_grid, local_occupancy_map, social_forces
+from sb3_crowdnav.nn.interactions import angular_pedestrian_grid, local_occupancy_map, sector_of, social_forces
 from sb3_crowdnav.nn.layers import MLP, set_onednn_inference, set_onednn_training
 from sb3_crowdnav.nn.perf import configure_cpu, tune_malloc
 from sb3_crowdnav.nn.policies import (
@@ -36,6 +36,7 @@ from sb3_crowdnav.nn.transforms import (
     ROBOT_FEATURES,
     HumanFeat,
     RobotFeat,
+    goal_frame_grid,
     parse_observation_space,
     robot_centric,
     split_observation,
@@ -63,9 +64,11 @@ __all__ = [
     "SfExtractor",
     "angular_pedestrian_grid",
     "configure_cpu",
+    "goal_frame_grid",
     "local_occupancy_map",
     "parse_observation_space",
     "robot_centric",
+    "sector_of",
     "set_onednn_inference",
     "set_onednn_training",
     "social_forces",

@@ -24,7 +24,7 @@ from gymnasium import spaces
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from torch import nn
 
-from sb3_crowdnav.nn.interactions import angular_pedestrian_grid, local_occupancy_map, social_forces
+from sb3_crowdnav.nn.interactions import local_occupancy_map, social_forces
 from sb3_crowdnav.nn.layers import (
     check_arch,
     compact_width,
@@ -41,6 +41,7 @@ from sb3_crowdnav.nn.transforms import (
     ROBOT_FEATURE_DIM,
     HumanFeat,
     RobotFeat,
+    goal_frame_grid,
     parse_observation_space,
     robot_centric,
     split_observation,
@@ -74,30 +75,29 @@ class CrowdFeaturesExtractor(BaseFeaturesExtractor):
             self.static_world = static
             self.register_forward_hook(_append_static_world)
 
-    def _robot_centric(
-        self, observations: dict[str, th.Tensor], latest_only: bool = False
-    ) -> tuple[th.Tensor, th.Tensor, th.Tensor, th.Tensor]:
-        """Robot-centric features of the present pedestrians, compacted and sorted for the LSTM.
+    def _sorted_crowd(self, observations: dict[str, th.Tensor], latest_only: bool = False) -> tuple[th.Tensor, ...]:
+        """The robot and the present pedestrians in the world frame, farthest first by their current centre
+        distance (:func:`~sb3_crowdnav.nn.layers.sort_farthest_first`), the padding cut to the largest number L of
+        present pedestrians in the batch (everything downstream is linear in L; L = 0 is allowed).
 
-        Pedestrians are ordered by their current centre distance to the robot, farthest first,
-        and the padding is cut to the largest number L of present pedestrians in the batch
-        (everything downstream is linear in L instead of ``max_humans``; L = 0 is allowed).
-
-        :return: robot features (B, 7); pedestrian features (B, T', L, 7) with T' = 1 when
-            ``latest_only`` else T, zero in the slots past a row's count; ``valid`` (B, L) bool;
-            ``lengths`` (B,) number of present pedestrians
+        :return: robot (B, 9); pedestrians (B, T', L, 5) with T' = 1 when ``latest_only`` else T, whatever the
+            observation holds past a row's count; ``valid`` (B, L) bool; ``lengths`` (B,) present pedestrians
         """
-        # padded slots keep their content here: the sort puts them last and the final where() zeroes them
+        # padded slots keep their content here: the sort puts them last and the callers zero them
         robot, humans, present = split_observation(observations, self.history_length, self.max_humans, zero_padding=False)
         if latest_only:
             humans = humans[:, -1:]
         batch, steps, _, dim = humans.shape
-        offset = humans[:, -1, :, Human.POS] - robot[:, None, Robot.POS]  # (B, N, 2)
-        dist = th.hypot(offset[..., 0], offset[..., 1])  # (B, N), NaN in garbage slots is masked by the sort
-        order, lengths, valid = sort_farthest_first(dist, present)
+        order, lengths, valid = sort_farthest_first(humans[:, -1, :, Human.POS] - robot[:, None, Robot.POS], present)
         width = compact_width(lengths)
         order, valid = order[:, :width], valid[:, :width]
         humans = humans.gather(2, order[:, None, :, None].expand(batch, steps, width, dim))  # (B, T', L, 5)
+        return robot, humans, valid, lengths
+
+    def _robot_centric(self, observations: dict[str, th.Tensor], latest_only: bool = False) -> tuple[th.Tensor, ...]:
+        """:meth:`_sorted_crowd` as robot features (B, 7) and pedestrian features (B, T', L, 7), zero past a row's
+        count, with ``valid`` and ``lengths``."""
+        robot, humans, valid, lengths = self._sorted_crowd(observations, latest_only)
         robot_feats, human_feats = robot_centric(robot, humans)
         human_feats = th.where(valid[:, None, :, None], human_feats, th.zeros((), dtype=human_feats.dtype))
         return robot_feats, human_feats, valid, lengths
@@ -176,11 +176,11 @@ class ApgExtractor(CrowdFeaturesExtractor):
         self.bfloat16_inference = False
 
     def forward(self, observations: dict[str, th.Tensor]) -> th.Tensor:
-        robot_feats, human_feats, valid, lengths = self._robot_centric(observations)  # (B, 7), (B, T, L, 7)
-        batch, steps, width = human_feats.shape[:3]
-        grid = angular_pedestrian_grid(
-            human_feats[..., HumanFeat.POS], valid[:, None, :].expand(batch, steps, width), self.num_sectors, self.r_max
-        )  # (B, T, L, K)  Eq. 3
+        robot, humans, valid, lengths = self._sorted_crowd(observations)  # world frame: (B, 9), (B, T, L, 5)
+        robot_feats, human_feats = robot_centric(robot, humans)  # (B, 7), (B, T, L, 7)
+        human_feats = th.where(valid[:, None, :, None], human_feats, th.zeros((), dtype=human_feats.dtype))
+        grid = goal_frame_grid(robot, humans, valid, self.num_sectors, self.r_max)  # (B, T, L, K)  Eq. 3
+        steps = grid.shape[1]
         states = th.cat((human_feats, grid), dim=-1)  # (B, T, L, 7 + K), contiguous: Linear's fast path
         if self.bfloat16_inference and not th.is_grad_enabled():
             states = states.to(th.bfloat16)  # the per-(step, pedestrian) layers in bfloat16, the rest in float32

@@ -38,30 +38,78 @@ def _pairwise_offsets(positions: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
     return x[..., None, :] - x[..., :, None], y[..., None, :] - y[..., :, None]
 
 
+def _edge_tables(num_sectors: int) -> tuple[list[float], list[float], list[int]]:
+    """For the edges j * 2π/K, j = -m … m (m = ceil(K / 2)), at index j + m: their cos and sin, with exact 0 and ±1
+    on the axes (the edge at 0 rad tests y alone, whatever x is); and at index i + 1, i = -1 … 2m: the sector
+    before or at edge i - m, ``(i - m) mod K``."""
+    m = -(-num_sectors // 2)
+    angles = [2 * math.pi * j / num_sectors for j in range(-m, m + 1)]
+    cos = [0.0 if abs(math.cos(a)) < 1e-12 else math.cos(a) for a in angles]
+    sin = [0.0 if abs(math.sin(a)) < 1e-12 else math.sin(a) for a in angles]
+    return cos, sin, [(i - m) % num_sectors for i in range(-1, 2 * m + 1)]
+
+
+def sector_of(x: th.Tensor, y: th.Tensor, num_sectors: int) -> th.Tensor:
+    """Sector index k of the directions (x, y) (any shape, one float dtype): the angle phi in [0, 2π)
+    counter-clockwise from the x-axis lies in ``[k * 2π/K, (k + 1) * 2π/K)``; 0 for (0, 0). Long tensor of the same
+    shape.
+
+    Decided by the sign of a cross product with the nearest sector edge's vector (a constant table, exact 0 and ±1
+    on the axes), not by the value of an ``atan2``: a product and a difference are rounded alike by every IEEE
+    runtime, so PyTorch and an exported graph in ONNX Runtime put a direction on the same side of an edge even
+    1e-12 rad from it (their float32 ``atan2`` kernels differ in the last bit there). A float32 ``atan2`` only picks
+    the nearest edge; where two runtimes could pick different ones (half-way between edges), either edge's test
+    gives the same sector. Index arithmetic by table look-ups (``take``): integer ``where`` and ``remainder`` cost
+    more than the rest together.
+    """
+    if num_sectors <= 2:  # no sector narrower than a half-turn: the half-planes decide alone
+        lower = (y < 0) | ((y == 0) & (x < 0))
+        return lower.long() if num_sectors == 2 else th.zeros_like(x, dtype=th.long)
+    cos, sin, sectors = (th.tensor(table, dtype=dtype, device=x.device)
+                         for table, dtype in zip(_edge_tables(num_sectors), (x.dtype, x.dtype, th.long), strict=True))
+    m = -(-num_sectors // 2)
+    nearest = th.round(th.atan2(y.float(), x.float()) * (num_sectors / (2 * math.pi))) + m  # edge index, [0, 2m]
+    # (±0, ±0), where atan2 may give ±π: edge 0, whose cross product 0 keeps it in sector 0
+    nearest = th.where((x == 0) & (y == 0), float(m), nearest).long()
+    behind = th.take(cos, nearest) * y - th.take(sin, nearest) * x < 0  # clockwise of the edge: the sector before
+    return th.take(sectors, nearest + 1 - behind.long())
+
+
 def angular_pedestrian_grid(
-    positions: th.Tensor, present: th.Tensor, num_sectors: int = 12, r_max: float = 3.0
+    positions: th.Tensor, present: th.Tensor, num_sectors: int = 12, r_max: float = 3.0, axis: th.Tensor | None = None
 ) -> th.Tensor:
     """Angular pedestrian grid of every pedestrian (paper Eq. 3).
 
     ``grid[..., i, k] = min(r_max, min{ rho_ij : j present, j != i, phi_ij in sector k })`` and
     ``r_max`` for an empty sector, where (rho_ij, phi_ij) are the polar coordinates of
     pedestrian j around pedestrian i (centre distance [m]). Sector k covers
-    ``phi in [k * 2π/K, (k + 1) * 2π/K)``, with phi measured **counter-clockwise from the
-    x-axis of the frame of** ``positions`` (the robot-to-goal axis for robot-centric positions),
-    k = 0 … K-1. A coincident pedestrian (rho = 0) falls in sector 0. Rows of pedestrians that
-    are not present are all ``r_max``.
+    ``phi in [k * 2π/K, (k + 1) * 2π/K)``, with phi measured **counter-clockwise from** ``axis``
+    (default: the x-axis of the frame of ``positions``; the extractor gives world positions and the
+    robot-to-goal vector), k = 0 … K-1. A coincident pedestrian (rho = 0) falls in sector 0, as does
+    everyone for a zero ``axis``'s default (the x-axis). Rows of pedestrians that are not present are all
+    ``r_max``. The sectors are decided by the signs of products and sums (:func:`sector_of`), which every IEEE
+    runtime rounds alike: an exported graph puts every pedestrian in PyTorch's sector.
 
     :param positions: (..., N, 2) pedestrian centres [m]
     :param present: (..., N) bool
     :param num_sectors: K
     :param r_max: grid radius [m]
+    :param axis: (..., 2) the direction of sector 0's first edge in the frame of ``positions`` (any length, same
+        dtype; a zero vector means the x-axis), or None for the x-axis
     :return: (..., N, K)
     """
     _check_positions(positions, present)
+    if axis is not None and tuple(axis.shape) != (*positions.shape[:-2], 2):
+        raise ValueError(f"expected axis {(*positions.shape[:-2], 2)} for positions {tuple(positions.shape)}, got "
+                         f"{tuple(axis.shape)}")
     dx, dy = _pairwise_offsets(positions)  # (..., N_i, N_j) from i to j
     rho = th.hypot(dx, dy)
-    sector = th.floor(th.atan2(dy, dx) * (num_sectors / (2 * math.pi)))  # in [-K/2, K/2]
-    sector = th.remainder(sector, num_sectors).long().clamp_(0, num_sectors - 1)  # (..., N, N) in [0, K)
+    x, y = dx, dy
+    if axis is not None:  # the offsets in the axis's frame, scaled by its length (products and sums: exact rounding)
+        ax, ay = (axis[..., c][..., None, None] for c in (0, 1))
+        ax = th.where((ax == 0) & (ay == 0), th.ones((), dtype=ax.dtype), ax)
+        x, y = ax * dx + ay * dy, ax * dy - ay * dx
+    sector = sector_of(x, y, num_sectors)  # (..., N, N) in [0, K)
     dist = th.where(_pair_mask(present), th.clamp(rho, max=r_max), th.full((), r_max, dtype=rho.dtype))
     rows = positions.new_full((*positions.shape[:-1], num_sectors), r_max)  # (..., N, K)
     # scatter each pair's distance into (row i, sector of j) and keep the minimum

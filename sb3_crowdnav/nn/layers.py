@@ -213,15 +213,20 @@ def masked_softmax(scores: th.Tensor, mask: th.Tensor, dim: int) -> th.Tensor:
     return weights / weights.sum(dim=dim, keepdim=True).clamp(min=th.finfo(scores.dtype).tiny)
 
 
-def sort_farthest_first(dist: th.Tensor, present: th.Tensor) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
+def sort_farthest_first(offset: th.Tensor, present: th.Tensor) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
     """Order pedestrians for the LSTM: present ones farthest first (the nearest is seen last), padding after.
 
-    :param dist: (B, N) distance of every slot to the robot
+    The distances are compared squared, in float64: the products of the float32 offsets are exact and their sum
+    rounded once, so an exported graph orders two pedestrians 1 float32 ulp apart as PyTorch does (``hypot``
+    kernels differ in that bit); equal distances keep the slot order (a stable sort, ONNX's ``TopK``).
+
+    :param offset: (B, N, 2) every slot's position relative to the robot (NaN in padded slots is masked)
     :param present: (B, N) bool
     :return: ``order`` (B, N) slot index at each sorted position, ``lengths`` (B,) number of present
         pedestrians, ``valid`` (B, N) bool, True at sorted positions holding a present pedestrian
     """
-    key = th.where(present, dist, th.full((), -th.inf, dtype=dist.dtype))
+    x, y = offset[..., 0].double(), offset[..., 1].double()
+    key = th.where(present, x * x + y * y, th.full((), -th.inf, dtype=x.dtype))
     order = th.sort(key, dim=1, descending=True, stable=True).indices
     lengths = present.sum(dim=1)
     valid = th.arange(present.shape[1], device=present.device)[None, :] < lengths[:, None]

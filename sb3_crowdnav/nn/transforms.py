@@ -21,6 +21,7 @@ from __future__ import annotations
 import torch as th
 from gymnasium import spaces
 
+from sb3_crowdnav.nn.interactions import angular_pedestrian_grid
 from sb3_crowdnav.sim.observation import OBS_KEYS, ROBOT_DIM, Human, ObservationSchema, Robot
 
 ROBOT_FEATURES = ("dist_goal", "v_pref", "vx", "vy", "radius", "cos_heading", "sin_heading")
@@ -129,3 +130,18 @@ def robot_centric(robot: th.Tensor, humans: th.Tensor) -> tuple[th.Tensor, th.Te
         dim=-1,
     )
     return robot_feats, human_feats
+
+
+def goal_frame_grid(robot: th.Tensor, humans: th.Tensor, valid: th.Tensor, num_sectors: int, r_max: float) -> th.Tensor:
+    """The APG (Eq. 3) of every pedestrian and step, (B, T, L, K), sector 0 at the robot-to-goal axis, from the
+    world-frame robot (B, 9), pedestrians (B, T, L, 5) and ``valid`` (B, L) (padding ignored, whatever it holds).
+
+    The sectors are those of the world offsets around that axis, decided by exact sign tests
+    (:func:`~sb3_crowdnav.nn.interactions.sector_of`): an exported graph puts every pedestrian in PyTorch's sector,
+    which it did not from the robot-centric positions (their rotation's cos and sin differ in the last bit).
+    """
+    batch, steps, width = humans.shape[:3]
+    present = valid[:, None, :].expand(batch, steps, width)
+    positions = th.where(present[..., None], humans[..., Human.POS], th.zeros((), dtype=humans.dtype))
+    axis = (robot[:, Robot.GOAL] - robot[:, Robot.POS])[:, None, :].expand(batch, steps, 2)
+    return angular_pedestrian_grid(positions, present, num_sectors, r_max, axis)
