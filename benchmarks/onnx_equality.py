@@ -1,6 +1,6 @@
 """The exported ONNX graph against the PyTorch model it came from, on observations of test episodes.
 
-Usage: python benchmarks/onnx_equality.py [--models apg_rl apg_warehouse ...] [--observations 10000] [--envs 32]
+Usage: python benchmarks/onnx_equality.py [--models apg_rl apg_warehouse_paper ...] [--observations 10000] [--envs 32]
     [--graphs DIR] [--episodes 60 [--seed-offset 2000000]]
 
 For every shipped model (default) the model drives ``--envs`` envs of its world from the test seeds (1,000,000 on)
@@ -32,19 +32,15 @@ import sb3_crowdnav  # noqa: F401  (registers the envs)
 from sb3_crowdnav.deploy import OnnxPolicy, export_onnx
 from sb3_crowdnav.deploy.graph import decision_module
 from sb3_crowdnav.evaluation.runner import TEST_SEED_OFFSET
-from sb3_crowdnav.models import available_pretrained, check_pretrained, pretrained
+from sb3_crowdnav.models import available_pretrained, check_pretrained, pretrained, pretrained_env
 from sb3_crowdnav.nn import configure_cpu
 from sb3_crowdnav.training.callbacks import VALIDATION_SEED_OFFSET
 
 TIE = 1e-6  # two actions whose PyTorch values differ by at most this are a tie
 VALUE_TOLERANCE = 1e-4
-# the worlds the shipped warehouse models were trained in (today's warehouse robot has a stop action and limits)
-WAREHOUSE = ("CrowdNavWarehouse-v0", {"actions": "paper", "max_acceleration": None, "max_turn_rate": None})
-
-
 def env_of(name: str) -> tuple[str, dict]:
     """The env id and keyword arguments of a shipped model's world."""
-    return WAREHOUSE if "warehouse" in name else ("CrowdNav-v0", {})
+    return pretrained_env(name)
 
 
 def torch_values(model, decision, obs: dict[str, np.ndarray]) -> np.ndarray:

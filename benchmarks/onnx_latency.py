@@ -26,10 +26,8 @@ import sb3_crowdnav  # noqa: F401  (registers the envs)
 from sb3_crowdnav.deploy import OnnxPolicy, export_onnx
 from sb3_crowdnav.deploy.runtime import OPTIMIZATION_LEVELS
 from sb3_crowdnav.evaluation.runner import TEST_SEED_OFFSET
-from sb3_crowdnav.models import available_pretrained, check_pretrained, pretrained
+from sb3_crowdnav.models import available_pretrained, check_pretrained, pretrained, pretrained_env
 from sb3_crowdnav.nn import configure_cpu
-
-WAREHOUSE = ("CrowdNavWarehouse-v0", {"actions": "paper", "max_acceleration": None, "max_turn_rate": None})
 
 
 def timed(policy, obs) -> float:
@@ -67,7 +65,7 @@ def main() -> None:
         graphs = args.graphs or Path(tmp)
         graphs.mkdir(parents=True, exist_ok=True)
         for name in args.models:
-            env_id, env_kwargs = WAREHOUSE if "warehouse" in name else ("CrowdNav-v0", {})
+            env_id, env_kwargs = pretrained_env(name)
             path = graphs / f"{name}.onnx"
             if not path.exists():
                 export_onnx(check_pretrained(name), path)

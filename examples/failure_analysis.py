@@ -1,7 +1,7 @@
 """Where and why a policy fails: every collision classified at its colliding step, every timeout by what the robot saw.
 
     python examples/failure_analysis.py --policy pretrained:apg_rl --crowd social_force --episodes 100 --out runs/fail
-    python examples/failure_analysis.py --env CrowdNavWarehouse-v0 --policy pretrained:apg_warehouse --episodes 100 \\
+    python examples/failure_analysis.py --env CrowdNavWarehouse-v0 --policy pretrained:apg_warehouse_paper --episodes 100 \\
         --env-kwargs "dict(actions='paper', max_acceleration=None, max_turn_rate=None, robot_visible=False, \\
                       occlusion=False, people_sensor_range=None)" --out runs/fail_warehouse
 

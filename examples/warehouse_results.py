@@ -6,22 +6,26 @@
 ``sb3-crowdnav benchmark`` runs on the test seeds (1,000,000 + i: layouts the generator never drew in training,
 which used the env's own stream from seed 0, nor in validation, seeds 2,000,000 + i). ``--world today`` runs the
 warehouse as it is by default (a warehouse AMR with a stop and limits, racks that hide pickers, pickers who see the
-robot):
+robot), with ``pretrained:apg_warehouse`` (the ``apg_warehouse`` recipe, trained in that world), the ORCA robot (both
+mappings) and every ``--policy`` given (e.g. the PPO baseline of the same wall time):
 
-* ``OUT/today``: the shipped models (trained in the paper's world, so evaluated with ``--allow-env-mismatch``: they
-  choose among their 80 actions, their lookahead predicting the paper's robot, and the env clips each command to the
-  AMR's limits) and the ORCA robot (both mappings), generated layouts, 6 pickers;
-* ``OUT/protective_field``: the same policies behind a protective field (``--protective-field``, default
+* ``OUT/today``: generated layouts, 6 pickers, and the sweep of ``apg_warehouse`` over ``--sweep`` pickers;
+* ``OUT/today_social_force``: the same with social-force pickers;
+* ``OUT/today_layout_file``: the fixed layout of ``examples/warehouse_layout.yaml``;
+* ``OUT/protective_field``: generated layouts behind a protective field (``--protective-field``, default
   ``0.5,0.3``: 0.5 m around the robot, commands capped at 0.3 m/s).
 
-``--world paper`` runs the world the shipped models were trained in (``sim.warehouse.config.PAPER_WAREHOUSE``: the
-paper's robot, pickers who never see it, every picker seen through racks):
+``--world paper`` runs the models shipped before it, trained in the paper's world
+(``sim.warehouse.config.PAPER_WAREHOUSE``: the paper's robot, pickers who never see it, every picker seen through
+racks at any range): ``pretrained:apg_warehouse_paper``, ``pretrained:ppo_warehouse`` and the ORCA robot (``orca``,
+and ``orca-constrained``: ORCA's velocity mapped onto the robot's 80 actions):
 
-* ``OUT/generated``: generated layouts, 6 pickers: ``pretrained:apg_warehouse``, ``pretrained:ppo_warehouse``,
-  the ORCA robot (``orca``, and ``orca-constrained``: ORCA's velocity mapped onto the robot's 80 actions), with
-  95 % Wilson intervals, trajectories over the layout and a GIF per policy; and the sweep of ``apg_warehouse``
-  over 2, 4, 6, 8 and 10 pickers;
-* ``OUT/layout_file``: the same policies in the fixed layout of ``examples/warehouse_layout.yaml``;
+* ``OUT/generated``: generated layouts, 6 pickers, with trajectories over the layout and a GIF per policy, and the
+  sweep of ``apg_warehouse_paper``;
+* ``OUT/layout_file``: the fixed layout file;
+* ``OUT/today_paper_models``: the same models under today's defaults (``--allow-env-mismatch``: they choose among
+  their 80 actions, their lookahead predicting the paper's robot, and the env clips each command to the AMR's
+  limits), to show how much they drop;
 * ``OUT/unshaped``: with ``--unshaped ZIP``, a model trained without the route-progress shaping.
 
 ``--world both`` (the default) runs both, ``--world none`` neither (the summary only). Every table has its safety
@@ -45,7 +49,8 @@ from sb3_crowdnav.cli import main as cli
 
 ENV = "CrowdNavWarehouse-v0"
 LAYOUT_FILE = Path(__file__).with_name("warehouse_layout.yaml")
-POLICIES = ("pretrained:apg_warehouse", "pretrained:ppo_warehouse", "orca", "orca-constrained")
+TODAY = ("pretrained:apg_warehouse", "orca", "orca-constrained")
+PAPER_MODELS = ("pretrained:apg_warehouse_paper", "pretrained:ppo_warehouse", "orca", "orca-constrained")
 SWEEP = (2, 4, 6, 8, 10)
 # the world the shipped warehouse models were trained in, not today's defaults: the paper's robot (80 actions, no
 # limits) among pickers who do not see it (robot_visible=False), seen through racks at any range
@@ -139,6 +144,8 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--episodes", type=int, default=500)
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--out", type=Path, default=Path("paper_results/warehouse"))
+    p.add_argument("--policy", action="append", default=[], metavar="SPEC",
+                   help="another policy of today's tables (repeatable), e.g. the PPO baseline of the same wall time")
     p.add_argument("--unshaped", metavar="ZIP", help="also evaluate this model trained without progress shaping")
     p.add_argument("--runs", type=Path, help="folder holding the run folders apg_warehouse and ppo_warehouse")
     p.add_argument("--apg-episodes", type=int, metavar="N",
@@ -160,26 +167,43 @@ def main(argv: list[str] | None = None) -> None:
         timed = [("apg_warehouse", args.runs / "apg_warehouse", args.apg_episodes),
                  ("ppo_warehouse", args.runs / "ppo_warehouse", None), *timed]
 
+    today = (*TODAY, *args.policy)
     if args.world in ("both", "today"):
-        benchmark(args.out / "today", POLICIES, args.episodes, args.workers, ["--allow-env-mismatch", "--no-gif"])
-        benchmark(args.out / "protective_field", POLICIES, args.episodes, args.workers,
-                  ["--allow-env-mismatch", "--protective-field", args.protective_field, "--no-gif"])
+        sweep = ["--sweep", *map(str, args.sweep)] if args.sweep else []
+        benchmark(args.out / "today", today, args.episodes, args.workers, [*sweep, *([] if args.gif else ["--no-gif"])])
+        benchmark(args.out / "today_social_force", today, args.episodes, args.workers,
+                  ["--env-kwargs", "dict(crowd='social_force')", "--no-gif"])
+        benchmark(args.out / "today_layout_file", today, args.episodes, args.workers,
+                  ["--env-kwargs", f"dict(layout={str(LAYOUT_FILE)!r})", "--no-gif"])
+        benchmark(args.out / "protective_field", today, args.episodes, args.workers,
+                  ["--protective-field", args.protective_field, "--no-gif"])
     if args.world in ("both", "paper"):
-        benchmark(args.out / "generated", POLICIES, args.episodes, args.workers,
+        benchmark(args.out / "generated", PAPER_MODELS, args.episodes, args.workers,
                   ["--env-kwargs", f"dict({PAPER_ROBOT})", *(["--sweep", *map(str, args.sweep)] if args.sweep else []),
                    *([] if args.gif else ["--no-gif"])])
-        benchmark(args.out / "layout_file", POLICIES, args.episodes, args.workers,
+        benchmark(args.out / "layout_file", PAPER_MODELS, args.episodes, args.workers,
                   ["--env-kwargs", f"dict(layout={str(LAYOUT_FILE)!r}, {PAPER_ROBOT})", "--no-gif"])
+        benchmark(args.out / "today_paper_models", PAPER_MODELS, args.episodes, args.workers,
+                  ["--allow-env-mismatch", "--no-gif"])
     field = json.loads((args.out / "protective_field" / "meta.json").read_text())["protective_field"] \
         if (args.out / "protective_field" / "meta.json").is_file() else None
+    pickers = ", ".join(map(str, args.sweep or SWEEP))
     sections = [("Today's defaults (a warehouse AMR, racks that hide pickers, pickers who see the robot), generated "
                  "layouts, 6 pickers", args.out / "today" / "results.csv", "method"),
-                (f"The same behind a {field}", args.out / "protective_field" / "results.csv", "method"),
+                (f"apg_warehouse with {pickers} pickers, today's defaults", args.out / "today" / "sweep.csv", "humans"),
+                ("Today's defaults with social-force pickers", args.out / "today_social_force" / "results.csv",
+                 "method"),
+                (f"Today's defaults in the layout file {LAYOUT_FILE.name}", args.out / "today_layout_file" / "results.csv",
+                 "method"),
+                (f"Today's defaults behind a {field}", args.out / "protective_field" / "results.csv", "method"),
+                ("The paper-world models under today's defaults", args.out / "today_paper_models" / "results.csv",
+                 "method"),
                 ("As trained (the paper's robot, blind pickers, seen through racks), generated layouts, 6 pickers",
                  args.out / "generated" / "results.csv", "method"),
-                (f"apg_warehouse with {', '.join(map(str, args.sweep or SWEEP))} pickers",
-                 args.out / "generated" / "sweep.csv", "humans"),
-                (f"The layout file {LAYOUT_FILE.name}, 6 pickers", args.out / "layout_file" / "results.csv", "method")]
+                (f"apg_warehouse_paper with {pickers} pickers, as trained", args.out / "generated" / "sweep.csv",
+                 "humans"),
+                (f"As trained, the layout file {LAYOUT_FILE.name}, 6 pickers", args.out / "layout_file" / "results.csv",
+                 "method")]
     sections = [(title, path, key) for title, path, key in sections if path.is_file()]
     if args.unshaped:
         benchmark(args.out / "unshaped", [args.unshaped], args.episodes, args.workers,

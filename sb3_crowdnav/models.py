@@ -36,10 +36,16 @@ PRETRAINED = {
     "lm_rl": "apg_value",
     "ppo_apg": "ppo",
     "dqn_apg": "dqn",
-    "apg_warehouse": "apg_value",
+    "apg_warehouse_paper": "apg_value",
     "ppo_warehouse": "ppo",
     "apg_robust": "apg_value",
 }
+# name -> the env a shipped model was trained for: its id and the keyword arguments that differ from its defaults
+# (the warehouse models of the paper's world: sim.warehouse.config.PAPER_WAREHOUSE)
+PAPER_WORLD = "paper_warehouse"
+PRETRAINED_ENV = {name: ("CrowdNav-v0", None) for name in PRETRAINED}
+PRETRAINED_ENV.update({"apg_warehouse_paper": ("CrowdNavWarehouse-v0", PAPER_WORLD),
+                       "ppo_warehouse": ("CrowdNavWarehouse-v0", PAPER_WORLD)})
 # name -> SHA-256 of weights/<name>.zip, checked before every load (examples/ship_model.py prints it)
 PRETRAINED_SHA256 = {
     "apg_rl": "d747a15de9b4354ffd41c032889e955333d2153387d60e750719e83d3289ab8a",
@@ -51,7 +57,7 @@ PRETRAINED_SHA256 = {
     "ppo_apg": "b94d155294700d0b283f655d846783022276dcf9290edcf6dd5c1b6b96154d2f",
     "dqn_apg": "4002a0bdffcb70e967655d430a72a5d1f45a04918dacf247f0c87c78d7ebf94e",
     "ppo_warehouse": "e71d387a6b327616c7d26df7b92ed14f7166616286530fcc8ed31c5a293df208",
-    "apg_warehouse": "e1e2ae06da71b01fe614afe609866df603dda9f5a74e1f10030430387395254c",
+    "apg_warehouse_paper": "e1e2ae06da71b01fe614afe609866df603dda9f5a74e1f10030430387395254c",
     "apg_robust": "43fd62697dfcbf7f6d319560d738f03b7698f197f50ec3b156a10ff64be89668",
 }
 
@@ -239,6 +245,20 @@ def check_pretrained(name: str) -> Path:
     return path
 
 
+def pretrained_env(name: str) -> tuple[str, dict[str, Any]]:
+    """The env id and keyword arguments of the world a shipped model was trained for (``env_id, kwargs =
+    pretrained_env("apg_warehouse_paper")``, then ``gym.make(env_id, **kwargs)``); ``ValueError`` for an unknown
+    name."""
+    if name not in PRETRAINED:
+        raise ValueError(f"unknown pretrained model {name!r}; known: {sorted(PRETRAINED)}")
+    env_id, world = PRETRAINED_ENV[name]
+    if world == PAPER_WORLD:
+        from sb3_crowdnav.sim.warehouse.config import PAPER_WAREHOUSE
+
+        return env_id, dict(PAPER_WAREHOUSE)
+    return env_id, {}
+
+
 def pretrained(name: str, env: Any = None, **kwargs: Any):
     """Load a shipped model (``APGValue``, ``PPO`` or ``DQN``) by name, e.g. ``pretrained("apg_rl")``; its file is
     checked against the SHA-256 pinned in the package first."""
@@ -255,6 +275,7 @@ __all__ = [
     "detect_algorithm",
     "load_model",
     "pretrained",
+    "pretrained_env",
     "pretrained_path",
     "resolve_model_path",
     "world_mismatch",

@@ -158,7 +158,7 @@ def test_export_refuses_before_any_work(tmp_path):
     with pytest.raises(ValueError, match=r"world= differs .*time_step=0.25 \(world= has 0.5\)"):
         export_onnx(_policy(env), tmp_path / "apg.onnx", world=World(time_step=0.5))
     with pytest.raises(ValueError, match=r"actions='paper' \(the env has 'with_stop'\)"):
-        export_onnx(pretrained("apg_warehouse"), tmp_path / "wh.onnx", env=gym.make("CrowdNavWarehouse-v0"))
+        export_onnx(pretrained("apg_warehouse_paper"), tmp_path / "wh.onnx", env=gym.make("CrowdNavWarehouse-v0"))
     with pytest.raises(ValueError, match="trained on observations"):
         export_onnx(_policy(env), tmp_path / "apg.onnx", env=gym.make("CrowdNav-v0", max_humans=7))
     assert not list(tmp_path.iterdir())
@@ -386,7 +386,7 @@ def graphs(tmp_path_factory):
     folder = tmp_path_factory.mktemp("graphs")
     warehouse = gym.make("CrowdNavWarehouse-v0", **WAREHOUSE_PAPER)
     return {"apg_rl": export_onnx(check_pretrained("apg_rl"), folder / "apg_rl.onnx", env=gym.make("CrowdNav-v0")),
-            "apg_warehouse": export_onnx(check_pretrained("apg_warehouse"), folder / "apg_warehouse.onnx",
+            "apg_warehouse_paper": export_onnx(check_pretrained("apg_warehouse_paper"), folder / "apg_warehouse.onnx",
                                          env=warehouse)}
 
 
@@ -398,7 +398,7 @@ def _assert_same_but_ties(actions: np.ndarray, values: np.ndarray) -> None:
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name, env_id, env_kwargs", [("apg_rl", "CrowdNav-v0", {}),
-                                                     ("apg_warehouse", "CrowdNavWarehouse-v0", WAREHOUSE_PAPER)])
+                                                     ("apg_warehouse_paper", "CrowdNavWarehouse-v0", WAREHOUSE_PAPER)])
 def test_round_trip_of_a_shipped_model(graphs, name, env_id, env_kwargs):
     from sb3_crowdnav.deploy import OnnxPolicy
     from sb3_crowdnav.models import pretrained
@@ -473,7 +473,7 @@ def test_round_trip_of_several_observations_per_iteration(tmp_path, extractor):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name, env_id, env_kwargs", [("apg_rl", "CrowdNav-v0", {}),
-                                                     ("apg_warehouse", "CrowdNavWarehouse-v0", WAREHOUSE_PAPER)])
+                                                     ("apg_warehouse_paper", "CrowdNavWarehouse-v0", WAREHOUSE_PAPER)])
 def test_evaluate_gives_the_records_of_the_original(graphs, tmp_path, capsys, name, env_id, env_kwargs):
     """``sb3-crowdnav evaluate`` writes the same episodes.csv, byte for byte, from the graph and from the model."""
     from sb3_crowdnav.cli import main

@@ -22,17 +22,18 @@ def test_unknown_or_missing_pretrained_name_raises():
 
 
 def test_every_shipped_model_loads_and_drives():
-    # the shipped warehouse models act in the world they were trained in: the paper's robot (80 actions, no limits)
-    envs = {"CrowdNav-v0": gym.make("CrowdNav-v0"),
-            "CrowdNavWarehouse-v0": gym.make("CrowdNavWarehouse-v0", **PAPER_WAREHOUSE)}
-    observations = {env_id: env.reset(seed=1_000_000)[0] for env_id, env in envs.items()}
+    # every shipped model acts in the world it was trained in (pretrained_env): the paper-world warehouse models'
+    # robot has 80 actions and no limits
+    from sb3_crowdnav.models import pretrained_env
+
     for name in sb3_crowdnav.available_pretrained():
         model = sb3_crowdnav.pretrained(name)
-        env_id = "CrowdNavWarehouse-v0" if "obstacles" in model.observation_space.spaces else "CrowdNav-v0"
-        env, obs = envs[env_id], observations[env_id]
-        assert (name.endswith("_warehouse")) == (env_id == "CrowdNavWarehouse-v0")
+        env_id, kwargs = pretrained_env(name)
+        env = gym.make(env_id, **kwargs)
+        obs, _ = env.reset(seed=1_000_000)
+        assert ("obstacles" in model.observation_space.spaces) == (env_id == "CrowdNavWarehouse-v0") == ("warehouse" in name)
         action, _ = model.predict(obs, deterministic=True)
-        assert 0 <= int(action) < 80
+        assert env.action_space.contains(int(action))
         assert policy_label(f"pretrained:{name}") == name.upper()
         assert make_policy(f"pretrained:{name}", env).predict(obs, deterministic=True)[0] == action
 
@@ -41,7 +42,7 @@ def test_a_shipped_warehouse_model_in_the_default_warehouse_is_told_its_world():
     """The default warehouse robot (a stop, limits) is not the one the shipped models learnt: refused, naming the
     keywords that give them their world."""
     with pytest.raises(ValueError, match="make the env with actions='paper', max_acceleration=None, max_turn_rate=None"):
-        make_policy("pretrained:apg_warehouse", gym.make("CrowdNavWarehouse-v0"))
+        make_policy("pretrained:apg_warehouse_paper", gym.make("CrowdNavWarehouse-v0"))
 
 
 def test_orca_specs_pick_the_mapping():
@@ -63,14 +64,14 @@ def test_shipped_apg_rl_navigates():
 
 
 @pytest.mark.slow  # a training run or a full CLI run: make slow
-def test_shipped_apg_warehouse_is_the_documented_cautious_value_ensemble_and_navigates():
-    """The README's apg_warehouse: V the mean of two networks, the cautious lookahead; it drives test episodes home."""
+def test_shipped_apg_warehouse_paper_is_the_documented_cautious_value_ensemble_and_navigates():
+    """apg_warehouse_paper: V the mean of two networks, the cautious lookahead; it drives test episodes home."""
     import torch as th
 
     from sb3_crowdnav.apg_value.policies import ValueEnsemble
     from sb3_crowdnav.evaluation import run_episodes
 
-    model = sb3_crowdnav.pretrained("apg_warehouse")
+    model = sb3_crowdnav.pretrained("apg_warehouse_paper")
     value_net = model.policy.value_net
     assert isinstance(value_net, ValueEnsemble) and len(value_net.members) == 2
     assert model.policy.pedestrian_model == "cautious"
@@ -81,6 +82,20 @@ def test_shipped_apg_warehouse_is_the_documented_cautious_value_ensemble_and_nav
         assert not th.allclose(values[0], values[1])  # two different networks
         th.testing.assert_close(value_net(tensors), (values[0] + values[1]) / 2)
     # in its own world: the paper's robot among pickers who do not see it
-    records = run_episodes("pretrained:apg_warehouse", 10, env_id="CrowdNavWarehouse-v0",
+    records = run_episodes("pretrained:apg_warehouse_paper", 10, env_id="CrowdNavWarehouse-v0",
                            env_kwargs=PAPER_WAREHOUSE)
     assert sum(r.outcome == "success" for r in records) >= 8
+
+
+def test_every_shipped_model_names_the_env_it_was_trained_for():
+    from sb3_crowdnav.models import PRETRAINED, pretrained_env, world_mismatch
+
+    for name in ("apg_rl", "apg_warehouse_paper", "ppo_warehouse"):
+        env_id, kwargs = pretrained_env(name)
+        env = gym.make(env_id, **kwargs)
+        assert world_mismatch(sb3_crowdnav.models.check_pretrained(name), env) is None, name
+        env.close()
+    assert pretrained_env("apg_warehouse_paper")[1]["actions"] == "paper"
+    assert {pretrained_env(name)[0] for name in PRETRAINED} <= {"CrowdNav-v0", "CrowdNavWarehouse-v0"}
+    with pytest.raises(ValueError, match="unknown pretrained model 'nope'"):
+        pretrained_env("nope")

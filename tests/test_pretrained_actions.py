@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 import sb3_crowdnav
-from sb3_crowdnav.models import PRETRAINED
+from sb3_crowdnav.models import PRETRAINED, pretrained_env
 from sb3_crowdnav.sim.warehouse.config import PAPER_WAREHOUSE
 
 RECORD = Path(__file__).parent / "data" / "pretrained_actions.npz"
@@ -26,7 +26,9 @@ ENV_KWARGS = {"warehouse": PAPER_WAREHOUSE}
 
 
 def env_key(name: str) -> str:
-    return "warehouse" if name.endswith("_warehouse") else "crowdnav"
+    """The record's observations of the world ``name`` was trained for."""
+    env_id, kwargs = pretrained_env(name)
+    return next(key for key, (world_id, _) in ENVS.items() if world_id == env_id and ENV_KWARGS.get(key, {}) == kwargs)
 
 
 def observations(env_id: str, n: int, seed: int = 29, **kwargs) -> dict[str, np.ndarray]:

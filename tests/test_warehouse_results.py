@@ -34,10 +34,13 @@ def test_the_script_writes_every_table(tmp_path):
     summary = (out / "summary.md").read_text()
     assert "- earlier run: 67 min" in summary and "- second run: 10 min (to the validation of checkpoint 500)" in summary
     assert json.loads((out / "wall_times.json").read_text())["second run"].startswith("10 min")
-    for title in ("Today's defaults", "The same behind a protective field 0.5 m, cap 0.3 m/s", "As trained",
-                  "apg_warehouse with 2 pickers", "warehouse_layout.yaml"):
+    titles = ("Today's defaults (", "apg_warehouse with 2 pickers, today's", "social-force pickers",
+              "Today's defaults in the layout file warehouse_layout.yaml", "behind a protective field 0.5 m, cap 0.3 m/s",
+              "The paper-world models under today's defaults", "As trained (", "apg_warehouse_paper with 2 pickers",
+              "As trained, the layout file warehouse_layout.yaml")
+    for title in titles:
         assert title in summary
-    assert summary.count("| min TTC [s] |") == 5  # every table has its safety figures
+    assert summary.count("| min TTC [s] |") == len(titles)  # every table has its safety figures
     for world in ("today", "protective_field"):
         table = (out / world / "results.md").read_text()
         assert all(f"| {row} |" in table for row in ("APG_WAREHOUSE", "PPO_WAREHOUSE", "ORCA", "ORCA-constrained"))

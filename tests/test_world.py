@@ -18,7 +18,7 @@ from sb3_crowdnav.sim.config import RewardConfig
 from sb3_crowdnav.sim.warehouse.config import PAPER_ROBOT, ROBOT_DEFAULTS
 from sb3_crowdnav.sim.world import MOTION_FIELDS, World, compare_worlds, upgrade_policy_kwargs
 
-# the shipped apg_warehouse's world (the paper's robot) and the default warehouse's (a warehouse AMR)
+# the shipped apg_warehouse_paper's world (the paper's robot) and the default warehouse's (a warehouse AMR)
 WAREHOUSE = World(obstacle_collision_penalty=-0.25, waypoint_radius=0.6, progress_reward=0.1)
 WAREHOUSE_AMR = dataclasses.replace(WAREHOUSE, **ROBOT_DEFAULTS)
 
@@ -94,7 +94,7 @@ REWARD = dataclasses.asdict(RewardConfig(name="comfort"))
     # an open-floor APGValue file (apg_rl, ..., lm_rl): the settings as separate policy kwargs
     ({"time_step": 0.25, "kinematics": "unicycle", "rotation_range": 2 * math.pi, "reward": REWARD},
      World(reward=RewardConfig(name="comfort"))),
-    # a warehouse file with route shaping (apg_warehouse)
+    # a warehouse file with route shaping (apg_warehouse_paper)
     ({"time_step": 0.25, "kinematics": "unicycle", "rotation_range": 2 * math.pi, "reward": {"name": "crowdnav"},
       "obstacles": {"penalty": -0.25, "waypoint_radius": 0.6, "progress_reward": 0.1}}, WAREHOUSE),
     # a warehouse file saved before route shaping existed: no progress_reward, which was 0 then
@@ -130,7 +130,7 @@ def test_the_converter_refuses_what_it_cannot_read():
 @pytest.mark.parametrize(("name", "env_id", "env_kwargs"), [
     ("apg_rl", "CrowdNav-v0", {}),
     ("apg_carl", "CrowdNav-v0", {"reward": "comfort_angular"}),
-    ("apg_warehouse", "CrowdNavWarehouse-v0", {"progress_reward": 0.1, **PAPER_ROBOT}),
+    ("apg_warehouse_paper", "CrowdNavWarehouse-v0", {"progress_reward": 0.1, **PAPER_ROBOT}),
 ])
 def test_shipped_value_files_hold_their_envs_world_in_the_legacy_form(name, env_id, env_kwargs):
     path = sb3_crowdnav.models.check_pretrained(name)
@@ -202,7 +202,7 @@ def test_an_sb3_model_file_stores_the_world_and_is_compared_in_the_motion_fields
 @pytest.mark.parametrize(("name", "env_id", "env_kwargs", "field"), [
     ("apg_rl", "CrowdNav-v0", {"time_step": 0.5}, "time_step"),
     ("ppo_apg", "CrowdNav-v0", {"kinematics": "holonomic"}, "kinematics"),
-    ("apg_warehouse", "CrowdNavWarehouse-v0", {"waypoint_radius": 1.0, "progress_reward": 0.1, **PAPER_ROBOT},
+    ("apg_warehouse_paper", "CrowdNavWarehouse-v0", {"waypoint_radius": 1.0, "progress_reward": 0.1, **PAPER_ROBOT},
      "waypoint_radius"),
     ("ppo_warehouse", "CrowdNavWarehouse-v0", {}, "actions"),
 ])
