@@ -319,7 +319,7 @@ def test_a_variant_brings_its_env_settings_and_schedule_and_a_run_overrides_them
     assert (paper.train_freq, warehouse.train_freq, ScheduleConfig(variant="sarl").train_freq) == (8, 8, 4)
     assert paper.overlap == warehouse.overlap == "process"
     assert ScheduleConfig(variant="apg_rl", train_freq=4).train_freq == 4
-    assert (warehouse.rl_episodes, warehouse.exploration_episodes, warehouse.imitation_epochs) == (5_000, 2_500, 5)
+    assert (warehouse.rl_episodes, warehouse.exploration_episodes, warehouse.imitation_epochs) == (7_000, 3_500, 5)
     assert warehouse.pedestrian_model == "cautious" and paper.pedestrian_model is None
     assert warehouse.num_humans == (4, 10) and warehouse.training_env_kwargs["worlds"] == "warehouse"
     old = ScheduleConfig(variant="apg_warehouse_paper")  # the shipped apg_warehouse_paper's world
@@ -329,4 +329,4 @@ def test_a_variant_brings_its_env_settings_and_schedule_and_a_run_overrides_them
     assert warehouse.training_env_kwargs["progress_reward"] == 0.1
     unshaped = ScheduleConfig(variant="apg_warehouse", env_kwargs={"progress_reward": 0.0}, rl_episodes=10_000)
     assert unshaped.training_env_kwargs["progress_reward"] == 0.0 and unshaped.rl_episodes == 10_000
-    assert unshaped.exploration_episodes == 2_500
+    assert unshaped.exploration_episodes == 3_500

@@ -64,7 +64,7 @@ def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
 
     g = p.add_argument_group("the paper's schedule (--variant)")
     g.add_argument("--rl-episodes", type=common.positive_int,
-                   help="RL episodes in total (default: the variant's: 10000, apg_warehouse 5000, apg_robust 3000, "
+                   help="RL episodes in total (default: the variant's: 10000, apg_warehouse 7000, apg_robust 3000, "
                         "apg_warehouse_paper 6000)")
     g.add_argument("--n-envs", type=common.positive_int, help="training envs, one batched lookahead (default: 1)")
     g.add_argument("--learning-rate", type=common.positive_float, help="RL learning rate (default: 0.001, Table 1)")

@@ -115,7 +115,7 @@ VARIANTS = {
     # so that the whole command fits 2 hours on 2 cores of an AVX2 machine
     "apg_warehouse": Variant("ApgPolicy", env_id="CrowdNavWorlds-v0",
                              env_kwargs={"worlds": "warehouse", "progress_reward": 0.1},
-                             schedule={"rl_episodes": 5_000, "exploration_episodes": 2_500, "num_humans": (4, 10),
+                             schedule={"rl_episodes": 7_000, "exploration_episodes": 3_500, "num_humans": (4, 10),
                                        "pedestrian_model": "cautious", "imitation_epochs": 5, "train_freq": 8}),
     # the same in the world the shipped apg_warehouse was trained in: the paper's robot among blind ORCA pickers,
     # seen through racks at any range (sim.warehouse.config.PAPER_WAREHOUSE)
@@ -140,7 +140,7 @@ class ScheduleConfig:
     """The paper's schedule (Table 1 and §3) and the knobs of a run; every value is checked at construction.
 
     :param variant: a key of :data:`VARIANTS`
-    :param rl_episodes: RL episodes in total (None: the variant's; the paper: 10,000; ``apg_warehouse``: 5,000;
+    :param rl_episodes: RL episodes in total (None: the variant's; the paper: 10,000; ``apg_warehouse``: 7,000;
         ``apg_robust``: 3,000; ``apg_warehouse_paper``: 6,000)
     :param imitation_episodes: ORCA-robot episodes collected before RL (3,000)
     :param imitation_epochs: passes of the imitation regression (None: the variant's; 10, ``apg_robust`` and
@@ -163,7 +163,7 @@ class ScheduleConfig:
     :param bootstrap_timeouts: see :class:`~sb3_crowdnav.apg_value.APGValue`
     :param exploration_episodes: RL episodes over which ε decays from ``exploration_initial_eps`` to
         ``exploration_final_eps`` (None: the variant's; the paper: 5,000; ``apg_warehouse_paper``: 3,000;
-        ``apg_warehouse``: 2,500; ``apg_robust``: 1,500)
+        ``apg_warehouse``: 3,500; ``apg_robust``: 1,500)
     :param exploration_initial_eps: ε at the first RL episode (the paper: 0.5; lower it to fine-tune a trained
         model given as ``from_imitation``)
     :param exploration_final_eps: ε after ``exploration_episodes`` (the paper: 0.1)
