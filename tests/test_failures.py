@@ -263,3 +263,34 @@ def test_the_script_writes_its_report_and_refuses_bad_input_in_one_line(tmp_path
             script.main([*bad, "--episodes", "2", "--out", str(tmp_path / "bad")])
         assert exit_info.value.code == 2
         assert len(capsys.readouterr().err.strip().splitlines()) == 1
+
+
+def test_the_summary_puts_analysis_folders_into_one_table_block_with_their_figures(tmp_path, capsys):
+    analysis, summary = load_example("failure_analysis"), load_example("failure_summary")
+    folder = tmp_path / "random"
+    analysis.main(["--policy", "random:1", "--policy", "random:2", "--episodes", "3", "--out", str(folder),
+                   "--env-kwargs", "dict(time_limit=6.0)"])
+    report = json.loads((folder / "failures.json").read_text())["policies"]
+    page = tmp_path / "docs" / "page.md"
+    page.parent.mkdir()
+    page.write_text("before\n<!-- f:begin -->\nold\n<!-- f:end -->\nafter\n")
+    summary.main([f"tight time={folder}", "--figures", str(tmp_path / "figs"), "--markdown-into", str(page),
+                  "--block", "f"])
+    text = page.read_text()
+    assert text.startswith("before\n<!-- f:begin -->\n| crowd | policy |") and text.endswith("<!-- f:end -->\nafter\n")
+    assert "old" not in text
+    for label, entry in report.items():  # one row per policy, its counts as the analysis wrote them
+        s = entry["summary"]
+        row = next(line for line in text.splitlines() if line.startswith(f"| tight time | {label} |"))
+        cells = [c.strip() for c in row.strip("|").split("|")]
+        assert cells[2:4] == [str(s["episodes"]), f"{s['collisions']} / {s['obstacle_collisions']}"]
+        assert cells[9] == str(s["timeouts"])
+    figures = sorted((tmp_path / "figs" / "tight_time").glob("*.png"))
+    assert [p.name for p in figures] == sorted(p.name for p in folder.glob("collisions_*.png"))
+    assert all(f"](../figs/tight_time/{p.name})" in text for p in figures)
+    for bad in (["nofolder"], [f"x={tmp_path}"], [f"x={folder}", "--markdown-into", str(page), "--block", "g"]):
+        with pytest.raises(SystemExit) as exit_info:
+            summary.main(bad)
+        assert exit_info.value.code == 2
+        assert len(capsys.readouterr().err.strip().splitlines()) == 1
+    assert page.read_text() == text  # a refused run writes nothing
