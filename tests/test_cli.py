@@ -48,6 +48,21 @@ def test_evaluate_prints_table_and_writes_files(tmp_path, capsys):
     assert json.loads((tmp_path / "meta.json").read_text())["env_kwargs"]["num_humans"] == 3
 
 
+def test_env_kwargs_set_the_goal_progress_shaping(tmp_path, capsys):
+    """``--env-kwargs "dict(progress_reward=0.1)"`` reaches the env: the same episodes (outcomes, times), the returns
+    with the shaping (an ORCA robot gains on its goal)."""
+    runs = {}
+    for name, extra in (("paper", []), ("shaped", ["--env-kwargs", "dict(progress_reward=0.1)"])):
+        assert main(["evaluate", "--policy", "orca", "--episodes", "2", *FAST, *extra, "--out", str(tmp_path / name)]) == 0
+        runs[name] = list(csv.DictReader((tmp_path / name / "episodes.csv").open()))
+    capsys.readouterr()
+    assert [(r["outcome"], r["navigation_time"]) for r in runs["paper"]] == \
+        [(r["outcome"], r["navigation_time"]) for r in runs["shaped"]]
+    assert all(float(s["discounted_return"]) > float(p["discounted_return"])
+               for p, s in zip(runs["paper"], runs["shaped"], strict=True))
+    assert json.loads((tmp_path / "shaped" / "meta.json").read_text())["env_kwargs"]["progress_reward"] == 0.1
+
+
 @pytest.mark.slow  # a training run or a full CLI run: make slow
 def test_benchmark_writes_table_and_figures(tmp_path, capsys):
     argv = ["benchmark", "--policy", "orca", "--policy", "random", "--episodes", "2", "--out", str(tmp_path),

@@ -29,6 +29,9 @@ WORLDS = {
     "limits and a stop": ("CrowdNav-v0", {"actions": "with_stop", "max_acceleration": 1.0, "max_turn_rate": 2.0}, {}),
     "holonomic, limited": ("CrowdNav-v0", {"kinematics": "holonomic", "max_acceleration": 1.5}, {}),
     "holonomic, narrow fan": ("CrowdNav-v0", {"kinematics": "holonomic", "rotation_range": math.pi}, {}),
+    "open floor, goal progress": ("CrowdNav-v0", {"progress_reward": 0.1}, {}),
+    "comfort, goal progress, cautious": ("CrowdNav-v0", {"reward": "comfort", "progress_reward": 1.0},
+                                         {"pedestrian_model": "cautious"}),
     "warehouse": ("CrowdNavWarehouse-v0", {"progress_reward": 0.1}, {"pedestrian_model": "cautious"}),
     "warehouse, limits": ("CrowdNavWarehouse-v0", {}, {}),
 }
@@ -427,6 +430,26 @@ def test_round_trip_with_limits_a_stop_and_every_reward_term(tmp_path):
     expected = policy.action_values(obs)
     actions, values, _ = graph.run(obs)
     np.testing.assert_allclose(values, expected, rtol=0, atol=1e-5)
+    _assert_same_but_ties(actions, expected)
+
+
+@pytest.mark.slow
+def test_round_trip_of_a_model_trained_with_goal_progress(tmp_path):
+    """A model trained a few hundred steps on the open floor with the goal-progress shaping (the graph charges it and
+    caps V at the ceiling, as the numpy lookahead): the graph's values are PyTorch's."""
+    from sb3_crowdnav import APGValue
+    from sb3_crowdnav.deploy import OnnxPolicy, export_onnx
+
+    env = gym.make("CrowdNav-v0", progress_reward=0.1)
+    model = APGValue("ApgPolicy", env, seed=0, imitation_episodes=2, imitation_epochs=1, batch_size=16,
+                     buffer_size=2_000).learn(300)
+    assert model.policy.world.progress_reward == 0.1 and model.policy.value_ceiling(np.ones(1)) is not None
+    graph = OnnxPolicy(export_onnx(model, tmp_path / "progress.onnx", env=env), env)
+    assert graph.metadata.world == model.policy.world
+    obs = _observations(env, 300, seed=1)
+    expected = model.policy.action_values(obs)
+    actions, values, _ = graph.run(obs)
+    np.testing.assert_allclose(values, expected, rtol=0, atol=1e-4)
     _assert_same_but_ties(actions, expected)
 
 

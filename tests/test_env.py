@@ -103,6 +103,32 @@ def test_same_seed_same_episode(seed):
     assert_same(rollout(CrowdNavEnv(**kwargs), seed), rollout(CrowdNavEnv(**kwargs), seed))
 
 
+def test_goal_progress_shaping_passes_the_checkers_and_keeps_the_paper_episodes():
+    """``progress_reward``: the checkers pass without warnings; the same seed gives the same episode; the people, the
+    robot and the outcomes are the paper env's, the rewards differ by ``info["reward_progress"]`` alone."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        env = gym.make("CrowdNav-v0", progress_reward=0.1)
+        gym_check_env(env.unwrapped)
+        sb3_check_env(env.unwrapped, warn=True)
+        sb3_check_env(gym.make("CrowdNav-v0", progress_reward=0.1), warn=True)
+    assert [str(w.message) for w in caught] == []
+    kwargs = dict(reward="comfort_angular", num_humans=(2, 8))
+    shaped = rollout(CrowdNavEnv(progress_reward=0.1, **kwargs), 4, 150)
+    np.testing.assert_equal(shaped, rollout(CrowdNavEnv(progress_reward=0.1, **kwargs), 4, 150))  # nan == nan
+    for step, paper in zip(shaped, rollout(CrowdNavEnv(**kwargs), 4, 150), strict=True):
+        assert_same(step[0], paper[0])  # the observation
+        info, paper_info = step[-1], paper[-1]
+        if len(step) == 2:  # a reset
+            assert_same(info, paper_info)
+            continue
+        assert step[2:4] == paper[2:4] and info.pop("reward_progress") == pytest.approx(step[1] - paper[1], abs=1e-12)
+        stats, paper_stats = info.pop("episode_stats", {}), paper_info.pop("episode_stats", {})
+        assert_same(info, paper_info)
+        stats.pop("discounted_return", None)  # the return counts the shaping
+        np.testing.assert_equal(stats, {k: v for k, v in paper_stats.items() if k != "discounted_return"})
+
+
 def test_different_seeds_differ():
     env = CrowdNavEnv()
     first = [env.reset(seed=s)[0]["humans"] for s in range(3)]

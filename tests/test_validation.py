@@ -17,6 +17,7 @@ from sb3_crowdnav.evaluation.runner import RandomPolicy
 from sb3_crowdnav.imitation import DQfD
 from sb3_crowdnav.nn import ApgExtractor, LmExtractor, SfExtractor
 from sb3_crowdnav.sim import RewardConfig, SceneConfig
+from sb3_crowdnav.sim.simulator import CrowdSimulator
 from sb3_crowdnav.sim.validation import (
     check_bool,
     check_choice,
@@ -53,6 +54,8 @@ CASES: list[tuple[str, Callable[..., Any], str, Any, Any]] = [
     ("WarehouseLayout", lambda **kw: WarehouseLayout(**{"width": 10.0, "height": 8.0, **kw}), "width", "10", -1.0),
     ("CrowdNavEnv", CrowdNavEnv, "gamma", "0.9", 1.5),
     ("CrowdNavEnv", CrowdNavEnv, "num_humans", 2.5, -1),
+    ("CrowdNavEnv", CrowdNavEnv, "progress_reward", "0.1", -0.1),
+    ("CrowdSimulator", lambda **kw: CrowdSimulator(SceneConfig(), RewardConfig(), **kw), "progress_reward", "0.1", 11.0),
     ("OrcaPolicy", OrcaPolicy, "safety_space", "0", -0.1),
     ("RandomPolicy", RandomPolicy, "seed", 1.5, -1),
     ("ApgExtractor", lambda **kw: ApgExtractor(_space(), **kw), "lstm_hidden_size", 50.0, 0),

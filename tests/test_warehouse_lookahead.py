@@ -1,6 +1,9 @@
-"""The lookahead knows the walls: propagation and env agree on obstacle collisions, rewards and waypoints."""
+"""The lookahead knows the walls: propagation and env agree on obstacle collisions, rewards and waypoints; and on the
+progress shaping, on the route's waypoints and on the open floor's goal."""
 
 from __future__ import annotations
+
+import math
 
 import gymnasium as gym
 import numpy as np
@@ -9,34 +12,46 @@ import torch as th
 
 import sb3_crowdnav  # noqa: F401
 from sb3_crowdnav.apg_value.propagation import PropagationModel
-from sb3_crowdnav.sim.observation import OBSTACLE_KEYS, WAYPOINT_KEY
+from sb3_crowdnav.sim.observation import OBSTACLE_KEYS, WAYPOINT_KEY, Robot
 from sb3_crowdnav.sim.warehouse.config import PAPER_ROBOT
+
+WAREHOUSE, OPEN_FLOOR = "CrowdNavWarehouse-v0", "CrowdNav-v0"
 
 
 def _model(env) -> PropagationModel:
     return PropagationModel(env.unwrapped.world, env.unwrapped.scene.history_length, 0.9)
 
 
-@pytest.mark.parametrize("seed, progress_reward", [(s, 0.0) for s in range(4)] + [(s, 0.1) for s in range(4, 6)])
-def test_env_and_propagation_agree_on_random_warehouse_transitions(seed, progress_reward):
-    # the robot and the static world alone; with the route-progress shaping in two seeds
-    env = gym.make("CrowdNavWarehouse-v0", num_humans=0, progress_reward=progress_reward)
+def _towards_goal(obs: dict[str, np.ndarray]) -> int:
+    """The full-speed unicycle action nearest the direction of the goal."""
+    robot = obs["robot"].astype(np.float64)
+    angle = math.atan2(robot[Robot.GOAL][1] - robot[1], robot[Robot.GOAL][0] - robot[0]) - robot[Robot.HEADING]
+    return 64 + round(angle / (2 * math.pi / 16)) % 16
+
+
+@pytest.mark.parametrize("env_id, seed, progress_reward", [(WAREHOUSE, s, 0.0) for s in range(4)] +
+                         [(WAREHOUSE, s, 0.1) for s in range(4, 6)] + [(OPEN_FLOOR, s, 0.1) for s in range(6, 8)])
+def test_env_and_propagation_agree_on_random_transitions(env_id, seed, progress_reward):
+    # the robot and the static world alone (the open floor: the robot alone); with the progress shaping in two seeds
+    env = gym.make(env_id, num_humans=0, progress_reward=progress_reward)
     model = _model(env)
+    warehouse = env_id == WAREHOUSE
     rng = np.random.default_rng(seed)
     obs, _ = env.reset(seed=seed)
-    checked = hits = 0
+    checked = ends = 0
     for _ in range(400):
-        action = int(rng.integers(80))
+        # on the open floor every other step heads for the goal: the episodes end in successes, not timeouts alone
+        action = int(rng.integers(80)) if warehouse or rng.random() < 0.5 else _towards_goal(obs)
         batch = {k: v[None] for k, v in obs.items()}
         prop = model(batch["robot"], batch["humans"], batch["humans_mask"],
-                     {k: batch[k] for k in (*OBSTACLE_KEYS, WAYPOINT_KEY)})
-        replans = env.unwrapped.sim.replans
+                     {k: batch[k] for k in (*OBSTACLE_KEYS, WAYPOINT_KEY) if k in batch})
+        replans = env.unwrapped.sim.replans if warehouse else 0
         obs, reward, terminated, truncated, info = env.step(action)
         # the observation is float32: the shaping sees positions rounded to ~1e-6 m
         assert prop.reward[0, action] == pytest.approx(reward, abs=1e-6 if progress_reward else 1e-9)
         assert bool(prop.terminal[0, action]) == terminated
-        hits += info.get("collision_with") == "obstacle"
-        if not (terminated or truncated) and env.unwrapped.sim.replans == replans:
+        ends += info.get("collision_with") == "obstacle" if warehouse else info["is_success"]
+        if warehouse and not (terminated or truncated) and env.unwrapped.sim.replans == replans:
             # the current waypoint is the env's; a route point beyond the K observed ones it cannot know
             predicted, actual = prop.static["waypoints"][0, action].reshape(-1, 2), obs["waypoints"].reshape(-1, 2)
             passed = not np.allclose(predicted, batch["waypoints"][0].reshape(-1, 2))
@@ -45,7 +60,7 @@ def test_env_and_propagation_agree_on_random_warehouse_transitions(seed, progres
         checked += 1
         if terminated or truncated:
             obs, _ = env.reset()
-    assert checked == 400 and hits > 0  # obstacle collisions happened and were foreseen
+    assert checked == 400 and ends > 0  # obstacle collisions (successes on the open floor) happened and were foreseen
 
 
 def test_open_floor_models_have_no_static_world():
@@ -73,13 +88,16 @@ def test_apg_value_acts_in_the_warehouse_with_the_walls_in_its_lookahead():
     np.testing.assert_allclose(values[hit], -0.25)  # a collision's value is its penalty, nothing after it
 
 
-def test_route_progress_shaping_is_the_metres_gained_on_the_current_waypoint():
-    """``progress_reward`` k: each step earns k x (distance to the current waypoint before - after), zero on terminal
-    steps; with k = 0 (the default, the paper's reward) the term is absent."""
+@pytest.mark.parametrize("env_id", [WAREHOUSE, OPEN_FLOOR])
+def test_progress_shaping_is_the_metres_gained_on_the_current_waypoint_or_the_goal(env_id):
+    """``progress_reward`` k: each step earns k x (distance to the current waypoint (the warehouse) or to the goal
+    (the open floor) before - after), zero on terminal steps; with k = 0 (the default, the paper's reward) the term
+    is 0 (the warehouse's ``info``) or absent (the open floor's ``info``, the paper env's)."""
     k = 0.1
     # the paper's robot: unlimited random actions go both ways along the route from the first steps
-    shaped = gym.make("CrowdNavWarehouse-v0", num_humans=0, progress_reward=k, **PAPER_ROBOT)
-    plain = gym.make("CrowdNavWarehouse-v0", num_humans=0, **PAPER_ROBOT)
+    robot = PAPER_ROBOT if env_id == WAREHOUSE else {}
+    shaped = gym.make(env_id, num_humans=0, progress_reward=k, **robot)
+    plain = gym.make(env_id, num_humans=0, **robot)
     rng = np.random.default_rng(3)
     for seed in range(3):
         obs, _ = shaped.reset(seed=seed)
@@ -87,10 +105,11 @@ def test_route_progress_shaping_is_the_metres_gained_on_the_current_waypoint():
         gains = []
         for _ in range(300):
             action = int(rng.integers(80))
-            waypoint, pos0 = obs["waypoints"][:2].astype(float), obs["robot"][:2].astype(float)
+            target = obs["waypoints"][:2] if env_id == WAREHOUSE else obs["robot"][Robot.GOAL]
+            waypoint, pos0 = target.astype(float), obs["robot"][:2].astype(float)
             obs, reward, terminated, truncated, info = shaped.step(action)
             _, plain_reward, *_, plain_info = plain.step(action)
-            assert plain_info["reward_progress"] == 0.0
+            assert plain_info["reward_progress"] == 0.0 if env_id == WAREHOUSE else "reward_progress" not in plain_info
             if terminated:
                 assert info["reward_progress"] == 0.0 and reward == plain_reward
                 break
@@ -103,21 +122,23 @@ def test_route_progress_shaping_is_the_metres_gained_on_the_current_waypoint():
         assert any(g > 0 for g in gains) and any(g < 0 for g in gains)  # random actions go both ways
 
 
-def test_progress_reward_is_checked_at_construction():
-    for bad, error in ((-0.1, ValueError), (11.0, ValueError), (float("nan"), ValueError), ("0.1", TypeError)):
+@pytest.mark.parametrize("env_id", [WAREHOUSE, OPEN_FLOOR, "CrowdNavWorlds-v0"])
+def test_progress_reward_is_checked_at_construction(env_id):
+    bad_values = ((-0.1, ValueError), (11.0, ValueError), (float("nan"), ValueError), (math.inf, ValueError),
+                  ("0.1", TypeError), (True, TypeError), (None, TypeError))
+    for bad, error in bad_values:
         with pytest.raises(error, match="progress_reward"):
-            gym.make("CrowdNavWarehouse-v0", progress_reward=bad)
+            gym.make(env_id, progress_reward=bad)
 
 
-@pytest.mark.parametrize("k", [0.1, 1.0])
-def test_value_ceiling_bounds_every_return_and_caps_the_lookahead(k):
-    """No discounted return of the shaped warehouse exceeds ``value_ceiling`` (measured on random episodes, each
-    state's return to the episode's end); the lookahead caps V(s') there, so an overestimating V cannot outbid a
-    success action."""
+@pytest.mark.parametrize("env_id, k", [(WAREHOUSE, 0.1), (WAREHOUSE, 1.0), (OPEN_FLOOR, 0.1), (OPEN_FLOOR, 1.0)])
+def test_value_ceiling_bounds_every_return_and_caps_the_lookahead(env_id, k):
+    """No discounted return of the shaped warehouse or open floor exceeds ``value_ceiling`` (measured on random
+    episodes, each state's return to the episode's end); the lookahead caps V(s') there, so an overestimating V
+    cannot outbid a success action."""
     from sb3_crowdnav.apg_value import APGValue
-    from sb3_crowdnav.sim.observation import Robot
 
-    env = gym.make("CrowdNavWarehouse-v0", num_humans=2, progress_reward=k)
+    env = gym.make(env_id, num_humans=2, progress_reward=k)
     model = APGValue("ApgPolicy", env, imitation_episodes=0, seed=0)
     policy = model.policy
     gamma, dt = policy.gamma, policy.time_step
@@ -128,7 +149,7 @@ def test_value_ceiling_bounds_every_return_and_caps_the_lookahead(k):
     for seed in range(6):
         obs, _ = env.reset(seed=seed)
         rewards, done = [], False
-        while not done:  # a forward-driving random robot: gains on its waypoints, sometimes reaches the goal
+        while not done:  # a forward-driving random robot: gains on its waypoints or goal, sometimes reaches the goal
             action = int(rng.choice([64, 65, 79, 48])) if rng.random() < 0.8 else int(rng.integers(80))
             obs, reward, terminated, truncated, _ = env.step(action)
             rewards.append(reward)
@@ -148,10 +169,12 @@ def test_value_ceiling_bounds_every_return_and_caps_the_lookahead(k):
     assert np.any(q > prop.reward + discount * (ceiling - 1e-3))  # capped, not zeroed
 
 
-def test_open_floor_policies_have_no_value_ceiling():
-    from sb3_crowdnav import pretrained
+def test_open_floor_policies_have_no_value_ceiling_but_with_progress_shaping():
+    from sb3_crowdnav import APGValue, pretrained
 
     assert pretrained("apg_rl").policy.value_ceiling(np.array([1.0])) is None
+    shaped = APGValue("ApgPolicy", gym.make(OPEN_FLOOR, progress_reward=0.1), imitation_episodes=0, seed=0)
+    assert shaped.policy.value_ceiling(np.array([1.0]))[0] == 1.0  # max(S, k·Δt / (1 - γ^Δt)) = max(1, 0.96)
 
 
 def test_cautious_pedestrian_model_charges_the_worse_of_moving_on_and_standing_still(tmp_path):

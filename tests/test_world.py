@@ -21,10 +21,12 @@ from sb3_crowdnav.sim.world import MOTION_FIELDS, World, compare_worlds, upgrade
 # the shipped apg_warehouse_paper's world (the paper's robot) and the default warehouse's (a warehouse AMR)
 WAREHOUSE = World(obstacle_collision_penalty=-0.25, waypoint_radius=0.6, progress_reward=0.1)
 WAREHOUSE_AMR = dataclasses.replace(WAREHOUSE, **ROBOT_DEFAULTS)
+SHAPED_OPEN_FLOOR = World(progress_reward=0.1)  # the open floor with goal-progress shaping
 
 
-@pytest.mark.parametrize("world", [World(), WAREHOUSE, World(time_step=0.5, kinematics="holonomic", rotation_range=1.5,
-                                                                reward=RewardConfig(name="comfort_angular"))])
+@pytest.mark.parametrize("world", [World(), WAREHOUSE, SHAPED_OPEN_FLOOR,
+                                   World(time_step=0.5, kinematics="holonomic", rotation_range=1.5,
+                                         reward=RewardConfig(name="comfort_angular"))])
 def test_the_plain_form_round_trips_through_json(world):
     data = json.loads(json.dumps(world.to_dict()))
     assert World.from_dict(data) == world
@@ -39,6 +41,12 @@ def test_each_env_publishes_its_world():
     shaped = gym.make("CrowdNavWarehouse-v0", progress_reward=0.1, waypoint_radius=0.8).unwrapped.world
     assert shaped == dataclasses.replace(WAREHOUSE_AMR, waypoint_radius=0.8) and shaped.has_static_world
     assert gym.make("CrowdNavWarehouse-v0", progress_reward=0.1, **PAPER_ROBOT).unwrapped.world == WAREHOUSE
+    for env_id in ("CrowdNav-v0", "CrowdNavSquare-v0", "CrowdNavWorlds-v0"):  # the open floor and what builds on it
+        open_floor = gym.make(env_id, progress_reward=0.1).unwrapped.world
+        assert open_floor == SHAPED_OPEN_FLOOR and not open_floor.has_static_world and open_floor.has_value_ceiling
+    comfort = gym.make("CrowdNavComfortAngular-v0", progress_reward=0.1).unwrapped.world
+    assert comfort == dataclasses.replace(SHAPED_OPEN_FLOOR, reward=RewardConfig(name="comfort_angular"))
+    assert not World().has_value_ceiling and WAREHOUSE.has_value_ceiling
 
 
 def test_from_dict_refuses_unknown_and_missing_keys():
@@ -70,8 +78,9 @@ def test_from_dict_refuses_unknown_and_missing_keys():
     ({"waypoint_radius": 0.6}, ValueError, "must both be set"),
     ({"obstacle_collision_penalty": 0.5, "waypoint_radius": 0.6}, ValueError, "obstacle_collision_penalty must be <= 0"),
     ({"obstacle_collision_penalty": -0.25, "waypoint_radius": -1.0}, ValueError, "waypoint_radius must be > 0"),
-    ({"progress_reward": 0.1}, ValueError, "progress_reward must be 0 on the open floor"),
     ({"progress_reward": -0.1}, ValueError, "progress_reward must be >= 0"),
+    ({"progress_reward": math.nan}, ValueError, "progress_reward must be finite"),
+    ({"progress_reward": "0.1"}, TypeError, "progress_reward must be a real number"),
 ])
 def test_bad_values_are_refused_naming_the_field(kwargs, error, match):
     with pytest.raises(error, match=match):
@@ -182,6 +191,29 @@ def test_a_saved_value_model_stores_its_world_as_plain_json_and_loading_refuses_
         APGValue.load(tmp_path / "m.zip", env=gym.make("CrowdNav-v0"))
     with pytest.raises(ValueError, match=r"policy_kwargs\['world'\] does not match the env's world: .*time_step=0.5"):
         APGValue("ApgPolicy", "CrowdNav-v0", imitation_episodes=0, policy_kwargs={"world": World(time_step=0.5)})
+
+
+def test_a_model_of_the_shaped_open_floor_acts_without_the_shaping_and_trains_on_only_with_it(tmp_path):
+    """The goal-progress shaping is a reward, as the warehouse's route shaping: a model trained with it acts in an
+    env without it (every loader, the runner), and the shipped models (trained without it) act in a shaped env; but
+    further training, an env attached to the model, needs the same shaping."""
+    from sb3_crowdnav import APGValue
+    from sb3_crowdnav.evaluation.runner import make_policy
+
+    shaped, plain = gym.make("CrowdNav-v0", progress_reward=0.1), gym.make("CrowdNav-v0")
+    path = tmp_path / "shaped.zip"
+    APGValue("ApgPolicy", shaped, imitation_episodes=0, seed=0).save(path)
+    assert read_world(path) == SHAPED_OPEN_FLOOR
+    assert sb3_crowdnav.models.world_mismatch(path, plain) is None
+    obs, _ = plain.reset(seed=0)
+    assert plain.action_space.contains(int(make_policy(str(path), plain).predict(obs, deterministic=True)[0]))
+    with pytest.raises(ValueError, match=r"trained with progress_reward=0.1 \(the env has 0.0\)"):
+        APGValue.load(path, env=plain)
+    assert APGValue.load(path, env=shaped).policy.world == SHAPED_OPEN_FLOOR
+    shipped = sb3_crowdnav.models.check_pretrained("apg_rl")
+    assert sb3_crowdnav.models.world_mismatch(shipped, shaped) is None
+    with pytest.raises(ValueError, match=r"trained with progress_reward=0.0 \(the env has 0.1\)"):
+        APGValue.load(shipped, env=shaped)
 
 
 def test_an_sb3_model_file_stores_the_world_and_is_compared_in_the_motion_fields(tmp_path):

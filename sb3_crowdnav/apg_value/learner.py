@@ -46,11 +46,11 @@ class ValueLearner:
 
     def td_target(self, rewards: th.Tensor, next_obs: dict[str, th.Tensor], obs: dict[str, th.Tensor],
                   dones: th.Tensor) -> th.Tensor:
-        """``r + γ^(Δt·v_pref) · min(V_target(s'), ceiling) · (1 - done)`` (the ceiling: warehouse only)."""
+        """``r + γ^(Δt·v_pref) · min(V_target(s'), ceiling) · (1 - done)`` (the ceiling: warehouse and shaped worlds)."""
         with th.no_grad():
             v_next = self.policy.values(next_obs, target=True)
             ceiling = self.policy.value_ceiling(obs["robot"][:, Robot.V_PREF])
-            if ceiling is not None:  # the warehouse: no return exceeds it (ValueLookaheadPolicy.value_ceiling)
+            if ceiling is not None:  # no return exceeds it (ValueLookaheadPolicy.value_ceiling)
                 v_next = th.minimum(v_next, ceiling)
             discount = self.gamma ** (self.policy.time_step * obs["robot"][:, Robot.V_PREF])
             return rewards + discount * (1.0 - dones) * v_next

@@ -227,16 +227,17 @@ class ValueLookaheadPolicy(BasePolicy):
         return net(observation)
 
     def value_ceiling(self, v_pref: Any) -> Any:
-        """The largest return any state can have in the warehouse, per state (numpy or torch like ``v_pref``);
-        None on the open floor, where no ceiling is applied (the shipped models act as trained).
+        """The largest return any state can have, per state (numpy or torch like ``v_pref``), in the warehouse and
+        wherever progress is shaped (``world.has_value_ceiling``); None on the paper's open floor, where no ceiling
+        is applied (the shipped models act as trained).
 
-        Every reward term is <= 0 but the success reward S and the route-progress shaping, and one step gains at
-        most its length ``v_pref·Δt`` on any waypoint: a return is at most ``max(S, k·v_pref·Δt / (1 - γ'))``
+        Every reward term is <= 0 but the success reward S and the progress shaping, and one step gains at
+        most its length ``v_pref·Δt`` on any waypoint or goal: a return is at most ``max(S, k·v_pref·Δt / (1 - γ'))``
         with ``γ' = γ^(Δt·v_pref)`` (S = 1 for k = 0.1, v_pref = 1). The lookahead and the TD targets take
         ``min(V(s'), ceiling)``: V's overestimates beyond it (which, next to the goal, outbid the success action
         and kept the robot circling there) are cut, and no true value is.
         """
-        if not self.world.has_static_world or self.gamma >= 1:
+        if not self.world.has_value_ceiling or self.gamma >= 1:
             return None
         step = self.time_step * v_pref
         shaping = self.world.progress_reward * step / (1 - self.gamma**step)

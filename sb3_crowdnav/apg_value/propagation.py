@@ -91,8 +91,9 @@ def wall_hits(world: World, robot: np.ndarray, static: dict[str, np.ndarray]) ->
 class PropagationModel:
     """Propagates observations of a crowd env under every action.
 
-    :param world: the env's :class:`~sb3_crowdnav.sim.world.World` (time step, kinematics, action table, reward and,
-        in a world of static obstacles, their collision penalty, the waypoint rule and the route shaping)
+    :param world: the env's :class:`~sb3_crowdnav.sim.world.World` (time step, kinematics, action table, reward, the
+        progress shaping (on the goal, or on the route's current waypoint) and, in a world of static obstacles, their
+        collision penalty and the waypoint rule)
     :param history_length: T
     :param gamma: discount per second at v_pref = 1 (the lookahead discount is γ^(Δt·v_pref))
     :param pedestrian_model: how R(s, a) predicts the pedestrians over the step: ``"constant_velocity"`` (the
@@ -162,7 +163,10 @@ class PropagationModel:
             terms = worse_of(terms, compute_reward(self.reward, self.time_step, *robot_args, start, start, dirs,
                                                    *human_args))
         propagated_static: dict[str, np.ndarray] = {}
-        if static and self.world.has_static_world:  # the same segment geometry as the env, the same waypoint rule
+        if not self.world.has_static_world:  # the open floor's goal-progress shaping (unchanged when it has none)
+            terms = with_route_progress(terms, np.broadcast_to(pos0[:, None, :], (*full, 2)), new_pos, goal[:, None, :],
+                                        self.world.progress_reward)
+        elif static:  # the same segment geometry as the env, the same waypoint rule, the route's progress shaping
             seg_mask = np.asarray(static["obstacles_mask"]).reshape(b, 1, -1)
             hit = swept_hits(pos0, new_pos, radius, static)
             terms = with_obstacle_collision(terms, hit, self.world.obstacle_collision_penalty)

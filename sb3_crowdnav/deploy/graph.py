@@ -5,7 +5,8 @@ One module per kind of policy, each ``forward(observation) -> (action (B,) int64
 * :class:`LookaheadDecision`, a :class:`~sb3_crowdnav.apg_value.ValueLookaheadPolicy` (``APGValue`` and its
   baselines, one value network or an ensemble): the propagation and reward of every action
   (:class:`~sb3_crowdnav.deploy.propagation.GraphPropagation`), V of every propagated state in one batch, the
-  warehouse's value ceiling, ``R + γ^(Δt·v_pref)·V(s')`` in float64 and its argmax (kind ``"lookahead"``);
+  value ceiling (the warehouse, shaped worlds), ``R + γ^(Δt·v_pref)·V(s')`` in float64 and its argmax (kind
+  ``"lookahead"``);
 * :class:`QDecision`, SB3's DQN policy: the Q network and its argmax (kind ``"q_values"``);
 * :class:`ActorDecision`, SB3's actor-critic policy (PPO, A2C) with discrete actions: the actor's logits and their
   argmax, the action SB3's ``predict(deterministic=True)`` takes (kind ``"logits"``);
@@ -79,7 +80,7 @@ class LookaheadDecision(nn.Module):
         self.keys = tuple(schema.shapes)  # the observation's keys in the schema's order, the value network's inputs
         self.value_net = policy.value_net
         world = policy.world
-        self.ceiling = world.has_static_world and policy.gamma < 1
+        self.ceiling = world.has_value_ceiling and policy.gamma < 1
         self.ceiling_terms = (world.time_step, world.progress_reward, policy.gamma, world.reward.success_reward)
 
     def value_ceiling(self, v_pref: th.Tensor) -> th.Tensor:

@@ -4,10 +4,11 @@
 functions, which an exported graph cannot hold. :class:`GraphPropagation` is the same computation written with torch
 operators so that ``torch.onnx.export`` records it: the robot's kinematics and limits
 (:func:`~sb3_crowdnav.sim.actions.move`), the constant-velocity pedestrians and the history shift, the reward terms
-(:func:`~sb3_crowdnav.sim.rewards.compute_reward`, the cautious model's :func:`~sb3_crowdnav.sim.rewards.worse_of`)
-and, in the warehouse, the swept-disc obstacle check (:func:`~sb3_crowdnav.sim.geometry.swept_clearance`), the route
-progress and the waypoint rule (:func:`~sb3_crowdnav.sim.warehouse.simulator.next_waypoints`). Each function follows
-its numpy counterpart's arithmetic step by step, in float64 as it does; ``tests/test_deploy.py`` compares the two.
+(:func:`~sb3_crowdnav.sim.rewards.compute_reward`, the cautious model's :func:`~sb3_crowdnav.sim.rewards.worse_of`),
+the progress shaping (on the goal, or on the route's current waypoint) and, in the warehouse, the swept-disc obstacle
+check (:func:`~sb3_crowdnav.sim.geometry.swept_clearance`) and the waypoint rule
+(:func:`~sb3_crowdnav.sim.warehouse.simulator.next_waypoints`). Each function follows its numpy counterpart's
+arithmetic step by step, in float64 as it does; ``tests/test_deploy.py`` compares the two.
 """
 
 from __future__ import annotations
@@ -240,6 +241,17 @@ class GraphPropagation(nn.Module):
         inside = (ellipse <= w["side"]) & (x0 >= 0)
         return th.where(inside, -w["social_penalty"] * (th.exp(-(ellipse - w["side"])) - 1.0), 0.0)
 
+    def progress(self, terms: Terms, pos0: th.Tensor, pos1: th.Tensor, target: th.Tensor) -> Terms:
+        """:func:`~sb3_crowdnav.sim.rewards.with_route_progress`: ``terms`` plus k x the metres gained on ``target``
+        (the goal, or the route's current waypoint), zero on terminal steps; pos0, target (B, 1, 2), pos1 (B, A, 2).
+        Without shaping (k = 0) the terms as they are, and nothing enters the graph."""
+        if self.world.progress_reward == 0:
+            return terms
+        wx, wy = target[..., 0], target[..., 1]
+        gained = norm2(pos0[..., 0] - wx, pos0[..., 1] - wy) - norm2(pos1[..., 0] - wx, pos1[..., 1] - wy)
+        progress = th.where(terms.success | terms.collision, 0.0, f64(self.world.progress_reward) * gained)
+        return terms._replace(reward=terms.reward + progress)
+
     # ------------------------------------------------------------------ the warehouse
     def static_world(self, terms: Terms, pos0, pos1, radius, obstacles, obstacles_mask, waypoints) -> tuple[Terms, th.Tensor]:
         """The obstacle collision, the route progress and the moved waypoints (B, A, K, 2) of the warehouse."""
@@ -254,11 +266,7 @@ class GraphPropagation(nn.Module):
         terms = Terms(th.where(hit, f64(world.obstacle_collision_penalty), terms.reward), terms.success & ~hit,
                       terms.collision | hit)
         route = waypoints.reshape(batch, 1, -1, 2)  # (B, 1, K, 2)
-        if world.progress_reward != 0:  # with_route_progress
-            wx, wy = route[..., 0, 0], route[..., 0, 1]
-            gained = norm2(pos0[..., 0] - wx, pos0[..., 1] - wy) - norm2(pos1[..., 0] - wx, pos1[..., 1] - wy)
-            progress = th.where(terms.success | terms.collision, 0.0, f64(world.progress_reward) * gained)
-            terms = terms._replace(reward=terms.reward + progress)
+        terms = self.progress(terms, pos0, pos1, route[..., 0, :])
         out = route.expand(-1, pos1.shape[1], -1, -1)
         for _ in range(out.shape[-2] - 1):  # next_waypoints: drop each passed waypoint, never the goal
             first, goal = out[..., 0, :], out[..., -1, :]
@@ -298,7 +306,9 @@ class GraphPropagation(nn.Module):
 
         n_actions = speeds.shape[1]
         propagated = {}
-        if self.world.has_static_world and self.schema.max_obstacles and self.schema.num_waypoints:
+        if not self.world.has_static_world:  # the open floor's goal-progress shaping
+            terms = self.progress(terms, pos0, pos1, goal)
+        elif self.schema.max_obstacles and self.schema.num_waypoints:
             segments = [observation[key] for key in OBSTACLE_KEYS]  # obstacles, obstacles_mask
             terms, route = self.static_world(terms, pos0, pos1, radius, *segments, observation[WAYPOINT_KEY])
             propagated = {key: _per_action(observation[key], n_actions) for key in OBSTACLE_KEYS}

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 from sb3_crowdnav.envs.base import (
@@ -14,14 +15,16 @@ from sb3_crowdnav.envs.base import (
     split_env_kwargs,
     unused_reward_weights,
 )
-from sb3_crowdnav.sim.config import RewardConfig, SceneConfig
+from sb3_crowdnav.sim.config import MAX_PROGRESS_REWARD, RewardConfig, SceneConfig
 from sb3_crowdnav.sim.observation import ObservationSchema
 from sb3_crowdnav.sim.simulator import CrowdSimulator
-from sb3_crowdnav.sim.validation import check_choice
+from sb3_crowdnav.sim.validation import check_choice, check_range
+from sb3_crowdnav.sim.world import World
 
 ORCA_KEYS = ("orca_neighbor_dist", "orca_max_neighbors", "orca_time_horizon")  # what ORCA pedestrians read
 # what a recording decides (crowd="replay")
 REPLAY_DECIDES = ("num_humans", "robot_visible", "human_speed", "human_v_pref", "stop_probability", "stop_duration")
+OPEN_FLOOR_KEYS = ("progress_reward",)  # the open floor's own keyword arguments beside the configs' and the envs'
 
 
 class CrowdNavEnv(CrowdEnvBase):
@@ -65,6 +68,11 @@ class CrowdNavEnv(CrowdEnvBase):
     or ``"comfort_angular"`` (APG_CARL, + Eq. 13). See :mod:`sb3_crowdnav.sim.rewards` for every
     term and the decisions on the paper's ambiguities. ``info`` reports each term separately.
 
+    ``progress_reward`` k > 0 (default 0: the paper's reward, no shaping) adds goal-progress shaping, beyond the paper:
+    k x (the metres the robot gained on its goal during the step; lost metres cost as much), zero on terminal steps,
+    the warehouse's route-progress term with the goal as the only waypoint. ``info["reward_progress"]`` reports it
+    (only when k > 0: the default ``info`` is the paper env's).
+
     ## Starting State
 
     Robot at (0, -R) facing its goal (0, R), at rest. Pedestrians start on the circle (±0.5 m
@@ -92,7 +100,9 @@ class CrowdNavEnv(CrowdEnvBase):
     :class:`~sb3_crowdnav.sim.config.RewardConfig` is a keyword argument. ``gamma`` (0.9) is the
     discount of the ``discounted_return`` episode statistic, Σ gamma^(t·Δt·v_pref) r_t.
     ``render_mode`` is ``"rgb_array"`` or ``"human"``. ``scenario`` is ``"circle_crossing"`` (default) or
-    ``"square_crossing"`` (``CrowdNavSquare-v0``).
+    ``"square_crossing"`` (``CrowdNavSquare-v0``). ``progress_reward`` [1/m] in [0, 10] (default 0) is the
+    goal-progress shaping (Rewards above); a model trained with it acts unchanged without it (a reward is not part of
+    the motion), but further training needs an env with the same value.
 
     The crowd (:mod:`sb3_crowdnav.sim.crowd`, :mod:`sb3_crowdnav.sim.population`); the defaults are the paper's:
 
@@ -139,16 +149,19 @@ class CrowdNavEnv(CrowdEnvBase):
 
     ## Version History
 
-    * v0: initial version.
+    * v0: initial version. Since the goal-progress shaping, ``progress_reward`` (its default 0 plays the earlier
+      episodes, rewards and ``info``).
     """
 
     SCENARIOS = ("circle_crossing", "square_crossing")  # the open floor's; the warehouse is another env
 
     def __init__(self, render_mode: str | None = None, reward: str = "crowdnav", gamma: float = 0.9,
-                 **kwargs: Any) -> None:
+                 progress_reward: float = 0.0, **kwargs: Any) -> None:
         name = type(self).__name__
         check_env_arguments(self.metadata["render_modes"], render_mode, gamma)
-        scene_kwargs, reward_kwargs = split_env_kwargs(kwargs, name)
+        check_range("progress_reward", progress_reward, 0, MAX_PROGRESS_REWARD)  # [1/m]
+        self.progress_reward = float(progress_reward)
+        scene_kwargs, reward_kwargs = split_env_kwargs(kwargs, name, OPEN_FLOOR_KEYS)
         if "crowd" in kwargs and "human_policy" in kwargs:
             raise ValueError("human_policy is the old name of crowd: pass crowd only")
         check_choice("scenario", scene_kwargs.get("scenario", "circle_crossing"), self.SCENARIOS)
@@ -160,13 +173,21 @@ class CrowdNavEnv(CrowdEnvBase):
             half = scene.crowd_kwargs.extent
         # no agent gets farther than its start plus v_pref x time_limit: the clip in _get_obs is only a guard
         pos_bound = half + max(scene.robot_v_pref, scene.max_human_speed) * scene.time_limit + 1.0
-        super().__init__(scene, reward_config, CrowdSimulator(scene, reward_config),
+        super().__init__(scene, reward_config, CrowdSimulator(scene, reward_config, self.progress_reward),
                          ObservationSchema(scene.history_length, scene.max_humans), pos_bound, gamma, render_mode)
 
     @classmethod
     def option_names(cls) -> set[str]:
         """Every keyword argument the constructor knows (each changes the episodes or is refused)."""
-        return SCENE_KEYS | REWARD_KEYS | ENV_KEYS
+        return SCENE_KEYS | REWARD_KEYS | ENV_KEYS | set(OPEN_FLOOR_KEYS)
+
+    @property
+    def world(self) -> World:
+        """The crowd's world with the goal-progress shaping."""
+        return dataclasses.replace(super().world, progress_reward=self.progress_reward)
+
+    def _extra_info(self) -> dict[str, Any]:
+        return {"reward_progress": self.sim.progress_term} if self.progress_reward else {}
 
 
 def unused_options(scene: SceneConfig) -> dict[str, str]:

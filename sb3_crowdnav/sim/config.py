@@ -39,6 +39,9 @@ REWARD_LIMITS = (  # on the absolute value
     ("discomfort_factor", 100.0, ""), ("comfort_person", 10.0, " m"), ("comfort_side", 10.0, " m"),
     ("social_penalty", 100.0, ""), ("angular_penalty", 100.0, ""), ("angular_penalty_threshold", math.pi, " rad"),
 )
+# [1/m] the largest progress shaping (``progress_reward`` of both envs): beyond it the shaping swamps the success
+# reward (1) within centimetres
+MAX_PROGRESS_REWARD = 10.0
 KINEMATICS = ("unicycle", "holonomic")
 HUMAN_POLICIES = ("orca", "linear")  # the values of the old name of ``crowd``
 HUMAN_SPEEDS = ("fixed", "measured")

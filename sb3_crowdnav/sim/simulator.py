@@ -5,13 +5,14 @@ from __future__ import annotations
 import numpy as np
 
 from sb3_crowdnav.sim.actions import action_table, move, step_limits
-from sb3_crowdnav.sim.config import RewardConfig, SceneConfig
+from sb3_crowdnav.sim.config import MAX_PROGRESS_REWARD, RewardConfig, SceneConfig
 from sb3_crowdnav.sim.crowd import CrowdModel, RecordedCrowd, RobotAgent, make_crowd
 from sb3_crowdnav.sim.observation import HUMAN_DIM, ROBOT_DIM, Human, Robot
 from sb3_crowdnav.sim.population import People, PreferredVelocities, draw_people
-from sb3_crowdnav.sim.rewards import RewardTerms, transition_terms, walking_directions_step
+from sb3_crowdnav.sim.rewards import RewardTerms, transition_terms, walking_directions_step, with_route_progress
 from sb3_crowdnav.sim.scenarios import generate_scenario
 from sb3_crowdnav.sim.sensing import PeopleSensor, sensing_on
+from sb3_crowdnav.sim.validation import check_range
 
 
 class CrowdSimulator:
@@ -28,14 +29,24 @@ class CrowdSimulator:
     the scene's crowd model (``crowd``, built once). Preferred velocities and walking directions run in
     Python floats: on 2-vectors and N <= 10 pedestrians NumPy's per-call overhead costs more than
     the arithmetic. Tests check these against the NumPy functions the lookahead uses.
+
+    :param scene: the scene's settings
+    :param reward: the reward's terms and weights
+    :param progress_reward: [1/m] goal-progress shaping: each non-terminal step also earns this times the metres it
+        gained on the goal (:func:`~sb3_crowdnav.sim.rewards.with_route_progress` with the goal as the waypoint;
+        :attr:`progress_term` the step's); 0 (the default) is the paper's reward. A world with a route shapes
+        progress on its waypoints instead, and passes 0 here.
     """
 
     # the open floor has no static obstacles: every collision is with a pedestrian (the warehouse sets it per step)
     hit_obstacle = False
 
-    def __init__(self, scene: SceneConfig, reward: RewardConfig) -> None:
+    def __init__(self, scene: SceneConfig, reward: RewardConfig, progress_reward: float = 0.0) -> None:
         self.scene = scene
         self.reward_cfg = reward
+        check_range("progress_reward", progress_reward, 0, MAX_PROGRESS_REWARD)  # [1/m]
+        self.progress_reward = float(progress_reward)
+        self.progress_term = 0.0  # the last step's shaping (0 without it)
         self.speeds, self.directions = action_table(scene.robot_v_pref, scene.rotation_range, scene.actions)
         self.n_actions = len(self.speeds)
         self._limits = step_limits(scene.max_acceleration, scene.max_turn_rate, scene.time_step)  # per step
@@ -184,11 +195,16 @@ class CrowdSimulator:
         if self.sensor is not None:
             self._sense_people()
 
-        return transition_terms(
+        terms = transition_terms(
             self.reward_cfg, float(cfg.time_step), np.array([px, py]), robot[Robot.POS], heading0, heading,
             robot[Robot.GOAL], float(cfg.robot_radius), human_pos0, hist[-1, :n, Human.POS], self._walking_directions(x, y),
             hist[-1, :n, Human.RADIUS], self.mask[:n],
         )
+        if self.progress_reward:  # (the paper's reward without it: the terms as they are)
+            terms = with_route_progress(terms, np.array([px, py]), robot[Robot.POS], robot[Robot.GOAL],
+                                        self.progress_reward)
+            self.progress_term = float(terms.progress_term)
+        return terms
 
     @property
     def time(self) -> float:

@@ -61,8 +61,8 @@ class World:
         None on the open floor, which has none
     :param waypoint_radius: a route waypoint counts as passed within this distance of the robot's centre [m];
         None on the open floor, which has no route
-    :param progress_reward: route-progress shaping: reward per metre gained on the current waypoint [1/m]; 0 without
-        shaping (and always on the open floor)
+    :param progress_reward: progress shaping: reward per metre gained during the step on the current waypoint (a
+        world with a route, the warehouse) or on the goal (the open floor) [1/m]; 0 without shaping, the paper's reward
     """
 
     time_step: float = 0.25  # [s]
@@ -114,9 +114,6 @@ class World:
         if self.waypoint_radius is not None:
             check_number("waypoint_radius", self.waypoint_radius)
         check_number("progress_reward", self.progress_reward, allow_zero=True)
-        if self.progress_reward > 0 and self.waypoint_radius is None:
-            raise ValueError(f"progress_reward must be 0 on the open floor (it has no route to progress along), got "
-                             f"{self.progress_reward!r}")
 
     @property
     def n_actions(self) -> int:
@@ -127,6 +124,13 @@ class World:
     def has_static_world(self) -> bool:
         """True in a world of static obstacles and a route (the warehouse), False on the open floor."""
         return self.waypoint_radius is not None
+
+    @property
+    def has_value_ceiling(self) -> bool:
+        """Whether the lookahead caps V at the largest return a state can have
+        (:meth:`~sb3_crowdnav.apg_value.ValueLookaheadPolicy.value_ceiling`): in a world of static obstacles, and
+        wherever progress is shaped; not on the paper's open floor, where the shipped models act as trained."""
+        return self.has_static_world or self.progress_reward > 0
 
     def action_table(self, v_pref: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
         """``(speeds [m/s], directions [rad])`` of the actions at preferred speed ``v_pref``, each (n_actions,)."""

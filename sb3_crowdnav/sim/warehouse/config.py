@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sb3_crowdnav.sim.config import SceneConfig
+from sb3_crowdnav.sim.config import MAX_PROGRESS_REWARD, SceneConfig
 from sb3_crowdnav.sim.validation import (
     check_at_most,
     check_bool,
@@ -18,7 +18,6 @@ from sb3_crowdnav.sim.validation import (
 )
 from sb3_crowdnav.sim.warehouse.layout import LayoutRanges, WarehouseLayout, layout_from_sizes
 
-MAX_PROGRESS_REWARD = 10.0  # [1/m] beyond this the shaping swamps the success reward (1) within centimetres
 AISLE_MARGIN = 0.2  # [m] an aisle must be at least the robot's diameter + this wide
 # the warehouse robot's defaults, a typical warehouse AMR's (docs/decisions.md, "Kinematics"): a stop, a_max [m/s²],
 # ω_max [rad/s] (unicycle only); its speed is robot_v_pref, 1 m/s

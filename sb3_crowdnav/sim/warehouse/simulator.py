@@ -80,7 +80,6 @@ class WarehouseSimulator(CrowdSimulator):
         self.route_index = 0
         self.route_length = 0.0
         self.replans = 0
-        self.progress_term = 0.0
         self._waypoints_of: tuple[np.ndarray | None, int, np.ndarray] = (None, 0, np.zeros((0, 2)))
         self._route_points: list[list[float]] = []  # self.route in floats, for the per-step checks
 
