@@ -38,9 +38,6 @@ from sb3_crowdnav.training.callbacks import VALIDATION_SEED_OFFSET
 
 TIE = 1e-6  # two actions whose PyTorch values differ by at most this are a tie
 VALUE_TOLERANCE = 1e-4
-def env_of(name: str) -> tuple[str, dict]:
-    """The env id and keyword arguments of a shipped model's world."""
-    return pretrained_env(name)
 
 
 def torch_values(model, decision, obs: dict[str, np.ndarray]) -> np.ndarray:
@@ -53,7 +50,7 @@ def torch_values(model, decision, obs: dict[str, np.ndarray]) -> np.ndarray:
 
 
 def compare(name: str, observations: int, n_envs: int, graphs: Path) -> dict:
-    env_id, env_kwargs = env_of(name)
+    env_id, env_kwargs = pretrained_env(name)
     model = pretrained(name)
     path = graphs / f"{name}.onnx"
     vec = make_vec_env(env_id, n_envs=n_envs, seed=TEST_SEED_OFFSET, env_kwargs=env_kwargs)
@@ -90,7 +87,7 @@ def same_records(name: str, graph: Path, episodes: int, seed_offset: int, out: P
     byte-identical, else the first differing episode (a line of the CSV)."""
     from sb3_crowdnav.cli import main as cli
 
-    env_id, env_kwargs = env_of(name)
+    env_id, env_kwargs = pretrained_env(name)
     options = ["--env", env_id, "--episodes", str(episodes), "--seed-offset", str(seed_offset), "--no-progress"]
     if env_kwargs:
         options += ["--env-kwargs", repr(env_kwargs)]

@@ -6,7 +6,8 @@
 
 One row per folder (``NAME=DIR``: a column name and a folder ``failure_analysis.py`` wrote) and policy, read from
 ``DIR/failures.json``: the episodes, the collisions with people and with racks, and of the collisions with people the
-shares where the person closed faster than the robot, came from behind, was seen in the observation the robot acted
+shares already touching as the step began (no one closing: a recorded person appearing on the robot), where the
+person closed faster than the robot, came from behind, was seen in the observation the robot acted
 on, and could have been avoided by some action in the colliding step or with 1 s of warning; then the timeouts, those
 with nobody in view, and the mean distance left (the rules: :mod:`sb3_crowdnav.evaluation.failures`). ``--figures``
 copies each folder's ``collisions_*.png`` (the last seconds of one collision per most frequent class) to
@@ -27,7 +28,8 @@ from typing import Any
 from sb3_crowdnav.cli.common import Parser, UsageError
 from sb3_crowdnav.evaluation.aggregate import check_block, write_block
 
-COLUMNS = ("crowd", "policy", "episodes", "collisions (people / racks)", "person closing faster", "from behind",
+COLUMNS = ("crowd", "policy", "episodes", "collisions (people / racks)", "already touching", "person closing faster",
+           "from behind",
            "seen", "avoidable in the step", "avoidable with 1 s", "timeouts", "nobody in view", "distance left [m]")
 
 
@@ -55,7 +57,9 @@ def rows(name: str, folder: Path) -> list[list[str]]:
         s = entry["summary"]
         shares = s["shares"]
         left = s.get("distance_left")
-        out.append([name, label, str(s["episodes"]), f"{s['collisions']} / {s['obstacle_collisions']}",
+        touching = sum(s["table"]["none"].values())  # nobody closing: the discs overlapped as the step began
+        touching = f"{touching} / {s['collisions']}" if s["collisions"] else "–"
+        out.append([name, label, str(s["episodes"]), f"{s['collisions']} / {s['obstacle_collisions']}", touching,
                     share(shares, "person_faster"), share(shares, "behind"), share(shares, "seen"),
                     share(shares, "avoidable"), share(shares, "avoidable_with_warning"), str(s["timeouts"]),
                     share(shares, "nobody_in_view"), "–" if left is None else f"{left:.2f}"])

@@ -40,6 +40,7 @@ from typing import Any
 
 from sb3_crowdnav.cli import main as cli
 from sb3_crowdnav.cli.common import Parser, UsageError, check_env, check_out, positive_int
+from sb3_crowdnav.evaluation.aggregate import check_block, write_block
 from sb3_crowdnav.evaluation.crowd_spec import CrowdSpec
 from sb3_crowdnav.evaluation.runner import TEST_SEED_OFFSET
 from sb3_crowdnav.evaluation.tables import CrowdTable
@@ -62,7 +63,7 @@ COLUMNS: dict[str, tuple[str, str, dict[str, Any]]] = {
     "measured": ("measured-speed population", "orca", dict(MEASURED_POPULATION)),
     "empty": ("empty floor", "orca", {"num_humans": 0}),
 }
-BEGIN, END = "<!-- generalisation:begin -->", "<!-- generalisation:end -->"
+BLOCK = "generalisation"  # the page's block: <!-- generalisation:begin --> ... <!-- generalisation:end -->
 _SCENE_NAME = re.compile(r"[a-z][a-z0-9_]*\Z")
 
 
@@ -157,20 +158,6 @@ def markdown_block(table: CrowdTable, planned, episodes: int) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_into(path: Path, block: str) -> None:
-    """Replace the text between the markers in ``path`` with ``block``."""
-    text = path.read_text()
-    head, _, rest = text.partition(BEGIN)
-    _, _, tail = rest.partition(END)
-    path.write_text(f"{head}{BEGIN}\n{block}{END}{tail}")
-
-
-def _check_markers(path: Path) -> None:
-    text = path.read_text() if path.is_file() else ""
-    if not (BEGIN in text and END in text.partition(BEGIN)[2]):
-        raise UsageError(f"--markdown-into {str(path)!r}: no block between {BEGIN} and {END} to replace")
-
-
 def main(argv: list[str] | None = None) -> None:
     p = Parser(prog="generalisation.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--episodes", type=positive_int, default=500, help="test episodes per cell (default: 500)")
@@ -188,7 +175,7 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--resume", action="store_true",
                    help="keep the finished cells (one policy in one column) of an earlier run into --out")
     p.add_argument("--markdown-into", type=Path, metavar="FILE",
-                   help=f"replace the block between {BEGIN} and {END} in FILE with the table")
+                   help=f"replace the block between <!-- {BLOCK}:begin --> and <!-- {BLOCK}:end --> in FILE with the table")
     args = p.parse_args(argv)
     try:  # every column, the output and the docs' block, before any episode
         if args.seeds == "validation":
@@ -200,8 +187,8 @@ def main(argv: list[str] | None = None) -> None:
         planned = plan(list(dict.fromkeys(args.columns)), args.scene)
         check_out(args.out)
         if args.markdown_into is not None:
-            _check_markers(args.markdown_into)
-    except UsageError as exc:
+            check_block(args.markdown_into, BLOCK)
+    except (UsageError, ValueError) as exc:
         p.error(str(exc))
     policies = args.policy or list(POLICIES)
     if not args.resume and (args.out / "cells").exists():
@@ -229,7 +216,7 @@ def main(argv: list[str] | None = None) -> None:
         (args.out / "headline.md").write_text(text)
         print(f"README headline:\n\n{text}")
     if args.markdown_into is not None:
-        write_into(args.markdown_into, block)
+        write_block(args.markdown_into, BLOCK, block)
         print(f"wrote the table into {args.markdown_into}")
 
 

@@ -284,7 +284,8 @@ def test_the_summary_puts_analysis_folders_into_one_table_block_with_their_figur
         row = next(line for line in text.splitlines() if line.startswith(f"| tight time | {label} |"))
         cells = [c.strip() for c in row.strip("|").split("|")]
         assert cells[2:4] == [str(s["episodes"]), f"{s['collisions']} / {s['obstacle_collisions']}"]
-        assert cells[9] == str(s["timeouts"])
+        assert cells[10] == str(s["timeouts"])
+        assert cells[4] == (f"{sum(s['table']['none'].values())} / {s['collisions']}" if s["collisions"] else "–")
     figures = sorted((tmp_path / "figs" / "tight_time").glob("*.png"))
     assert [p.name for p in figures] == sorted(p.name for p in folder.glob("collisions_*.png"))
     assert all(f"](../figs/tight_time/{p.name})" in text for p in figures)
