@@ -117,17 +117,6 @@ def test_maskableppo_on_the_open_floor_is_refused_by_the_cli(capsys, tmp_path):
     assert not (tmp_path / "run").exists()
 
 
-def test_n_step_returns_with_dict_observations_are_refused_by_the_cli(capsys, tmp_path):
-    """SB3 2.9 builds its NStepReplayBuffer for Box observations only: the files keep n_steps: 1 (and say why)."""
-    for name in ("dqn", "qrdqn"):
-        assert yaml.safe_load((HYPER / f"{name}.yml").read_text())["CrowdNav-v0"]["n_steps"] == 1
-    (tmp_path / "n3.yml").write_text("CrowdNav-v0:\n  n_timesteps: 10\n  n_steps: 3\n  buffer_size: 100\n")
-    with pytest.raises(SystemExit) as exc:
-        main(["train", "--algo", "qrdqn", "--hyperparams", str(tmp_path / "n3.yml"), "--out", str(tmp_path / "run")])
-    err = capsys.readouterr().err
-    assert exc.value.code == 2 and "N-step returns are not supported for Dict observation" in err, err
-
-
 @pytest.mark.parametrize("algo", sorted(CONTRIB))
 def test_apg_policy_names_the_contrib_policies(algo):
     """"ApgPolicy" in a file gives each algorithm its APG policy; rl-zoo3's file entries are accepted."""

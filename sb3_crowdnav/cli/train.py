@@ -185,15 +185,14 @@ def _dry_run(algo: str, cfg: dict[str, Any], env_id: str, env_kwargs: dict[str, 
     from stable_baselines3.common.env_util import make_vec_env
 
     from sb3_crowdnav.models import algorithms
-    from sb3_crowdnav.training.hyperparams import env_wrapper_class
+    from sb3_crowdnav.training.hyperparams import algorithm_kwargs, env_wrapper_class
 
     try:
         env = make_vec_env(env_id, n_envs=1, env_kwargs=env_kwargs, wrapper_class=env_wrapper_class(algo))
     except ValueError as exc:  # MaskablePPO's wall masks in a world without walls
         raise UsageError(f"--algo {algo} --env {env_id}: {exc}") from None
-    kwargs = {**cfg["kwargs"], **({"policy_kwargs": cfg["policy_kwargs"]} if cfg["policy_kwargs"] else {})}
     try:
-        algorithms()[algo](cfg["policy"], env, **kwargs)
+        algorithms()[algo](cfg["policy"], env, **algorithm_kwargs(algo, cfg, env))
     except (AssertionError, TypeError, ValueError, KeyError) as exc:
         raise UsageError(f"--hyperparams: {algo} refuses them: {exc}") from None
     finally:

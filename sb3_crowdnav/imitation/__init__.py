@@ -11,12 +11,14 @@ reward, 80 actions and no lookahead, PPO and DQN from scratch rarely reach the g
 - :func:`pretrain_dqn`: the demonstrations go into the replay buffer and the Q-network takes
   gradient steps on them: 1-step Q-learning with the target network plus DQfD's large-margin loss
   ``max_a [Q(s, a) + m·1(a ≠ a_E)] - Q(s, a_E)`` (Hester et al. 2018), which keeps actions never
-  demonstrated below the demonstrated one.
+  demonstrated below the demonstrated one. The demonstrations stay in the replay buffer with their episode ends
+  (:func:`add_to_replay_buffer`), so that n-step targets stop there.
 - :class:`DQfD`: a DQN that keeps taking gradient steps on the demonstrations during RL.
 """
 
 from sb3_crowdnav.imitation.demonstrations import Demonstrations, collect_demonstrations
 from sb3_crowdnav.imitation.dqfd import DQfD
-from sb3_crowdnav.imitation.pretrain import pretrain_actor_critic, pretrain_dqn, pretrain_value
+from sb3_crowdnav.imitation.pretrain import add_to_replay_buffer, pretrain_actor_critic, pretrain_dqn, pretrain_value
 
-__all__ = ["DQfD", "Demonstrations", "collect_demonstrations", "pretrain_actor_critic", "pretrain_dqn", "pretrain_value"]
+__all__ = ["DQfD", "Demonstrations", "add_to_replay_buffer", "collect_demonstrations", "pretrain_actor_critic",
+           "pretrain_dqn", "pretrain_value"]

@@ -11,11 +11,12 @@ from stable_baselines3.common.policies import BasePolicy
 
 from sb3_crowdnav.imitation.demonstrations import Demonstrations
 from sb3_crowdnav.imitation.pretrain import DemoTensors, dqfd_loss
+from sb3_crowdnav.nn.buffers import DictNStepMixin
 from sb3_crowdnav.nn.policies import ApgDQNPolicy
 from sb3_crowdnav.sim.validation import check_int, check_number
 
 
-class DQfD(DQN):
+class DQfD(DictNStepMixin, DQN):
     """SB3 ``DQN`` that keeps learning from its demonstrations (DQfD, Hester et al. 2018).
 
     After each of DQN's gradient steps on its replay buffer, one more step on ``demo_batch_size``
@@ -30,7 +31,8 @@ class DQfD(DQN):
     DQN until demonstrations are set again).
 
     Its ``policy`` may also be ``"ApgPolicy"`` (:class:`~sb3_crowdnav.nn.ApgDQNPolicy`), as in the package's
-    hyperparameter files; SB3's own ``DQN`` is left as it is.
+    hyperparameter files; SB3's own ``DQN`` is left as it is. ``n_steps > 1`` gives the replay buffer n-step targets
+    (:class:`~sb3_crowdnav.nn.DictNStepMixin`); the demonstration term stays one-step, as in :func:`pretrain_dqn`.
 
     :param demo_batch_size: demonstration transitions per extra gradient step
     :param margin: the large margin m

@@ -7,6 +7,7 @@ from collections.abc import Callable
 import numpy as np
 import torch as th
 from stable_baselines3 import DQN
+from stable_baselines3.common.buffers import ReplayBuffer
 from torch.nn import functional as F
 
 from sb3_crowdnav.imitation.demonstrations import Demonstrations
@@ -64,7 +65,9 @@ def pretrain_dqn(model, demos: Demonstrations, epochs: int = 10, learning_rate: 
     """Q-learning + large-margin loss on the demonstrations for a DQN ``model``; loss per epoch.
 
     With ``fill_buffer`` the demonstrations are also added to the model's replay buffer (single-env
-    DQN only), so that online learning keeps replaying them until they are overwritten.
+    DQN only; :func:`add_to_replay_buffer`), so that online learning keeps replaying them until they are overwritten,
+    with the model's own targets (n-step ones with :class:`~sb3_crowdnav.nn.NStepDictReplayBuffer`). The loss here
+    is one-step whatever the buffer's targets: a valid Bellman target of the same Q.
     """
     if not isinstance(model, DQN):
         raise TypeError(f"pretrain_dqn needs a DQN model, got {type(model).__name__}")
@@ -73,14 +76,7 @@ def pretrain_dqn(model, demos: Demonstrations, epochs: int = 10, learning_rate: 
     if demos.next_observations is None:
         raise ValueError("pretrain_dqn needs next observations: collect with keep_next_observations=True")
     if fill_buffer:
-        buffer = model.replay_buffer
-        if buffer.n_envs != 1:
-            raise ValueError(f"fill_buffer needs a single-env DQN (its replay buffer has n_envs={buffer.n_envs})")
-        for i in range(len(demos)):
-            buffer.add({k: v[i : i + 1] for k, v in demos.observations.items()},
-                       {k: v[i : i + 1] for k, v in demos.next_observations.items()},
-                       demos.actions[i : i + 1, None], demos.rewards[i : i + 1], demos.terminated[i : i + 1],
-                       [{}])
+        add_to_replay_buffer(model.replay_buffer, demos)
     q_net, q_target = model.q_net, model.q_net_target
     q_target.load_state_dict(q_net.state_dict())
     optimizer = th.optim.Adam(q_net.parameters(), lr=learning_rate)
@@ -105,6 +101,25 @@ def pretrain_dqn(model, demos: Demonstrations, epochs: int = 10, learning_rate: 
     q_target.load_state_dict(q_net.state_dict())
     q_net.train(False)
     return losses
+
+
+def add_to_replay_buffer(buffer: ReplayBuffer, demos: Demonstrations) -> None:
+    """Add the demonstrations to a single-env replay buffer as SB3 adds a VecEnv's steps.
+
+    An episode's last transition is ``done`` and, when the time limit ended it, ``TimeLimit.truncated``: a one-step
+    target bootstraps there as before, and an n-step one (:class:`~sb3_crowdnav.nn.NStepDictReplayBuffer`) stops
+    there instead of summing into the next episode.
+    """
+    if buffer.n_envs != 1:
+        raise ValueError(f"demonstrations go into a single-env replay buffer (this one has n_envs={buffer.n_envs})")
+    if demos.next_observations is None:
+        raise ValueError("the replay buffer needs next observations: collect with keep_next_observations=True")
+    truncated = demos.episode_end & ~demos.terminated
+    for i in range(len(demos)):
+        buffer.add({k: v[i : i + 1] for k, v in demos.observations.items()},
+                   {k: v[i : i + 1] for k, v in demos.next_observations.items()},
+                   demos.actions[i : i + 1, None], demos.rewards[i : i + 1], demos.episode_end[i : i + 1],
+                   [{"TimeLimit.truncated": bool(truncated[i])}])
 
 
 class DemoTensors:

@@ -6,10 +6,14 @@ and ``"sarl"``. Use one with SB3's stock algorithms::
 
     DQN("MultiInputPolicy", env, policy_kwargs=dict(features_extractor_class=EXTRACTORS["sarl"]))
     DQN(ApgDQNPolicy, env)  # APG by default
+
+:class:`NStepDictReplayBuffer` gives DQN and QR-DQN n-step returns on these Dict observations (SB3 2.9 builds its
+n-step buffer for Box observations only).
 """
 
 from __future__ import annotations
 
+from sb3_crowdnav.nn.buffers import DictNStepMixin, NStepDictReplayBuffer, dict_n_step_kwargs
 from sb3_crowdnav.nn.extractors import (
     EXTRACTORS,
     ApgExtractor,
@@ -56,14 +60,17 @@ __all__ = [
     "ApgRecurrentPolicy",
     "CadrlExtractor",
     "CrowdFeaturesExtractor",
+    "DictNStepMixin",
     "HumanFeat",
     "LmExtractor",
     "LstmRlExtractor",
+    "NStepDictReplayBuffer",
     "RobotFeat",
     "SarlExtractor",
     "SfExtractor",
     "angular_pedestrian_grid",
     "configure_cpu",
+    "dict_n_step_kwargs",
     "goal_frame_grid",
     "local_occupancy_map",
     "parse_observation_space",

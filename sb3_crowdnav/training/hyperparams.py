@@ -20,6 +20,10 @@ their class names). ``lin_<x>`` for ``learning_rate``/``clip_range`` is rl-zoo3'
 built with SB3's ``LinearSchedule``. ``maskableppo``'s envs are wrapped in
 :class:`~sb3_crowdnav.apg_value.action_masks.WallActionMasker` (its file may name it as ``env_wrapper`` for rl-zoo3).
 
+``n_steps > 1`` of DQN, QR-DQN and DQfD (n-step returns) becomes ``replay_buffer_class=NStepDictReplayBuffer,
+replay_buffer_kwargs={"n_steps": n, "gamma": gamma}`` (:func:`algorithm_kwargs`, :mod:`sb3_crowdnav.nn.buffers`),
+which SB3 2.9 does not build for this package's Dict observations.
+
 Why not rl-zoo3's own reading (its ``ExperimentManager``): it evaluates ``policy_kwargs`` strings with
 ``eval`` (a hyperparameter file could run code), and it brings its wrappers, normalisation and frame
 stacking, which would corrupt the physical observation the lookahead propagates. rl-zoo3 itself
@@ -251,6 +255,19 @@ def _mapping(name: str, value: Any, names: Mapping[str, Any]) -> dict[str, Any]:
     return value
 
 
+def algorithm_kwargs(algo: str, cfg: Mapping[str, Any], env: Any) -> dict[str, Any]:
+    """The constructor keywords of ``algo`` for ``env`` from :func:`prepare`'s ``cfg``: the file's arguments and
+    ``policy_kwargs``, with ``n_steps > 1`` on Dict observations given as an n-step replay buffer
+    (:func:`~sb3_crowdnav.nn.buffers.dict_n_step_kwargs`: SB3 2.9 would refuse it)."""
+    from sb3_crowdnav.models import algorithms
+    from sb3_crowdnav.nn.buffers import dict_n_step_kwargs
+
+    kwargs = dict(cfg["kwargs"])
+    if cfg["policy_kwargs"]:
+        kwargs["policy_kwargs"] = cfg["policy_kwargs"]
+    return dict_n_step_kwargs(algorithms()[algo], env.observation_space, kwargs)
+
+
 def env_wrapper_class(algo: str) -> type | None:
     """The wrapper every env of ``algo`` gets (:data:`ALGO_WRAPPERS`: MaskablePPO's wall masks), or None."""
     if algo not in ALGO_WRAPPERS:
@@ -293,9 +310,7 @@ def train_from_hyperparams(algo: str, hyperparams: Mapping[str, Any], out_dir: s
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     env = make_vec_env(env_id, n_envs=cfg["n_envs"], seed=seed, env_kwargs=env_kwargs, wrapper_class=env_wrapper_class(algo))
-    kwargs = dict(cfg["kwargs"])
-    if cfg["policy_kwargs"]:
-        kwargs["policy_kwargs"] = cfg["policy_kwargs"]
+    kwargs = algorithm_kwargs(algo, cfg, env)
     for name, value, minimum in (("imitation_episodes", imitation_episodes, 0), ("imitation_epochs", imitation_epochs, 1),
                                  ("checkpoint_freq", checkpoint_freq, 0)):
         check_int(name, value, minimum)
@@ -341,5 +356,5 @@ def train_from_hyperparams(algo: str, hyperparams: Mapping[str, Any], out_dir: s
     return model, model_path
 
 
-__all__ = ["ALGO_WRAPPERS", "DEFAULT_POLICIES", "env_wrapper_class", "load_hyperparams", "policy_kwargs_names", "prepare",
-           "safe_eval", "train_from_hyperparams"]
+__all__ = ["ALGO_WRAPPERS", "DEFAULT_POLICIES", "algorithm_kwargs", "env_wrapper_class", "load_hyperparams",
+           "policy_kwargs_names", "prepare", "safe_eval", "train_from_hyperparams"]

@@ -6,6 +6,9 @@ does exactly that and then hands the command line to rl-zoo3 unchanged, so every
 works (``--storage sqlite:///tune.db --study-name apg -optimize`` spreads tuning over machines
 through a shared database). ``--gym-packages sb3_crowdnav`` is added when missing.
 
+Optuna tuning of ``dqn`` and ``qrdqn`` also samples ``n_steps`` (n-step returns, which the zoo's ``dqn`` and
+``qrdqn`` build on this package's Dict observations with :class:`~sb3_crowdnav.nn.NStepDictReplayBuffer`).
+
 Its ``ppo``, ``a2c`` and ``dqn`` are SB3's algorithms, and ``qrdqn``, ``recurrentppo`` (also rl-zoo3's ``ppo_lstm``)
 and ``maskableppo`` sb3-contrib's, that also know ``policy: 'ApgPolicy'`` (the APG
 encoder's :data:`~sb3_crowdnav.nn.APG_POLICIES`), so the package's hyperparameter files run here; SB3's
@@ -27,6 +30,7 @@ from sb3_contrib import QRDQN, MaskablePPO, RecurrentPPO
 from stable_baselines3 import A2C, DQN, PPO
 from stable_baselines3.common.policies import BasePolicy
 
+from sb3_crowdnav.nn.buffers import DictNStepMixin
 from sb3_crowdnav.nn.policies import APG_POLICIES
 
 COMMANDS = ("train", "enjoy")
@@ -48,6 +52,25 @@ def sample_apg_value_params(trial, n_actions: int, n_envs: int, additional_args:
     }
 
 
+N_STEPS_CHOICES = (1, 3, 5)  # n-step returns: the one-step target, and SG-D3QN's / Rainbow's range
+
+
+def sample_dqn_params(trial, n_actions: int, n_envs: int, additional_args: dict) -> dict[str, Any]:
+    """rl-zoo3's DQN search space plus ``n_steps`` in :data:`N_STEPS_CHOICES` (rl-zoo3 2.9's has no n-step returns)."""
+    from rl_zoo3 import hyperparams_opt
+
+    params = hyperparams_opt.sample_dqn_params(trial, n_actions, n_envs, additional_args)
+    return {**params, "n_steps": trial.suggest_categorical("n_steps", list(N_STEPS_CHOICES))}
+
+
+def sample_qrdqn_params(trial, n_actions: int, n_envs: int, additional_args: dict) -> dict[str, Any]:
+    """rl-zoo3's QR-DQN search space plus ``n_steps`` in :data:`N_STEPS_CHOICES`."""
+    from rl_zoo3 import hyperparams_opt
+
+    params = hyperparams_opt.sample_qrdqn_params(trial, n_actions, n_envs, additional_args)
+    return {**params, "n_steps": trial.suggest_categorical("n_steps", list(N_STEPS_CHOICES))}
+
+
 class ZooPPO(PPO):
     """SB3's PPO for which ``"ApgPolicy"`` names :class:`~sb3_crowdnav.nn.ApgActorCriticPolicy`."""
 
@@ -60,14 +83,16 @@ class ZooA2C(A2C):
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {**A2C.policy_aliases, "ApgPolicy": APG_POLICIES["a2c"]}
 
 
-class ZooDQN(DQN):
-    """SB3's DQN for which ``"ApgPolicy"`` names :class:`~sb3_crowdnav.nn.ApgDQNPolicy`."""
+class ZooDQN(DictNStepMixin, DQN):
+    """SB3's DQN for which ``"ApgPolicy"`` names :class:`~sb3_crowdnav.nn.ApgDQNPolicy` and ``n_steps > 1`` builds an
+    :class:`~sb3_crowdnav.nn.NStepDictReplayBuffer` (:class:`~sb3_crowdnav.nn.DictNStepMixin`)."""
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {**DQN.policy_aliases, "ApgPolicy": APG_POLICIES["dqn"]}
 
 
-class ZooQRDQN(QRDQN):
-    """sb3-contrib's QRDQN for which ``"ApgPolicy"`` names :class:`~sb3_crowdnav.nn.ApgQRDQNPolicy`."""
+class ZooQRDQN(DictNStepMixin, QRDQN):
+    """sb3-contrib's QRDQN for which ``"ApgPolicy"`` names :class:`~sb3_crowdnav.nn.ApgQRDQNPolicy` and ``n_steps > 1``
+    builds an :class:`~sb3_crowdnav.nn.NStepDictReplayBuffer` (:class:`~sb3_crowdnav.nn.DictNStepMixin`)."""
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {**QRDQN.policy_aliases, "ApgPolicy": APG_POLICIES["qrdqn"]}
 
@@ -93,8 +118,9 @@ ZOO_ALGOS: dict[str, type] = {"ppo": ZooPPO, "a2c": ZooA2C, "dqn": ZooDQN, "qrdq
 
 def register() -> None:
     """Add ``apg_value``, ``recurrentppo`` and ``maskableppo`` to rl-zoo3's algorithm table (and APGValue to its tuning
-    samplers), and let its ``ppo``, ``a2c``, ``dqn``, ``qrdqn`` and ``ppo_lstm`` resolve ``"ApgPolicy"``
-    (:data:`ZOO_ALGOS`; saved models load with SB3's and sb3-contrib's own classes); idempotent."""
+    samplers), let its ``ppo``, ``a2c``, ``dqn``, ``qrdqn`` and ``ppo_lstm`` resolve ``"ApgPolicy"``
+    (:data:`ZOO_ALGOS`; saved models load with SB3's and sb3-contrib's own classes), and let the tuning of ``dqn`` and
+    ``qrdqn`` sample ``n_steps`` (:func:`sample_dqn_params`); idempotent."""
     try:
         from rl_zoo3 import hyperparams_opt, utils
     except ImportError as exc:  # pragma: no cover - depends on the extra
@@ -105,6 +131,8 @@ def register() -> None:
     utils.ALGOS.update(ZOO_ALGOS)
     hyperparams_opt.HYPERPARAMS_SAMPLER["apg_value"] = sample_apg_value_params
     hyperparams_opt.HYPERPARAMS_CONVERTER["apg_value"] = lambda params: params
+    hyperparams_opt.HYPERPARAMS_SAMPLER["dqn"] = sample_dqn_params  # rl-zoo3's converter passes n_steps through
+    hyperparams_opt.HYPERPARAMS_SAMPLER["qrdqn"] = sample_qrdqn_params
 
 
 def main(argv: list[str] | None = None) -> None:
