@@ -68,7 +68,11 @@ def test_samples_are_sb3s_n_step_samples(steps, n_steps, timeouts):
     """On the same transitions (terminations, timeouts, and a buffer written past its end), every sample of the Dict
     buffer is the Box buffer's: n-step rewards, discounts, dones, actions, observations and next observations."""
     n_envs = 2
-    box, dct = _filled(_transitions(steps, n_envs, seed=steps), n_envs, n_steps, 0.9, timeouts)
+    transitions = _transitions(steps, n_envs, seed=steps)
+    kept = transitions[-8:]  # what the buffer holds (8 per env)
+    timed_out = [info["TimeLimit.truncated"] for t in kept for info in t["infos"]]
+    assert any(timed_out) and sum(d for t in kept for d in t["done"]) > sum(timed_out), "no timeout or no termination"
+    box, dct = _filled(transitions, n_envs, n_steps, 0.9, timeouts)
     assert dct.full == box.full == (steps > 8) and dct.pos == box.pos
     indices = np.arange(box.size())
     np.random.seed(0)
