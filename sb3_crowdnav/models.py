@@ -39,13 +39,15 @@ PRETRAINED = {
     "apg_warehouse_paper": "apg_value",
     "ppo_warehouse": "ppo",
     "apg_robust": "apg_value",
+    "apg_warehouse": "apg_value",
 }
 # name -> the env a shipped model was trained for: its id and the keyword arguments that differ from its defaults
 # (the warehouse models of the paper's world: sim.warehouse.config.PAPER_WAREHOUSE)
 PAPER_WORLD = "paper_warehouse"
 PRETRAINED_ENV = {name: ("CrowdNav-v0", None) for name in PRETRAINED}
 PRETRAINED_ENV.update({"apg_warehouse_paper": ("CrowdNavWarehouse-v0", PAPER_WORLD),
-                       "ppo_warehouse": ("CrowdNavWarehouse-v0", PAPER_WORLD)})
+                       "ppo_warehouse": ("CrowdNavWarehouse-v0", PAPER_WORLD),
+                       "apg_warehouse": ("CrowdNavWarehouse-v0", None)})
 # name -> SHA-256 of weights/<name>.zip, checked before every load (examples/ship_model.py prints it)
 PRETRAINED_SHA256 = {
     "apg_rl": "d747a15de9b4354ffd41c032889e955333d2153387d60e750719e83d3289ab8a",
@@ -59,6 +61,7 @@ PRETRAINED_SHA256 = {
     "ppo_warehouse": "e71d387a6b327616c7d26df7b92ed14f7166616286530fcc8ed31c5a293df208",
     "apg_warehouse_paper": "e1e2ae06da71b01fe614afe609866df603dda9f5a74e1f10030430387395254c",
     "apg_robust": "43fd62697dfcbf7f6d319560d738f03b7698f197f50ec3b156a10ff64be89668",
+    "apg_warehouse": "d57303eda116d7f3893d5392c84f1c29e1b8c5574d47fdb6454c59bcc3bc333a",
 }
 
 

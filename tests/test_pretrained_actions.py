@@ -19,9 +19,11 @@ from sb3_crowdnav.models import PRETRAINED, pretrained_env
 from sb3_crowdnav.sim.warehouse.config import PAPER_WAREHOUSE
 
 RECORD = Path(__file__).parent / "data" / "pretrained_actions.npz"
-ENVS = {"crowdnav": ("CrowdNav-v0", 300), "warehouse": ("CrowdNavWarehouse-v0", 200)}  # env id, observations
-# the world the shipped warehouse models were trained in: the paper's robot, pickers who do not see it (the recorded
-# observations are of that world)
+# env id, observations: the open floor, the paper-world warehouse and today's warehouse (its defaults)
+ENVS = {"crowdnav": ("CrowdNav-v0", 300), "warehouse": ("CrowdNavWarehouse-v0", 200),
+        "warehouse_today": ("CrowdNavWarehouse-v0", 200)}
+# the world the paper-world warehouse models were trained in: the paper's robot, pickers who do not see it (the
+# recorded observations are of that world); today's warehouse is the env's defaults
 ENV_KWARGS = {"warehouse": PAPER_WAREHOUSE}
 
 
@@ -39,7 +41,7 @@ def observations(env_id: str, n: int, seed: int = 29, **kwargs) -> dict[str, np.
     seen = []
     for episode in range(n):
         seen.append(obs)
-        obs, _, terminated, truncated, _ = env.step(int(rng.integers(80)))
+        obs, _, terminated, truncated, _ = env.step(int(rng.integers(env.action_space.n)))
         if terminated or truncated:
             obs, _ = env.reset(seed=seed + 1 + episode)
     env.close()
