@@ -143,18 +143,21 @@ def braking_hits(path: np.ndarray, radius: np.ndarray, human_starts: list[np.nda
     :param human_radius: (B, M) [m]; :param mask: (B, M) bool, observed; :param time_step: Δt [s]
     :return: (B, A) bool
     """
-    b, n_actions = path.shape[1:3]
-    hit = np.zeros((b, n_actions), dtype=bool)
-    radius_sum = human_radius + np.asarray(radius, dtype=np.float64)[:, None]  # (B, M)
-    for k in range(path.shape[0] - 1):
-        moving = np.any(path[k + 1] != path[k], axis=-1)  # (B, A): a standing robot is not charged
-        if not moving.any():
-            break
-        for start, vel in zip(human_starts, human_vel, strict=True):
-            h0, h1 = start + vel * (k * time_step), start + vel * ((k + 1) * time_step)  # (B, M, 2)
-            gap = closest_approach(path[k][:, :, None], path[k + 1][:, :, None], h0[:, None], h1[:, None])  # (B, A, M)
-            hit |= moving & np.any(mask[:, None] & (gap < radius_sum[:, None]), axis=-1)
-    return hit
+    if path.shape[0] < 2:  # every robot stands
+        return np.zeros(path.shape[1:3], dtype=bool)
+    steps = np.arange(path.shape[0] - 1)[:, None, None, None, None] * time_step  # (n, 1, 1, 1, 1) [s]
+    starts, velocities = np.stack(human_starts), np.stack(human_vel)  # (P, B, M, 2) for P predictions
+    h0, h1 = starts + velocities * steps, starts + velocities * (steps + time_step)  # (n, P, B, M, 2)
+    # every sub-step, prediction, action and person in one compiled call, on the robot's offsets from the people
+    # (the same closest approach; full arrays pass without the row copies a broadcast would cost): (n, P, B, A, M)
+    off0 = path[:-1, None, :, :, None] - h0[:, :, :, None]  # (n, P, B, A, M, 2)
+    off1 = path[1:, None, :, :, None] - h1[:, :, :, None]
+    origin = np.zeros_like(off0)
+    gap = closest_approach(off0, off1, origin, origin)
+    moving = np.any(path[1:] != path[:-1], axis=-1)  # (n, B, A): a standing robot is not charged
+    near = gap < (human_radius + np.asarray(radius, dtype=np.float64)[:, None])[:, None]  # (n, P, B, A, M)
+    near &= (np.asarray(mask, dtype=bool)[:, None, :] & moving[:, None, :, :, None])
+    return near.any(axis=(0, 1, 4))
 
 
 def with_braking_collision(terms: RewardTerms, hit: np.ndarray, penalty: float) -> RewardTerms:
