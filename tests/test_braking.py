@@ -68,6 +68,17 @@ def test_an_action_whose_braking_path_hits_a_rack_is_charged_and_one_that_stops_
     assert not _collides(world, _observation(wall_x=0.95), True)[FULL]  # a wall beyond the stop: nothing charged
 
 
+def test_where_no_action_can_brake_in_time_the_lookahead_chooses_as_without_the_check():
+    # a wall 0.6 m ahead: even the stop action (0.1875 m in the step, 0.1875 m braking) brings the disc's front to
+    # 0.675 m, and no reachable turn (at most 0.375 rad a step) escapes it: every action is charged, so none is
+    world, obs = _world(), _observation(wall_x=0.6)
+    checked = PropagationModel(world, T, 0.9, stopping_check=True)(*obs)
+    unchecked = PropagationModel(world, T, 0.9)(*obs)
+    assert not unchecked.terminal[0, STOP_ACTION]
+    np.testing.assert_array_equal(checked.reward, unchecked.reward)
+    np.testing.assert_array_equal(checked.terminal, unchecked.terminal)
+
+
 @pytest.mark.parametrize("pedestrian_model", ["constant_velocity", "cautious"])
 def test_an_action_whose_braking_path_meets_a_person_is_charged(pedestrian_model):
     # a person standing 1.2 m ahead: full speed stops at 0.625 m, 0.575 m from their centre (< 0.6, the radii sum)

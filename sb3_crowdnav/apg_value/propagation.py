@@ -270,12 +270,17 @@ class PropagationModel:
             if self.pedestrian_model == "cautious":  # or they stand where they are
                 starts.append(hpos0)
                 velocities.append(np.zeros_like(hpos0))
-            brake_hit = braking_hits(path, radius, starts, velocities, latest[:, :, Human.RADIUS], mask, self.time_step)
-            terms = with_braking_collision(terms, brake_hit, self.reward.collision_penalty)
+            person_hit = braking_hits(path, radius, starts, velocities, latest[:, :, Human.RADIUS], mask,
+                                      self.time_step)
+            rack_hit = np.zeros_like(person_hit)
             if self.world.has_static_world and static:  # the path is straight: one swept disc from start to end
                 seg_mask = np.asarray(static["obstacles_mask"]).reshape(b, 1, -1)
-                brake_hit = swept_clearance(path[0], path[-1], segments_of(static, b), seg_mask) < radius[:, None]
-                terms = with_braking_collision(terms, brake_hit, self.world.obstacle_collision_penalty)
+                rack_hit = swept_clearance(path[0], path[-1], segments_of(static, b), seg_mask) < radius[:, None]
+            # a filter, not a verdict: where every action collides within the step or cannot brake, the robot is in
+            # an inevitable state by this (conservative) test, and the lookahead chooses as it would without it
+            hopeless = np.all(terms.collision | person_hit | rack_hit, axis=1, keepdims=True)  # (B, 1)
+            terms = with_braking_collision(terms, person_hit & ~hopeless, self.reward.collision_penalty)
+            terms = with_braking_collision(terms, rack_hit & ~hopeless, self.world.obstacle_collision_penalty or 0.0)
         new_robot = np.repeat(robot[:, None, :], n_actions, axis=1)
         new_robot[:, :, Robot.POS] = new_pos
         new_robot[:, :, Robot.VEL] = vel
