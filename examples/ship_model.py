@@ -35,6 +35,9 @@ def main() -> None:
     p.add_argument("name", choices=sorted(PRETRAINED))
     p.add_argument("--pedestrian-model", choices=("constant_velocity", "cautious"),
                    help="ship a value model with this lookahead pedestrian model (default: the checkpoint's)")
+    p.add_argument("--stopping-check", action=argparse.BooleanOptionalAction, default=None,
+                   help="ship a value model with the lookahead's stopping-distance check on or off (default: the "
+                        "checkpoint's)")
     p.add_argument("--ensemble", action="store_true",
                    help="several checkpoints: ship their value ensemble instead of their mean weights")
     args = p.parse_args()
@@ -61,6 +64,10 @@ def main() -> None:
         if not hasattr(model.policy, "set_pedestrian_model"):
             p.error(f"--pedestrian-model: {first} is not a value-lookahead model")
         model.policy.set_pedestrian_model(args.pedestrian_model)
+    if args.stopping_check is not None:
+        if not hasattr(model.policy, "set_stopping_check"):
+            p.error(f"--stopping-check: {first} is not a value-lookahead model")
+        model.policy.set_stopping_check(args.stopping_check)
     out = WEIGHTS_DIR / f"{args.name}.zip"
     model.save(out)
     # the world it was trained in, recorded with its spaces (a value model keeps its own in its policy_kwargs)

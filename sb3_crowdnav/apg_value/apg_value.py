@@ -342,9 +342,9 @@ class APGValue(OffPolicyAlgorithm):
         super().dump_logs()
 
     def save(self, path, exclude=None, include=None) -> None:
-        """SB3's ``save`` with the current ``lookahead_dtype`` and ``pedestrian_model``, and the spaces as plain JSON;
-        inside ``learn()`` with ``overlap_training`` it first waits for the gradient steps in flight (the V of a
-        completed step is saved)."""
+        """SB3's ``save`` with the current ``lookahead_dtype``, ``pedestrian_model`` and ``stopping_check``, and the
+        spaces as plain JSON; inside ``learn()`` with ``overlap_training`` it first waits for the gradient steps in
+        flight (the V of a completed step is saved)."""
         self._join_learner()
         self.learner.pull_optimizer()  # the learner process's optimiser state is saved with V
         if self.policy is not None and self.policy_kwargs.get("lookahead_dtype", "float32") != self.policy.lookahead_dtype:
@@ -352,6 +352,8 @@ class APGValue(OffPolicyAlgorithm):
         if self.policy is not None and \
                 self.policy_kwargs.get("pedestrian_model", "constant_velocity") != self.policy.pedestrian_model:
             self.policy_kwargs["pedestrian_model"] = self.policy.pedestrian_model
+        if self.policy is not None and self.policy_kwargs.get("stopping_check", False) != self.policy.stopping_check:
+            self.policy_kwargs["stopping_check"] = self.policy.stopping_check
         super().save(path, exclude, include)
         if isinstance(path, (str, Path)):  # so that loading never unpickles them
             write_spaces(path if str(path).endswith(".zip") else f"{path}.zip", self.observation_space, self.action_space)

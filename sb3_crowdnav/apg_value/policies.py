@@ -13,7 +13,7 @@ from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, create_
 from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 from torch import nn
 
-from sb3_crowdnav.apg_value.propagation import Propagated, PropagationModel
+from sb3_crowdnav.apg_value.propagation import Propagated, PropagationModel, check_stopping_check
 from sb3_crowdnav.nn import ApgExtractor, CadrlExtractor, LmExtractor, LstmRlExtractor, SarlExtractor, SfExtractor
 from sb3_crowdnav.nn.layers import bfloat16_supported
 from sb3_crowdnav.sim.config import RewardConfig
@@ -94,6 +94,10 @@ class ValueLookaheadPolicy(BasePolicy):
         :class:`PropagationModel`): ``"constant_velocity"`` (the paper, default) or ``"cautious"`` (also charges
         a collision with a pedestrian who stands still instead; :meth:`set_pedestrian_model` switches a loaded
         model)
+    :param stopping_check: also charge an action a collision when the robot, braking from its new velocity at the
+        world's ``max_acceleration`` until it stands, would hit an observed rack, wall or person (see
+        :class:`PropagationModel`; default False, the paper's lookahead). Refused for a world without
+        ``max_acceleration``; :meth:`set_stopping_check` switches a loaded model
     :param ensemble_size: number of value networks whose mean is V (:class:`ValueEnsemble`; 1, the paper: one
         :class:`ValueNetwork`). Each decision costs one forward pass per member. Ensembles are made of trained models
         with :func:`sb3_crowdnav.training.ensemble_models`
@@ -119,6 +123,7 @@ class ValueLookaheadPolicy(BasePolicy):
         lookahead_dtype: str = "float32",
         pedestrian_model: str = "constant_velocity",
         ensemble_size: int = 1,
+        stopping_check: bool = False,
     ) -> None:
         schema = ObservationSchema.from_space(observation_space)
         self.history_length, self.max_humans = schema.history_length, schema.max_humans
@@ -127,6 +132,7 @@ class ValueLookaheadPolicy(BasePolicy):
         check_int("ensemble_size", ensemble_size, 1)
         self.ensemble_size = int(ensemble_size)
         world = World() if world is None else World.coerce(world)
+        check_stopping_check(stopping_check, world)  # before any work
         if not isinstance(action_space, spaces.Discrete) or action_space.n != world.n_actions:
             raise ValueError(f"ValueLookaheadPolicy needs Discrete({world.n_actions}) actions (the world's "
                              f"actions={world.actions!r}), got {action_space}")
@@ -146,7 +152,7 @@ class ValueLookaheadPolicy(BasePolicy):
         self.gamma = float(gamma)
         self.net_arch = list(net_arch) if net_arch is not None else [150, 100, 100]
         self.activation_fn = activation_fn
-        self.propagation = PropagationModel(world, self.history_length, self.gamma, pedestrian_model)
+        self.propagation = PropagationModel(world, self.history_length, self.gamma, pedestrian_model, stopping_check)
         self._build(lr_schedule)
         self.lookahead_dtype = "float32"
         self.set_lookahead_dtype(lookahead_dtype)
@@ -182,9 +188,20 @@ class ValueLookaheadPolicy(BasePolicy):
         """``"constant_velocity"`` or ``"cautious"`` (see the class docstring)."""
         return self.propagation.pedestrian_model
 
+    @property
+    def stopping_check(self) -> bool:
+        """Whether the lookahead charges actions the robot cannot brake from (see the class docstring)."""
+        return self.propagation.stopping_check
+
     def set_pedestrian_model(self, pedestrian_model: str) -> None:
         """Switch the lookahead's pedestrian model (see the class docstring); V is unchanged."""
-        self.propagation = PropagationModel(self.world, self.history_length, self.gamma, pedestrian_model)
+        self.propagation = PropagationModel(self.world, self.history_length, self.gamma, pedestrian_model,
+                                            self.stopping_check)
+
+    def set_stopping_check(self, stopping_check: bool) -> None:
+        """Switch the lookahead's stopping-distance check on or off (see the class docstring); V is unchanged."""
+        self.propagation = PropagationModel(self.world, self.history_length, self.gamma, self.pedestrian_model,
+                                            stopping_check)
 
     def make_value_net(self) -> ValueNetwork | ValueEnsemble:
         """A new V: one :class:`ValueNetwork`, or a :class:`ValueEnsemble` of ``ensemble_size`` of them."""
@@ -214,6 +231,8 @@ class ValueLookaheadPolicy(BasePolicy):
             data["pedestrian_model"] = self.pedestrian_model
         if self.ensemble_size != 1:
             data["ensemble_size"] = self.ensemble_size
+        if self.stopping_check:  # only when on: the files of models without it stay as they were
+            data["stopping_check"] = True
         return data
 
     # ------------------------------------------------------------------ values

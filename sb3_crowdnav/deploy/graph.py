@@ -75,6 +75,10 @@ class LookaheadDecision(nn.Module):
 
     def __init__(self, policy: ValueLookaheadPolicy) -> None:
         super().__init__()
+        if policy.stopping_check:  # the house rule: the graph holds everything the lookahead does, or nothing
+            raise ValueError("stopping_check: the exported graph does not hold the lookahead's stopping-distance "
+                             "check; export the model with policy.set_stopping_check(False) (the decisions then "
+                             "differ from the Python lookahead's) or act with the Python model")
         schema = ObservationSchema.from_space(policy.observation_space)
         self.propagation = GraphPropagation(policy.world, schema, policy.gamma, policy.pedestrian_model)
         self.keys = tuple(schema.shapes)  # the observation's keys in the schema's order, the value network's inputs

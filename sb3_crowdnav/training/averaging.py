@@ -117,6 +117,7 @@ def ensemble_models(paths: Sequence[str | Path], **load_kwargs) -> APGValue:
     base.policy_kwargs["ensemble_size"] = len(members)
     policy = base.policy_class(base.observation_space, base.action_space, base.lr_schedule, **base.policy_kwargs)
     policy.set_pedestrian_model(base.policy.pedestrian_model)
+    policy.set_stopping_check(base.policy.stopping_check)
     policy.set_lookahead_dtype(base.policy.lookahead_dtype)
     with th.no_grad():
         for target in (policy.value_net, policy.value_net_target):
