@@ -399,6 +399,14 @@ def _assert_same_but_ties(actions: np.ndarray, values: np.ndarray) -> None:
     assert np.all(values.max(axis=1) - values[rows, actions] <= 1e-6)
 
 
+def _assert_graph_matches(graph, policy, obs, atol: float) -> None:
+    """The graph's values are the policy's within ``atol`` and its actions their argmax but for ties within 1e-6."""
+    expected = policy.action_values(obs)
+    actions, values, _ = graph.run(obs)
+    np.testing.assert_allclose(values, expected, rtol=0, atol=atol)
+    _assert_same_but_ties(actions, expected)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("name, env_id, env_kwargs", [("apg_rl", "CrowdNav-v0", {}),
                                                      ("apg_warehouse_paper", "CrowdNavWarehouse-v0", WAREHOUSE_PAPER)])
@@ -410,10 +418,7 @@ def test_round_trip_of_a_shipped_model(graphs, name, env_id, env_kwargs):
     model, graph = pretrained(name), OnnxPolicy(graphs[name], env)
     assert graph.metadata.ensemble_size == model.policy.ensemble_size
     obs = _observations(env, 300, seed=1)
-    expected = model.policy.action_values(obs)
-    actions, values, _ = graph.run(obs)
-    np.testing.assert_allclose(values, expected, rtol=0, atol=1e-4)
-    _assert_same_but_ties(actions, expected)
+    _assert_graph_matches(graph, model.policy, obs, atol=1e-4)
 
 
 @pytest.mark.slow
@@ -427,10 +432,7 @@ def test_round_trip_with_limits_a_stop_and_every_reward_term(tmp_path):
     policy = _policy(env, pedestrian_model="cautious")
     graph = OnnxPolicy(export_onnx(policy, tmp_path / "limits.onnx", env=env), env)
     obs = _observations(env, 200)
-    expected = policy.action_values(obs)
-    actions, values, _ = graph.run(obs)
-    np.testing.assert_allclose(values, expected, rtol=0, atol=1e-5)
-    _assert_same_but_ties(actions, expected)
+    _assert_graph_matches(graph, policy, obs, atol=1e-5)
 
 
 @pytest.mark.slow
@@ -447,10 +449,7 @@ def test_round_trip_of_a_model_trained_with_goal_progress(tmp_path):
     graph = OnnxPolicy(export_onnx(model, tmp_path / "progress.onnx", env=env), env)
     assert graph.metadata.world == model.policy.world
     obs = _observations(env, 300, seed=1)
-    expected = model.policy.action_values(obs)
-    actions, values, _ = graph.run(obs)
-    np.testing.assert_allclose(values, expected, rtol=0, atol=1e-4)
-    _assert_same_but_ties(actions, expected)
+    _assert_graph_matches(graph, model.policy, obs, atol=1e-4)
 
 
 def test_the_lstm_operator_is_the_eager_lstm():
