@@ -330,3 +330,34 @@ def test_a_variant_brings_its_env_settings_and_schedule_and_a_run_overrides_them
     unshaped = ScheduleConfig(variant="apg_warehouse", env_kwargs={"progress_reward": 0.0}, rl_episodes=10_000)
     assert unshaped.training_env_kwargs["progress_reward"] == 0.0 and unshaped.rl_episodes == 10_000
     assert unshaped.exploration_episodes == 3_500
+
+
+@pytest.mark.slow  # a training run or a full CLI run: make slow
+def test_a_run_with_the_stopping_check_acts_with_it_and_saves_it(tmp_path, monkeypatch):
+    """--stopping-check: the acting lookahead charges the speeds the robot cannot brake from (a world with an
+    acceleration limit), and every saved model keeps the check; --no-stopping-check switches it off when resuming."""
+    out = tmp_path / "run"
+    common = ["--out", str(out), "--il-episodes", "2", "--il-epochs", "1", "--num-humans", "2",
+              "--checkpoint-episodes", "2", "--eval-episodes", "0", "--overlap", "off",
+              "--env-kwargs", "dict(actions='with_stop', max_acceleration=1.0, max_turn_rate=1.5)"]
+    _run(monkeypatch, *common, "--rl-episodes", "2", "--stopping-check")
+    assert json.loads((out / "config.json").read_text())["stopping_check"] is True
+    assert APGValue.load(out / "checkpoint_2.zip").policy.stopping_check
+    _run(monkeypatch, *common, "--rl-episodes", "4", "--no-stopping-check")
+    assert not APGValue.load(out / "final.zip").policy.stopping_check
+
+
+def test_the_stopping_check_is_refused_before_any_work(tmp_path, capsys):
+    """A world without an acceleration limit (the paper's robot) refuses --stopping-check with exit 2 and one line,
+    before the run folder exists; ScheduleConfig refuses a non-bool, and train_schedule a world without the limit."""
+    from sb3_crowdnav.training.schedule import train_schedule
+
+    out = tmp_path / "run"
+    with pytest.raises(SystemExit) as exc:
+        main(["train", "--variant", "apg_rl", "--stopping-check", "--out", str(out)])
+    assert exc.value.code == 2 and "--stopping-check" in capsys.readouterr().err and not out.exists()
+    with pytest.raises(TypeError, match="stopping_check"):
+        ScheduleConfig(stopping_check="yes")
+    with pytest.raises(ValueError, match="max_acceleration"):
+        train_schedule(out, ScheduleConfig(stopping_check=True, imitation_episodes=1, rl_episodes=1))
+    assert not (out / "imitation.zip").exists()

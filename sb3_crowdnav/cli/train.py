@@ -27,7 +27,7 @@ SCHEDULE_FLAGS = {
     "value_target": "--value-target", "from_imitation": "--from-imitation", "overlap": "--overlap",
     "refill_steps": "--refill-steps", "lookahead_dtype": "--lookahead-dtype",
     "exploration_initial_eps": "--epsilon-start", "exploration_final_eps": "--epsilon-end",
-    "pedestrian_model": "--pedestrian-model",
+    "pedestrian_model": "--pedestrian-model", "stopping_check": "--stopping-check",
 }
 HYPERPARAMS_FLAGS = {"algo": "--algo", "timesteps": "--timesteps", "checkpoint_freq": "--checkpoint-freq",
                      "wall_time": "--wall-time"}
@@ -103,6 +103,10 @@ def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
     g.add_argument("--pedestrian-model", choices=PEDESTRIAN_MODELS,
                    help="pedestrians in the acting lookahead's reward: constant_velocity, or cautious (the worse of "
                         "moving on and standing still) (default: the model's own; constant_velocity for a new one)")
+    g.add_argument("--stopping-check", action=argparse.BooleanOptionalAction, default=None,
+                   help="the acting lookahead also charges the actions the robot cannot brake from at its "
+                        "max_acceleration (a world with an acceleration limit only) (default: the model's own; off "
+                        "for a new one)")
 
     g = p.add_argument_group("hyperparameter files (--hyperparams)")
     g.add_argument("--algo", choices=ALGOS, help="algorithm (required with --hyperparams)")
@@ -159,9 +163,26 @@ def _variant_config(args: argparse.Namespace) -> Any:
     except (TypeError, ValueError) as exc:
         raise UsageError(str(exc)) from None
     common.check_env(variant.env_id, config.training_env_kwargs, common.single_crowd(args))
+    if config.stopping_check:
+        _check_stopping(variant.env_id, config.training_env_kwargs)
     if args.from_imitation is not None and not args.from_imitation.is_file():
         raise UsageError(f"--from-imitation: no saved model at {str(args.from_imitation)!r}")
     return config
+
+
+def _check_stopping(env_id: str, env_kwargs: dict[str, Any]) -> None:
+    """``--stopping-check`` needs a world with an acceleration limit: refused before any work otherwise."""
+    import gymnasium as gym
+
+    from sb3_crowdnav.apg_value.propagation import check_stopping_check
+
+    env = gym.make(env_id, **env_kwargs)
+    try:
+        check_stopping_check(True, env.unwrapped.world)
+    except ValueError as exc:
+        raise UsageError(f"--stopping-check: {exc}") from None
+    finally:
+        env.close()
 
 
 def _train_variant(args: argparse.Namespace, config: Any) -> int:

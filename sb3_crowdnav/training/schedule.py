@@ -54,7 +54,7 @@ from sb3_crowdnav.apg_value import APGValue
 from sb3_crowdnav.apg_value.checks import VALUE_TARGETS
 from sb3_crowdnav.apg_value.overlap import OVERLAP_KINDS
 from sb3_crowdnav.apg_value.policies import ValueLookaheadPolicy
-from sb3_crowdnav.apg_value.propagation import PropagationModel
+from sb3_crowdnav.apg_value.propagation import PropagationModel, check_stopping_check
 from sb3_crowdnav.sim.validation import (
     check_bool,
     check_choice,
@@ -170,6 +170,9 @@ class ScheduleConfig:
     :param pedestrian_model: the acting lookahead's pedestrian model (see
         :class:`~sb3_crowdnav.apg_value.ValueLookaheadPolicy`); None: the model's own (``"constant_velocity"``
         for a new one)
+    :param stopping_check: the acting lookahead's stopping-distance check (``ValueLookaheadPolicy``'s
+        ``stopping_check``: also charge the actions it cannot brake from); None: the model's own (off for a new
+        one); True is refused before any work in a world without ``max_acceleration``
     :param optimizer: RL optimiser, ``"adam"`` (APGValue's default) or ``"sgd"`` (momentum 0.9, the field's code)
     :param value_target: see :class:`~sb3_crowdnav.apg_value.APGValue`
     :param overlap: ``APGValue(overlap_training=...)``: gradient steps on the second core while acting, in a
@@ -201,6 +204,7 @@ class ScheduleConfig:
     exploration_initial_eps: float = 0.5
     exploration_final_eps: float = 0.1
     pedestrian_model: str | None = None
+    stopping_check: bool | None = None
     refill_steps: int = 5_000
     select_by: Literal["success", "return"] = "success"
     overlap: bool | Literal["thread", "process"] = "process"
@@ -225,6 +229,8 @@ class ScheduleConfig:
         check_probability("exploration_final_eps", self.exploration_final_eps)
         if self.pedestrian_model is not None:
             check_choice("pedestrian_model", self.pedestrian_model, PEDESTRIAN_MODELS)
+        if self.stopping_check is not None:
+            check_bool("stopping_check", self.stopping_check)
         check_number("imitation_learning_rate", self.imitation_learning_rate)
         check_bool("bootstrap_timeouts", self.bootstrap_timeouts)
         if not (isinstance(self.overlap, bool) or self.overlap in OVERLAP_KINDS):
@@ -374,6 +380,8 @@ def _train(out: Path, config: ScheduleConfig, from_imitation: str | Path | None,
     # a resumed run draws new training episodes instead of replaying the first ones
     env = make_vec_env(config.spec.env_id, n_envs=config.n_envs, seed=config.seed + 7919 * (latest[0] if latest else 0),
                        env_kwargs=env_kwargs)
+    if config.stopping_check:  # refused here, before imitation, in a world the check cannot act in
+        check_stopping_check(True, env.get_attr("world")[0])
     imitated = (out / "imitation.zip").exists() and (out / "imitation_replay_buffer.npz").exists()
     if latest is not None:
         model, reset = _resume(out, *latest, config, env, log), False
@@ -385,6 +393,8 @@ def _train(out: Path, config: ScheduleConfig, from_imitation: str | Path | None,
     model.policy.set_lookahead_dtype(config.lookahead_dtype)  # also for a resumed or from_imitation run
     if config.pedestrian_model is not None:
         model.policy.set_pedestrian_model(config.pedestrian_model)
+    if config.stopping_check is not None:
+        model.policy.set_stopping_check(config.stopping_check)
     callback = EpisodeCheckpoint(out, config.rl_episodes, config.checkpoint_episodes, config.eval_episodes,
                                  select_by=config.select_by, env_kwargs=env_kwargs, env_id=config.spec.env_id)
     n = model.episodes_done
