@@ -213,23 +213,30 @@ def test_a_damaged_contract_is_refused_naming_the_entry(props, fragment):
 
 
 # ---------------------------------------------------------------- OnnxPolicy on a graph built by hand (fast)
-def _toy_graph(path, meta: GraphMetadata | None = None, inputs: dict | None = None):
-    """A graph of the deploy layout: action_values = robot @ W, action = argmax."""
+def _toy_graph(path, meta: GraphMetadata | None = None, inputs: dict | None = None, masked: bool = False):
+    """A graph of the deploy layout: action_values = robot @ W, action = argmax; ``masked``: a MaskablePPO-like graph,
+    action_values = where(action_masks, robot @ W, -1e8), the mask a second input."""
     onnx = pytest.importorskip("onnx")
     pytest.importorskip("onnxruntime")
     from onnx import TensorProto, helper, numpy_helper
 
-    meta = meta or _metadata()
+    meta = meta or (_metadata(kind="masked_logits", policy="ApgMaskablePolicy") if masked else _metadata())
     n = meta.world.n_actions
     weights = np.random.default_rng(0).normal(size=(9, n)).astype(np.float32)
     shapes = inputs or meta.schema.shapes
+    graph_inputs = [helper.make_tensor_value_info(k, TensorProto.FLOAT, ["batch", s[0]]) for k, s in shapes.items()]
+    initializer = [numpy_helper.from_array(weights, "w")]
+    nodes = [helper.make_node("MatMul", ["robot", "w"], ["logits" if masked else "action_values"])]
+    if masked:
+        graph_inputs.append(helper.make_tensor_value_info("action_masks", TensorProto.BOOL, ["batch", n]))
+        initializer.append(numpy_helper.from_array(np.float32(-1e8), "masked"))
+        nodes.append(helper.make_node("Where", ["action_masks", "logits", "masked"], ["action_values"]))
+    nodes.append(helper.make_node("ArgMax", ["action_values"], ["action"], axis=1, keepdims=0))
     graph = helper.make_graph(
-        [helper.make_node("MatMul", ["robot", "w"], ["action_values"]),
-         helper.make_node("ArgMax", ["action_values"], ["action"], axis=1, keepdims=0)],
-        "toy", [helper.make_tensor_value_info(k, TensorProto.FLOAT, ["batch", s[0]]) for k, s in shapes.items()],
+        nodes, "toy", graph_inputs,
         [helper.make_tensor_value_info("action", TensorProto.INT64, ["batch"]),
          helper.make_tensor_value_info("action_values", TensorProto.FLOAT, ["batch", n])],
-        initializer=[numpy_helper.from_array(weights, "w")])
+        initializer=initializer)
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 18)])
     helper.set_model_props(model, meta.props())
     onnx.save_model(model, str(path))
@@ -258,34 +265,10 @@ def test_onnx_policy_predicts_like_sb3(tmp_path):
         policy.predict(batch, deterministic=False)
 
 
-def _toy_masked_graph(path):
-    """A MaskablePPO-like graph: action_values = where(action_masks, robot @ W, -1e8), action = argmax."""
-    onnx = pytest.importorskip("onnx")
-    pytest.importorskip("onnxruntime")
-    from onnx import TensorProto, helper, numpy_helper
-
-    meta = _metadata(kind="masked_logits", policy="ApgMaskablePolicy")
-    n = meta.world.n_actions
-    weights = np.random.default_rng(0).normal(size=(9, n)).astype(np.float32)
-    inputs = [helper.make_tensor_value_info(k, TensorProto.FLOAT, ["batch", s[0]]) for k, s in meta.schema.shapes.items()]
-    graph = helper.make_graph(
-        [helper.make_node("MatMul", ["robot", "w"], ["logits"]),
-         helper.make_node("Where", ["action_masks", "logits", "masked"], ["action_values"]),
-         helper.make_node("ArgMax", ["action_values"], ["action"], axis=1, keepdims=0)],
-        "toy", [*inputs, helper.make_tensor_value_info("action_masks", TensorProto.BOOL, ["batch", n])],
-        [helper.make_tensor_value_info("action", TensorProto.INT64, ["batch"]),
-         helper.make_tensor_value_info("action_values", TensorProto.FLOAT, ["batch", n])],
-        initializer=[numpy_helper.from_array(weights, "w"), numpy_helper.from_array(np.float32(-1e8), "masked")])
-    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 18)])
-    helper.set_model_props(model, meta.props())
-    onnx.save_model(model, str(path))
-    return weights
-
-
 def test_onnx_policy_takes_action_masks_of_a_masked_graph(tmp_path):
     from sb3_crowdnav.deploy import OnnxPolicy
 
-    weights = _toy_masked_graph(tmp_path / "masked.onnx")
+    weights = _toy_graph(tmp_path / "masked.onnx", masked=True)
     env = gym.make("CrowdNav-v0")
     policy = OnnxPolicy(tmp_path / "masked.onnx", env)
     batch = _observations(env, 6)
