@@ -114,7 +114,7 @@ def test_off_by_default_and_refused_where_it_cannot_act():
         APGValue("ApgPolicy", "CrowdNav-v0", imitation_episodes=0, policy_kwargs={"stopping_check": True})
 
 
-def test_stopping_check_round_trips_through_save_and_load_and_refuses_export(tmp_path):
+def test_stopping_check_round_trips_through_save_and_load_and_into_the_graph_decision(tmp_path):
     from sb3_crowdnav import APGValue
     from sb3_crowdnav.deploy.graph import LookaheadDecision
 
@@ -130,8 +130,7 @@ def test_stopping_check_round_trips_through_save_and_load_and_refuses_export(tmp
     assert loaded.policy.stopping_check is True and loaded.policy.pedestrian_model == "constant_velocity"
     obs, _ = env.reset(seed=3)
     np.testing.assert_array_equal(loaded.policy.action_values(obs), model.policy.action_values(obs))
-    with pytest.raises(ValueError, match="stopping_check"):
-        LookaheadDecision(loaded.policy)
+    assert LookaheadDecision(loaded.policy).propagation.braking_steps == 5  # 1 m/s at 1 m/s² in 0.25 s steps, + 1
     loaded.policy.set_stopping_check(False)
     loaded.save(tmp_path / "off.zip")
     assert APGValue.load(tmp_path / "off.zip").policy.stopping_check is False

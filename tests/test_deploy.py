@@ -17,7 +17,7 @@ from sb3_crowdnav.deploy.graph import LookaheadDecision, decision_module
 from sb3_crowdnav.deploy.metadata import PREFIX, GraphMetadata
 from sb3_crowdnav.deploy.propagation import atan2, wrap
 from sb3_crowdnav.sim.actions import wrap_angle
-from sb3_crowdnav.sim.observation import ObservationSchema
+from sb3_crowdnav.sim.observation import ObservationSchema, Robot
 from sb3_crowdnav.sim.world import World
 
 WAREHOUSE_PAPER = dict(actions="paper", max_acceleration=None, max_turn_rate=None)
@@ -34,6 +34,13 @@ WORLDS = {
                                          {"pedestrian_model": "cautious"}),
     "warehouse": ("CrowdNavWarehouse-v0", {"progress_reward": 0.1}, {"pedestrian_model": "cautious"}),
     "warehouse, limits": ("CrowdNavWarehouse-v0", {}, {}),
+    "warehouse, stopping check": ("CrowdNavWarehouse-v0", {}, {"stopping_check": True}),
+    "warehouse, stopping check, cautious": ("CrowdNavWarehouse-v0", {"progress_reward": 0.1},
+                                            {"pedestrian_model": "cautious", "stopping_check": True}),
+    "limits and a stop, stopping check": ("CrowdNav-v0", {"actions": "with_stop", "max_acceleration": 1.0,
+                                                          "max_turn_rate": 2.0}, {"stopping_check": True}),
+    "holonomic, limited, stopping check": ("CrowdNav-v0", {"kinematics": "holonomic", "max_acceleration": 1.5},
+                                           {"stopping_check": True}),
 }
 
 
@@ -71,7 +78,7 @@ def test_the_graph_decision_is_the_policys(case):
     env_id, env_kwargs, policy_kwargs = WORLDS[case]
     env = gym.make(env_id, **env_kwargs)
     policy = _policy(env, **policy_kwargs)
-    obs = _observations(env, 40)
+    obs = _observations(env, 200 if policy.stopping_check else 40)  # enough for the check to charge some actions
     expected = policy.action_values(obs)
     with th.no_grad():
         action, values = LookaheadDecision(policy).eval()({k: th.as_tensor(v) for k, v in obs.items()})
@@ -82,6 +89,10 @@ def test_the_graph_decision_is_the_policys(case):
     graph = LookaheadDecision(policy).propagation({k: th.as_tensor(v) for k, v in obs.items()})
     np.testing.assert_array_equal(graph.terminal.numpy(), prop.terminal)  # every collision, success and wall hit
     np.testing.assert_allclose(graph.reward.numpy(), prop.reward, rtol=0, atol=1e-12)
+    if policy.stopping_check:  # the check charged something here, and the graph charged the same
+        policy.set_stopping_check(False)
+        unchecked = LookaheadDecision(policy).propagation({k: th.as_tensor(v) for k, v in obs.items()})
+        assert (graph.terminal.numpy() & ~unchecked.terminal.numpy()).any()
 
 
 def test_unsupported_models_are_refused_by_name():
@@ -178,6 +189,8 @@ def _metadata(**kwargs) -> GraphMetadata:
     _metadata(),
     _metadata(kind="lookahead", gamma=0.9, pedestrian_model="cautious", ensemble_size=2,
               world=World(actions="with_stop", max_acceleration=1.0, max_turn_rate=2.0)),
+    _metadata(kind="lookahead", gamma=0.9, pedestrian_model="constant_velocity", braking_steps=5,
+              world=World(actions="with_stop", max_acceleration=1.0, max_turn_rate=2.0)),
     _metadata(schema=ObservationSchema(5, 10, 16, 3), world=World(obstacle_collision_penalty=-0.25, waypoint_radius=0.6)),
 ])
 def test_metadata_round_trips_as_plain_json(meta):
@@ -199,7 +212,9 @@ def _edited(entry: str, edit) -> dict[str, str]:
     ({k: v for k, v in _metadata().props().items() if not k.endswith("world")}, "lacks"),
     (_edited("world", "{'time_step': 0.25}"), "not plain JSON"),
     (_edited("robot", '{"radius": NaN}'), "not plain JSON"),
-    (_edited("format", "2"), "update sb3_crowdnav"),
+    (_edited("format", "3"), "update sb3_crowdnav"),
+    (_edited("decision", lambda d: json.dumps({**d, "braking_steps": 4})), "braking_steps is set for a lookahead"),
+    (_edited("decision", lambda d: json.dumps({k: v for k, v in d.items() if k != "braking_steps"})), "decision must"),
     (_edited("world", lambda w: json.dumps({**w, "time_step": 0.5})), "robot does not match the world"),
     (_edited("world", lambda w: json.dumps({**w, "warp_drive": True})), "warp_drive"),
     (_edited("actions", lambda a: json.dumps({**a, "directions": a["directions"][::-1]})), "action table"),
@@ -210,6 +225,17 @@ def _edited(entry: str, edit) -> dict[str, str]:
 def test_a_damaged_contract_is_refused_naming_the_entry(props, fragment):
     with pytest.raises(ValueError, match=fragment):
         GraphMetadata.from_props(props)
+
+
+def test_a_format_1_contract_reads_as_a_graph_without_the_stopping_check():
+    """Graphs written before the stopping check (format 1) have no braking_steps: they read as graphs without it."""
+    props = _metadata().props()
+    decision = json.loads(props[PREFIX + "decision"])
+    del decision["braking_steps"]
+    props[PREFIX + "decision"], props[PREFIX + "format"] = json.dumps(decision), "1"
+    assert GraphMetadata.from_props(props).braking_steps is None
+    with pytest.raises(ValueError, match="decision must"):  # a format-2 file must have it
+        GraphMetadata.from_props({**props, PREFIX + "format": "2"})
 
 
 # ---------------------------------------------------------------- OnnxPolicy on a graph built by hand (fast)
@@ -300,6 +326,28 @@ def test_onnx_policy_refuses_another_world_naming_the_fields(tmp_path):
         OnnxPolicy(tmp_path / "toy.onnx", gym.make("CrowdNav-v0", actions="with_stop"))
     with pytest.raises(ValueError, match="was trained on observations"):  # shapes are checked even then
         OnnxPolicy(tmp_path / "toy.onnx", gym.make("CrowdNav-v0", max_humans=7), allow_env_mismatch=True)
+
+
+def test_onnx_policy_refuses_a_robot_faster_than_its_stopping_check_brakes(tmp_path):
+    """A graph with the stopping check brakes for braking_steps sub-steps: 5 x 1 m/s² x 0.25 s = 1.25 m/s here. A
+    robot whose velocity, or v_pref x the fastest action, is beyond that is refused, naming the observation's field."""
+    from sb3_crowdnav.deploy import OnnxPolicy
+
+    world = World(actions="with_stop", max_acceleration=1.0, max_turn_rate=2.0)
+    meta = _metadata(kind="lookahead", gamma=0.9, pedestrian_model="constant_velocity", braking_steps=5, world=world)
+    assert meta.braking_speed == 1.25
+    _toy_graph(tmp_path / "toy.onnx", meta)
+    policy = OnnxPolicy(tmp_path / "toy.onnx")
+    obs = {k: np.zeros((3, *s), dtype=np.float32) for k, s in meta.schema.shapes.items()}
+    obs["robot"][:, Robot.V_PREF] = 1.0
+    obs["robot"][:, Robot.VEL] = [[1.25, 0.0], [0.0, -1.2], [0.3, 0.4]]
+    assert policy.predict(obs)[0].shape == (3,)
+    obs["robot"][1, Robot.VEL] = [0.9, -0.9]  # 1.27 m/s
+    with pytest.raises(ValueError, match=r"observation\['robot'\]: a speed of 1.273 m/s .* 1.250 m/s"):
+        policy.predict(obs)
+    obs["robot"][1, Robot.VEL], obs["robot"][2, Robot.V_PREF] = 0.0, 1.3
+    with pytest.raises(ValueError, match=r"a speed of 1\.300 m/s"):
+        policy.predict(obs)
 
 
 def test_onnx_policy_refuses_a_graph_that_is_not_its_contract(tmp_path):
@@ -416,6 +464,22 @@ def test_round_trip_with_limits_a_stop_and_every_reward_term(tmp_path):
     graph = OnnxPolicy(export_onnx(policy, tmp_path / "limits.onnx", env=env), env)
     obs = _observations(env, 200)
     _assert_graph_matches(graph, policy, obs, atol=1e-5)
+
+
+@pytest.mark.slow
+def test_round_trip_with_the_stopping_check(tmp_path):
+    """An untrained APG policy acting with the stopping-distance check in the warehouse (cautious people): the graph
+    brakes as the numpy lookahead, and its contract records the sub-steps."""
+    from sb3_crowdnav.deploy import OnnxPolicy, export_onnx
+
+    env = gym.make("CrowdNavWarehouse-v0")
+    policy = _policy(env, pedestrian_model="cautious", stopping_check=True)
+    graph = OnnxPolicy(export_onnx(policy, tmp_path / "braking.onnx", env=env), env)
+    assert graph.metadata.braking_steps == 5 and graph.metadata.braking_speed == 1.25
+    obs = _observations(env, 300)
+    _assert_graph_matches(graph, policy, obs, atol=1e-5)
+    policy.set_stopping_check(False)
+    assert (policy.action_values(obs) != graph.action_values(obs)).any()  # the check is in the graph
 
 
 @pytest.mark.slow

@@ -61,11 +61,14 @@ def export_onnx(model: Any, path: str | Path, *, env: Any = None, world: World |
         radius, v_pref = scene.robot_radius, scene.robot_v_pref
     extractor = getattr(policy, "features_extractor_class", None)
     lookahead = isinstance(decision, LookaheadDecision)
+    if lookahead:  # the stopping check brakes for this robot's speed
+        decision.brake_for(v_pref)
     metadata = GraphMetadata(
         kind=decision.kind, world=trained, schema=schema, robot_radius=float(radius), robot_v_pref=float(v_pref),
         policy=type(policy).__name__, extractor=getattr(extractor, "__name__", str(extractor)),
         ensemble_size=getattr(policy, "ensemble_size", 1),
         pedestrian_model=policy.pedestrian_model if lookahead else None, gamma=policy.gamma if lookahead else None,
+        braking_steps=decision.propagation.braking_steps if lookahead else None,
     )
     proto = to_onnx(decision, schema)
     onnx = require("onnx", "export_onnx")

@@ -5,8 +5,8 @@ One module per kind of policy, each ``forward(observation) -> (action (B,) int64
 * :class:`LookaheadDecision`, a :class:`~sb3_crowdnav.apg_value.ValueLookaheadPolicy` (``APGValue`` and its
   baselines, one value network or an ensemble): the propagation and reward of every action
   (:class:`~sb3_crowdnav.deploy.propagation.GraphPropagation`), V of every propagated state in one batch, the
-  value ceiling (the warehouse, shaped worlds), ``R + γ^(Δt·v_pref)·V(s')`` in float64 and its argmax (kind
-  ``"lookahead"``);
+  value ceiling (the warehouse, shaped worlds), the stopping-distance check when the policy acts with it,
+  ``R + γ^(Δt·v_pref)·V(s')`` in float64 and its argmax (kind ``"lookahead"``);
 * :class:`QDecision`, SB3's DQN policy: the Q network and its argmax (kind ``"q_values"``);
 * :class:`ActorDecision`, SB3's actor-critic policy (PPO, A2C) with discrete actions: the actor's logits and their
   argmax, the action SB3's ``predict(deterministic=True)`` takes (kind ``"logits"``);
@@ -38,10 +38,11 @@ from torch import nn
 
 from sb3_crowdnav.apg_value.policies import ValueLookaheadPolicy
 from sb3_crowdnav.deploy.metadata import MASK_INPUT
-from sb3_crowdnav.deploy.propagation import F64, GraphPropagation, f64
+from sb3_crowdnav.deploy.propagation import F64, GraphPropagation, braking_steps, f64
 from sb3_crowdnav.nn import ApgActorCriticPolicy, ApgDQNPolicy, ApgMaskablePolicy, ApgQRDQNPolicy
 from sb3_crowdnav.nn.extractors import CrowdFeaturesExtractor
 from sb3_crowdnav.nn.layers import exporting
+from sb3_crowdnav.sim.config import SceneConfig
 from sb3_crowdnav.sim.observation import ObservationSchema, Robot
 
 # the SB3 policy classes whose greedy action is exported (subclasses may act otherwise: recurrent, masked, ...)
@@ -73,19 +74,22 @@ class LookaheadDecision(nn.Module):
     kind = "lookahead"
     scan = True  # in an exported graph V is the placeholder the export replaces by a Scan (False: the network inline)
 
-    def __init__(self, policy: ValueLookaheadPolicy) -> None:
+    def __init__(self, policy: ValueLookaheadPolicy, v_pref: float = SceneConfig.robot_v_pref) -> None:
         super().__init__()
-        if policy.stopping_check:  # the house rule: the graph holds everything the lookahead does, or nothing
-            raise ValueError("stopping_check: the exported graph does not hold the lookahead's stopping-distance "
-                             "check; export the model with policy.set_stopping_check(False) (the decisions then "
-                             "differ from the Python lookahead's) or act with the Python model")
         schema = ObservationSchema.from_space(policy.observation_space)
-        self.propagation = GraphPropagation(policy.world, schema, policy.gamma, policy.pedestrian_model)
+        braking = braking_steps(policy.world, v_pref) if policy.stopping_check else None
+        self.propagation = GraphPropagation(policy.world, schema, policy.gamma, policy.pedestrian_model, braking)
         self.keys = tuple(schema.shapes)  # the observation's keys in the schema's order, the value network's inputs
         self.value_net = policy.value_net
         world = policy.world
         self.ceiling = world.has_value_ceiling and policy.gamma < 1
         self.ceiling_terms = (world.time_step, world.progress_reward, policy.gamma, world.reward.success_reward)
+
+    def brake_for(self, v_pref: float) -> None:
+        """With the stopping-distance check, brake for a robot of preferred speed ``v_pref`` [m/s] (the number of
+        braking sub-steps the graph runs, :func:`~sb3_crowdnav.deploy.propagation.braking_steps`)."""
+        if self.propagation.braking_steps is not None:
+            self.propagation.braking_steps = braking_steps(self.propagation.world, v_pref)
 
     def value_ceiling(self, v_pref: th.Tensor) -> th.Tensor:
         """:meth:`ValueLookaheadPolicy.value_ceiling` with float64 constants (the policy's own would enter the graph

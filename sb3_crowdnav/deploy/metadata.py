@@ -25,7 +25,7 @@ from sb3_crowdnav.sim.validation import check_choice, check_int, check_number
 from sb3_crowdnav.sim.world import World
 from sb3_crowdnav.version import __version__
 
-FORMAT = 1  # the version of this layout of metadata_props; a reader refuses a newer one
+FORMAT = 2  # the version of this layout of metadata_props; a reader refuses a newer one (2: braking_steps)
 OPSET = 18  # the ONNX opset of the exported graphs (torch.onnx's dynamo exporter implements 18 and above)
 PREFIX = "sb3_crowdnav."
 KEYS = ("format", "version", "decision", "world", "observation", "actions", "robot")  # each PREFIX + key
@@ -64,7 +64,8 @@ def _mapping(entry: str, value: Any, keys: tuple[str, ...]) -> Mapping[str, Any]
     return value
 
 
-DECISION_KEYS = ("kind", "policy", "extractor", "ensemble_size", "pedestrian_model", "gamma", "opset", "outputs")
+DECISION_KEYS = ("kind", "policy", "extractor", "ensemble_size", "pedestrian_model", "gamma", "braking_steps", "opset",
+                 "outputs")
 OBSERVATION_KEYS = ("keys", "shapes", "dtype", "history_length", "max_humans", "max_obstacles", "num_waypoints",
                     "robot_fields", "human_fields", "frame")
 ACTION_KEYS = ("n_actions", "kinematics", "speed_fractions", "directions", "stop_action")
@@ -95,6 +96,8 @@ class GraphMetadata:
     :param ensemble_size: value networks averaged (a lookahead ensemble), else 1
     :param pedestrian_model: the lookahead's pedestrian model (None for SB3 policies)
     :param gamma: the lookahead's discount per second at v_pref = 1 (None for SB3 policies)
+    :param braking_steps: the braking sub-steps of the lookahead's stopping-distance check
+        (:func:`~sb3_crowdnav.deploy.propagation.braking_steps`); None: the graph has no such check
     :param version: the sb3_crowdnav version that wrote the file
     :param opset: the graph's ONNX opset
     """
@@ -109,6 +112,7 @@ class GraphMetadata:
     ensemble_size: int = 1
     pedestrian_model: str | None = None
     gamma: float | None = None
+    braking_steps: int | None = None
     version: str = __version__
     opset: int = OPSET
 
@@ -128,6 +132,19 @@ class GraphMetadata:
         if (self.kind == "lookahead") != (self.gamma is not None) or (self.gamma is None) != (self.pedestrian_model is None):
             raise ValueError(f"gamma and pedestrian_model are set for a lookahead only (kind {self.kind!r}), got "
                              f"{self.gamma!r} and {self.pedestrian_model!r}")
+        if self.braking_steps is not None:
+            check_int("braking_steps", self.braking_steps, 1)
+            if self.kind != "lookahead" or self.world.max_acceleration is None:
+                raise ValueError("braking_steps is set for a lookahead in a world with max_acceleration only (kind "
+                                 f"{self.kind!r}, max_acceleration {self.world.max_acceleration!r}), got "
+                                 f"{self.braking_steps!r}")
+
+    @property
+    def braking_speed(self) -> float | None:
+        """The fastest robot [m/s] the graph's stopping check brakes to a stand (braking_steps·a_max·Δt), or None."""
+        if self.braking_steps is None:
+            return None
+        return self.braking_steps * self.world.max_acceleration * self.world.time_step
 
     @property
     def keys(self) -> tuple[str, ...]:
@@ -149,7 +166,7 @@ class GraphMetadata:
             "version": self.version,
             "decision": {"kind": self.kind, "policy": self.policy, "extractor": self.extractor,
                          "ensemble_size": self.ensemble_size, "pedestrian_model": self.pedestrian_model,
-                         "gamma": self.gamma, "opset": self.opset,
+                         "gamma": self.gamma, "braking_steps": self.braking_steps, "opset": self.opset,
                          "outputs": {"action": OUTPUTS["action"], "action_values": OUTPUTS["action_values"][self.kind]}},
             "world": world.to_dict(),
             "observation": {"keys": list(self.keys), "shapes": {k: list(s) for k, s in schema.shapes.items()},
@@ -177,7 +194,10 @@ class GraphMetadata:
         if not isinstance(data["format"], int) or isinstance(data["format"], bool) or data["format"] > FORMAT:
             raise ValueError(f"metadata entry {PREFIX}format is {data['format']!r}; this sb3_crowdnav reads format "
                              f"<= {FORMAT}: update sb3_crowdnav")
-        decision = _mapping("decision", data["decision"], DECISION_KEYS)
+        decision = data["decision"]
+        if data["format"] == 1 and isinstance(decision, Mapping) and "braking_steps" not in decision:
+            decision = {**decision, "braking_steps": None}  # format 1 came before the stopping check
+        decision = _mapping("decision", decision, DECISION_KEYS)
         observation = _mapping("observation", data["observation"], OBSERVATION_KEYS)
         robot = _mapping("robot", data["robot"], ROBOT_KEYS)
         try:
@@ -187,7 +207,8 @@ class GraphMetadata:
             meta = cls(kind=decision["kind"], world=world, schema=schema, robot_radius=robot["radius"],
                        robot_v_pref=robot["v_pref"], policy=decision["policy"], extractor=decision["extractor"],
                        ensemble_size=decision["ensemble_size"], pedestrian_model=decision["pedestrian_model"],
-                       gamma=decision["gamma"], version=data["version"], opset=decision["opset"])
+                       gamma=decision["gamma"], braking_steps=decision["braking_steps"], version=data["version"],
+                       opset=decision["opset"])
         except (TypeError, ValueError) as exc:
             raise ValueError(f"the graph's metadata is not a valid contract: {exc}") from None
         written = json.loads(meta.props()[PREFIX + "observation"])

@@ -5,10 +5,18 @@ functions, which an exported graph cannot hold. :class:`GraphPropagation` is the
 operators so that ``torch.onnx.export`` records it: the robot's kinematics and limits
 (:func:`~sb3_crowdnav.sim.actions.move`), the constant-velocity pedestrians and the history shift, the reward terms
 (:func:`~sb3_crowdnav.sim.rewards.compute_reward`, the cautious model's :func:`~sb3_crowdnav.sim.rewards.worse_of`),
-the progress shaping (on the goal, or on the route's current waypoint) and, in the warehouse, the swept-disc obstacle
+the progress shaping (on the goal, or on the route's current waypoint), in the warehouse the swept-disc obstacle
 check (:func:`~sb3_crowdnav.sim.geometry.swept_clearance`) and the waypoint rule
-(:func:`~sb3_crowdnav.sim.warehouse.simulator.next_waypoints`). Each function follows its numpy counterpart's
-arithmetic step by step, in float64 as it does; ``tests/test_deploy.py`` compares the two.
+(:func:`~sb3_crowdnav.sim.warehouse.simulator.next_waypoints`), and the stopping-distance check
+(:func:`~sb3_crowdnav.apg_value.propagation.braking_path`, :func:`~sb3_crowdnav.apg_value.propagation.braking_hits`).
+Each function follows its numpy counterpart's arithmetic step by step, in float64 as it does; ``tests/test_deploy.py``
+compares the two.
+
+The one difference is the stopping check's number of braking sub-steps. The numpy lookahead brakes until the fastest
+robot of its batch stands; a graph runs a fixed number, ``braking_steps`` (:func:`braking_steps`: enough for a robot
+one a_max·Δt faster than the fastest action of its v_pref). A robot stands after its own last sub-step and stays put in
+the extra ones, which charge nothing, so the two agree wherever the robot brakes within ``braking_steps``; the runtime
+refuses an observation it would not (:class:`~sb3_crowdnav.deploy.runtime.OnnxPolicy`).
 """
 
 from __future__ import annotations
@@ -103,6 +111,16 @@ def segment_to_segment(p0x, p0y, p1x, p1y, q0x, q0y, q1x, q1y) -> th.Tensor:
     return th.where(crossing, 0.0, ends)
 
 
+def braking_steps(world: World, v_pref: float) -> int:
+    """The braking sub-steps of an exported stopping check for a robot of preferred speed ``v_pref`` [m/s]:
+    ``ceil(v_pref·max(speed fractions) / (a_max·Δt)) + 1``, one more than the fastest action of the table needs, so
+    that a robot whose odometry reads up to a_max·Δt above its fastest action still brakes to a stand in the graph."""
+    if world.max_acceleration is None:
+        raise ValueError("braking_steps needs a world with max_acceleration (a robot without a limit stops at once)")
+    fastest = float(v_pref) * float(np.max(world.action_table(1.0)[0]))
+    return math.ceil(fastest / (world.max_acceleration * world.time_step) - 1e-9) + 1
+
+
 def walking_direction(velocities: th.Tensor, human_pos: th.Tensor, robot_pos: th.Tensor) -> th.Tensor:
     """Unit walking directions (:func:`~sb3_crowdnav.sim.rewards.walking_direction`): velocities (B, T, M, 2),
     human_pos (B, M, 2), robot_pos (B, A, 2) -> (B, A, M, 2)."""
@@ -144,12 +162,15 @@ class GraphPropagation(nn.Module):
     :param schema: its observation schema
     :param gamma: discount per second at v_pref = 1
     :param pedestrian_model: ``"constant_velocity"`` or ``"cautious"``
+    :param braking_steps: the stopping-distance check's braking sub-steps (:func:`braking_steps`); None: no check
     """
 
-    def __init__(self, world: World, schema: ObservationSchema, gamma: float, pedestrian_model: str) -> None:
+    def __init__(self, world: World, schema: ObservationSchema, gamma: float, pedestrian_model: str,
+                 braking_steps: int | None = None) -> None:
         super().__init__()
         self.world, self.schema, self.gamma = world, schema, float(gamma)
         self.cautious = pedestrian_model == "cautious"
+        self.braking_steps = braking_steps
         speeds, directions = world.action_table(1.0)
         max_turn = None if world.max_turn_rate is None else world.max_turn_rate * world.time_step
         self.max_speed_change = None if world.max_acceleration is None else world.max_acceleration * world.time_step
@@ -167,15 +188,17 @@ class GraphPropagation(nn.Module):
                             angular_penalty=float(cfg.angular_penalty), threshold=float(cfg.angular_penalty_threshold))
 
     # ------------------------------------------------------------------ the robot
-    def move(self, pos0: th.Tensor, heading0: th.Tensor, goal: th.Tensor, vel0: th.Tensor,
-             speeds: th.Tensor) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
+    def move(self, pos0: th.Tensor, heading0: th.Tensor, goal: th.Tensor, vel0: th.Tensor, speeds: th.Tensor,
+             directions: th.Tensor | None = None) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
         """:func:`~sb3_crowdnav.sim.actions.move` of every action: pos0, goal, vel0 (B, 1, 2), heading0 (B, 1),
-        speeds (B, A) -> position (B, A, 2), heading (B, A), velocity (B, A, 2)."""
+        speeds (B, A) -> position (B, A, 2), heading (B, A), velocity (B, A, 2). ``directions``: the commands'
+        directions (default: the action table's; braking: 0), broadcast with the speeds."""
         limit = None if self.max_speed_change is None else f64(self.max_speed_change)
+        directions = self.directions if directions is None else directions
         vx0, vy0 = vel0[..., 0], vel0[..., 1]
         if self.world.kinematics == "holonomic":
             to_goal = goal - pos0
-            target = wrap(atan2(to_goal[..., 1], to_goal[..., 0]) + self.directions)
+            target = wrap(atan2(to_goal[..., 1], to_goal[..., 0]) + directions)
             vx, vy = speeds * th.cos(target), speeds * th.sin(target)
             heading = th.where(speeds > 0, target, heading0)
             if limit is not None:
@@ -187,7 +210,7 @@ class GraphPropagation(nn.Module):
                 still = (vx == 0) & (vy == 0)
                 heading = th.where(within, heading, th.where(still, heading0, atan2(vy, vx)))
         else:
-            heading = wrap(heading0 + self.directions)
+            heading = wrap(heading0 + directions)
             if limit is not None:
                 speed0 = th.sqrt(vx0 * vx0 + vy0 * vy0)
                 speeds = th.minimum(th.maximum(speeds, speed0 - limit), speed0 + limit)
@@ -262,9 +285,7 @@ class GraphPropagation(nn.Module):
         dist = segment_to_segment(p0[..., 0], p0[..., 1], p1[..., 0], p1[..., 1],
                                   seg[..., 0], seg[..., 1], seg[..., 2], seg[..., 3])  # (B, A, S)
         clearance = th.where(obstacles_mask.reshape(batch, 1, -1) > 0.5, dist, math.inf).amin(dim=-1)
-        hit = (clearance < radius) & ~terms.collision  # with_obstacle_collision
-        terms = Terms(th.where(hit, f64(world.obstacle_collision_penalty), terms.reward), terms.success & ~hit,
-                      terms.collision | hit)
+        terms = _collide(terms, clearance < radius, world.obstacle_collision_penalty)
         route = waypoints.reshape(batch, 1, -1, 2)  # (B, 1, K, 2)
         terms = self.progress(terms, pos0, pos1, route[..., 0, :])
         out = route.expand(-1, pos1.shape[1], -1, -1)
@@ -275,6 +296,49 @@ class GraphPropagation(nn.Module):
             shifted = th.cat((out[..., 1:, :], out[..., -1:, :]), dim=-2)
             out = th.where(reached[..., None, None], shifted, out)
         return terms, out
+
+    # ------------------------------------------------------------------ the stopping-distance check
+    def braking(self, terms: Terms, pos1, heading1, vel1, goal, radius, hpos0, hpos1, hvel, human_radius, present,
+                segments: list[th.Tensor] | None) -> Terms:
+        """``PropagationModel(stopping_check=True)``: the robot braking from each action's new state at a_max
+        (the stop command, :attr:`braking_steps` sub-steps, :func:`~sb3_crowdnav.apg_value.propagation.braking_path`)
+        charged a collision where it comes within the radii sum of an observed person
+        (:func:`~sb3_crowdnav.apg_value.propagation.braking_hits`; constant velocity from ``hpos1``, and with the
+        cautious model also standing at ``hpos0``) or sweeps into an observed segment, unless every action of the
+        observation collides or cannot brake. pos1, vel1 (B, A, 2); heading1 (B, A); goal (B, 1, 2); radius (B, 1);
+        hpos0, hpos1, hvel (B, M, 2); human_radius (B, M); present (B, M); segments: obstacles, obstacles_mask."""
+        zero, dt = f64(0.0), self.world.time_step
+        path, pos, heading, vel = [pos1], pos1, heading1, vel1
+        for _ in range(self.braking_steps):
+            pos, heading, vel = self.move(pos, heading, goal, vel, zero, zero)
+            path.append(pos)
+        reach = (human_radius + radius)[:, None, :]  # (B, 1, M)
+        seen = present[:, None, :]
+        person = th.zeros_like(terms.collision)
+        for k in range(self.braking_steps):
+            moving = (path[k + 1] != path[k]).any(dim=-1)[..., None]  # (B, A, 1): a standing robot is not charged
+            r0, r1 = path[k][:, :, None, :], path[k + 1][:, :, None, :]  # (B, A, 1, 2)
+            predictions = [(hpos1 + hvel * f64(k * dt), hpos1 + hvel * f64(k * dt + dt))]
+            if self.cautious:  # or they stand where they are
+                predictions.append((hpos0, hpos0))
+            for h0, h1 in predictions:
+                off0, off1 = r0 - h0[:, None], r1 - h1[:, None]  # (B, A, M, 2): the offsets from the people
+                gap = closest_approach(off0[..., 0], off0[..., 1], off1[..., 0] - off0[..., 0],
+                                       off1[..., 1] - off0[..., 1])
+                person = person | ((gap < reach) & seen & moving).any(dim=-1)
+        rack = th.zeros_like(person)
+        if segments is not None:  # the path is straight: one swept disc from its start to its end
+            obstacles, obstacles_mask = segments
+            seg = obstacles.reshape(obstacles.shape[0], 1, -1, SEGMENT_DIM)  # (B, 1, S, 4)
+            p0, p1 = path[0][..., None, :], path[-1][..., None, :]  # (B, A, 1, 2)
+            dist = segment_to_segment(p0[..., 0], p0[..., 1], p1[..., 0], p1[..., 1],
+                                      seg[..., 0], seg[..., 1], seg[..., 2], seg[..., 3])  # (B, A, S)
+            mask = obstacles_mask.reshape(obstacles.shape[0], 1, -1) > 0.5
+            rack = th.where(mask, dist, math.inf).amin(dim=-1) < radius
+        # a filter, not a verdict: where every action collides or cannot brake, the lookahead chooses without it
+        possible = ~(terms.collision | person | rack).all(dim=1, keepdim=True)  # (B, 1)
+        terms = _collide(terms, person & possible & ~terms.success, self.world.reward.collision_penalty)
+        return _collide(terms, rack & possible & ~terms.success, self.world.obstacle_collision_penalty or 0.0)
 
     # ------------------------------------------------------------------ everything
     def forward(self, observation: dict[str, th.Tensor]) -> Propagated:
@@ -305,7 +369,7 @@ class GraphPropagation(nn.Module):
                           (worse & still.collision) | (~worse & terms.collision))
 
         n_actions = speeds.shape[1]
-        propagated = {}
+        propagated, segments = {}, None
         if not self.world.has_static_world:  # the open floor's goal-progress shaping
             terms = self.progress(terms, pos0, pos1, goal)
         elif self.schema.max_obstacles and self.schema.num_waypoints:
@@ -313,6 +377,9 @@ class GraphPropagation(nn.Module):
             terms, route = self.static_world(terms, pos0, pos1, radius, *segments, observation[WAYPOINT_KEY])
             propagated = {key: _per_action(observation[key], n_actions) for key in OBSTACLE_KEYS}
             propagated[WAYPOINT_KEY] = route.reshape(batch * n_actions, -1).float()
+        if self.braking_steps is not None:  # after the step's own terms: the braking path and the people over it
+            terms = self.braking(terms, pos1, heading1, vel1, goal, radius, hpos0, hpos1, hist[:, -1, :, Human.VEL],
+                                 latest[..., Human.RADIUS], present, segments)
         new_robot = robot[:, None, :].expand(-1, n_actions, -1).clone()  # (B, A, 9)
         new_robot[..., Robot.POS] = pos1
         new_robot[..., Robot.VEL] = vel1
@@ -325,6 +392,13 @@ class GraphPropagation(nn.Module):
         return Propagated(obs, terms.reward, terms.success | terms.collision, discount)
 
 
+def _collide(terms: Terms, hit: th.Tensor, penalty: float) -> Terms:
+    """:func:`~sb3_crowdnav.sim.rewards.with_obstacle_collision`: a collision of reward ``penalty`` where ``hit``
+    (B, A), unless the step already collided with a person, whose penalty stands; it ends the episode, not in success."""
+    hit = hit & ~terms.collision
+    return Terms(th.where(hit, f64(penalty), terms.reward), terms.success & ~hit, terms.collision | hit)
+
+
 def _where(condition: th.Tensor, value: float) -> th.Tensor:
     """``value`` where ``condition``, else 0, in float64 (``th.where`` of two Python numbers would be float32)."""
     return th.where(condition, f64(value), f64(0.0))
@@ -335,4 +409,4 @@ def _per_action(x: th.Tensor, n_actions: int) -> th.Tensor:
     return x[:, None, :].expand(-1, n_actions, -1).reshape(-1, x.shape[-1])
 
 
-__all__ = ["GraphPropagation", "Propagated", "atan2", "f64", "wrap"]
+__all__ = ["GraphPropagation", "Propagated", "atan2", "braking_steps", "f64", "wrap"]

@@ -17,7 +17,7 @@ import numpy as np
 
 from sb3_crowdnav.deploy.metadata import MASK_INPUT, OUTPUT_NAMES, GraphMetadata, require
 from sb3_crowdnav.serialization import world_of
-from sb3_crowdnav.sim.observation import ObservationSchema
+from sb3_crowdnav.sim.observation import ObservationSchema, Robot
 from sb3_crowdnav.sim.validation import check_choice, check_int
 from sb3_crowdnav.sim.world import MOTION_FIELDS, PREDICTION_FIELDS, compare_worlds, env_keywords
 
@@ -130,7 +130,24 @@ class OnnxPolicy:
         if any(arrays[k].shape != wanted[k] for k in keys) or batch == 0:
             raise ValueError(f"observation shapes {({k: a.shape for k, a in arrays.items()})} are not the graph's "
                              f"{shapes} (one observation) or (B, ...) of them with B >= 1")
-        return {k: np.ascontiguousarray(a if batched else a[None]) for k, a in arrays.items()}, batched
+        feeds = {k: np.ascontiguousarray(a if batched else a[None]) for k, a in arrays.items()}
+        if self.metadata.braking_steps is not None:
+            self._check_braking(feeds["robot"])
+        return feeds, batched
+
+    def _check_braking(self, robot: np.ndarray) -> None:
+        """``ValueError`` when a robot of the batch could leave an action faster than the graph's stopping check
+        brakes to a stand (:attr:`~sb3_crowdnav.deploy.metadata.GraphMetadata.braking_speed`): its velocity, or its
+        v_pref times the table's fastest action."""
+        meta = self.metadata
+        fastest = float(np.max(meta.world.action_table(1.0)[0]))
+        speed = np.maximum(np.hypot(robot[:, Robot.VEL][:, 0], robot[:, Robot.VEL][:, 1]),
+                           robot[:, Robot.V_PREF].astype(np.float64) * fastest)
+        if np.any(speed > meta.braking_speed * (1 + 1e-9)):
+            raise ValueError(f"observation['robot']: a speed of {float(speed.max()):.3f} m/s (velocity, or v_pref x "
+                             f"the fastest action) is beyond the {meta.braking_speed:.3f} m/s the graph's stopping "
+                             f"check brakes from ({meta.braking_steps} steps at max_acceleration "
+                             f"{meta.world.max_acceleration} m/s^2); export for this robot's v_pref")
 
     def _mask_feed(self, action_masks: Any, batch: int, batched: bool) -> np.ndarray:
         """The graph's :data:`~sb3_crowdnav.deploy.metadata.MASK_INPUT`, (B, A) bool, of sb3-contrib's
