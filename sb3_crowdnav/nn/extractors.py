@@ -1,18 +1,18 @@
 """Crowd encoders as Stable-Baselines3 features extractors.
 
 Every extractor takes the ``Dict`` observation of a sb3_crowdnav env (:mod:`sb3_crowdnav.sim.observation`), infers the
-history length T and the capacity ``max_humans`` from its shapes, and returns
-``concat[robot-centric robot features (7), crowd encoding]`` of shape (B, features_dim). The
-value / Q / policy head is the caller's: SB3's ``net_arch``, or ψ_M for ``APGValue``.
+history length T and the capacity ``max_humans`` from its shapes, and returns ``concat[robot-centric robot features
+(7), crowd encoding]`` of shape (B, features_dim). The value / Q / policy head is the caller's: SB3's ``net_arch``, or
+ψ_M for ``APGValue``.
 
-Common guarantees (tested): padded pedestrian slots (``humans_mask <= 0.5``) never change the
-output whatever they hold; the output does not depend on the order of the pedestrian slots
-(up to exact distance ties in the LSTM order); an observation without any pedestrian gives a
-finite output; a row's output does not depend on the other rows of the batch.
+Common guarantees (tested): padded pedestrian slots (``humans_mask <= 0.5``) never change the output whatever they
+hold; the output does not depend on the order of the pedestrian slots (up to exact distance ties in the LSTM order); an
+observation without any pedestrian gives a finite output; a row's output does not depend on the other rows of the batch.
 
-Speed: slots are sorted and compacted to the largest number of present pedestrians in the
-batch, every operation is batched (the only Python loop is inside ``nn.LSTM``), and without
-gradients the MLPs run fused oneDNN linear+ReLU kernels (:func:`sb3_crowdnav.nn.layers.linear`).
+Speed: slots are sorted and compacted to the largest number of present pedestrians in the batch, every operation is
+batched (the only Python loop is inside ``nn.LSTM``), and without gradients the MLPs run fused oneDNN linear+ReLU
+kernels (:func:`sb3_crowdnav.nn.layers.linear`). In an exported graph a few steps take forms that ONNX Runtime runs
+faster, with the same results (:func:`~sb3_crowdnav.nn.transforms.nearest_pedestrian`).
 """
 
 from __future__ import annotations
@@ -42,6 +42,7 @@ from sb3_crowdnav.nn.transforms import (
     HumanFeat,
     RobotFeat,
     goal_frame_grid,
+    nearest_pedestrian,
     parse_observation_space,
     robot_centric,
     split_observation,
@@ -58,9 +59,8 @@ def _append_static_world(module: CrowdFeaturesExtractor, args: tuple, output: th
 class CrowdFeaturesExtractor(BaseFeaturesExtractor):
     """Base class: observation-space validation and the robot-centric transform.
 
-    :param observation_space: the env's ``Dict`` space (keys ``robot``, ``humans``, ``humans_mask``; in the
-        warehouse also the static world's, which add a :class:`~sb3_crowdnav.nn.static_world.StaticWorldEncoder`
-        branch appended to the features)
+    :param observation_space: the env's ``Dict`` space (keys ``robot``, ``humans``, ``humans_mask``; in the warehouse
+        also the static world's, which add a :class:`~sb3_crowdnav.nn.static_world.StaticWorldEncoder` branch)
     :param features_dim: size of the crowd features (the static world's size is added to it)
     """
 
@@ -208,15 +208,14 @@ class ApgExtractor(CrowdFeaturesExtractor):
 class CadrlExtractor(CrowdFeaturesExtractor):
     """CADRL (Chen et al. 2017): an MLP on the joint state of the robot and **one** pedestrian.
 
-    CADRL's value network sees one robot-pedestrian pair and has no interaction term; with
-    several pedestrians it takes the worst case over them. **Choice:** the pair is the robot and
-    the pedestrian with the smallest surface distance (centre distance minus radius sum) at the
-    latest step, so the most dangerous pedestrian alone decides, as in CADRL's worst case, but
-    through one features vector (CADRL takes the minimum of pairwise *values*, which needs the
-    value head per pedestrian). Latest history step only.
+    CADRL's value network sees one robot-pedestrian pair and has no interaction term; with several pedestrians it
+    takes the worst case over them. **Choice:** the pair is the robot and the pedestrian with the smallest surface
+    distance (centre distance minus radius sum) at the latest step, so the most dangerous pedestrian alone decides, as
+    in CADRL's worst case, but through one features vector (CADRL takes the minimum of pairwise *values*, which needs
+    the value head per pedestrian). Latest history step only.
 
-    Output: ``concat[robot features (7), MLP(robot ⊕ nearest pedestrian)]`` (zeros for the MLP
-    part when nobody is present); features_dim = 7 + ``net_arch[-1]``.
+    Output: ``concat[robot features (7), MLP(robot ⊕ nearest pedestrian)]`` (zeros for the MLP part when nobody is
+    present); features_dim = 7 + ``net_arch[-1]``.
 
     :param observation_space: the env's ``Dict`` observation space
     :param net_arch: MLP layer sizes, ReLU after each (default [150, 100, 100], ψ_M's hidden layers)
@@ -228,16 +227,20 @@ class CadrlExtractor(CrowdFeaturesExtractor):
         self.mlp = mlp(ROBOT_FEATURE_DIM + HUMAN_FEATURE_DIM, arch, last_activation=True)
 
     def forward(self, observations: dict[str, th.Tensor]) -> th.Tensor:
-        robot_feats, human_feats, valid, lengths = self._robot_centric(observations, latest_only=True)
-        latest = human_feats[:, -1]  # (B, L, 7)
-        if latest.shape[1] == 0:  # nobody present in the whole batch
-            latest = latest.new_zeros(latest.shape[0], 1, latest.shape[2])
-            valid = valid.new_zeros(valid.shape[0], 1)
-        surface = latest[..., HumanFeat.DIST] - latest[..., HumanFeat.RADIUS_SUM]  # (B, L)
-        nearest = th.where(valid, surface, th.full((), th.inf, dtype=surface.dtype)).argmin(dim=1)  # (B,)
-        human = latest[th.arange(latest.shape[0], device=latest.device), nearest]  # (B, 7)
+        if exporting():  # the same pair without the sort and the masking of every slot
+            split = split_observation(observations, self.history_length, self.max_humans, zero_padding=False)
+            robot_feats, human, anyone = nearest_pedestrian(*split)
+        else:
+            robot_feats, human_feats, valid, lengths = self._robot_centric(observations, latest_only=True)
+            latest = human_feats[:, -1]  # (B, L, 7)
+            if latest.shape[1] == 0:  # nobody present in the whole batch
+                latest = latest.new_zeros(latest.shape[0], 1, latest.shape[2])
+                valid = valid.new_zeros(valid.shape[0], 1)
+            surface = latest[..., HumanFeat.DIST] - latest[..., HumanFeat.RADIUS_SUM]  # (B, L)
+            nearest = th.where(valid, surface, th.full((), th.inf, dtype=surface.dtype)).argmin(dim=1)  # (B,)
+            human, anyone = latest[th.arange(latest.shape[0], device=latest.device), nearest], lengths > 0  # (B, 7)
         pair = self.mlp(th.cat((robot_feats, human), dim=1))  # (B, D)
-        pair = th.where((lengths > 0)[:, None], pair, th.zeros((), dtype=pair.dtype))
+        pair = th.where(anyone[:, None], pair, th.zeros((), dtype=pair.dtype))
         return th.cat((robot_feats, pair), dim=1)
 
 
@@ -261,11 +264,10 @@ class _SortedLstmExtractor(CrowdFeaturesExtractor):
 class LstmRlExtractor(_SortedLstmExtractor):
     """LSTM-RL (Everett et al. 2018, GA3C-CADRL's LSTM; the field's ``lstm_rl``).
 
-    An LSTM reads the joint states [robot features (7), pedestrian features (7)] of the present
-    pedestrians sorted by distance, farthest first, so the nearest one has the last word; no
-    grid, no attention. As the field's default, no MLP precedes the LSTM (``embedding_arch=()``;
-    the field's optional "interaction module" is ``embedding_arch=(150, 100)``). Latest history
-    step only.
+    An LSTM reads the joint states [robot features (7), pedestrian features (7)] of the present pedestrians sorted by
+    distance, farthest first, so the nearest one has the last word; no grid, no attention. As the field's default, no
+    MLP precedes the LSTM (``embedding_arch=()``; the field's optional "interaction module" is
+    ``embedding_arch=(150, 100)``). Latest history step only.
 
     Output: ``concat[robot features (7), h]``; features_dim = 7 + ``lstm_hidden_size``.
 
@@ -287,12 +289,11 @@ class LstmRlExtractor(_SortedLstmExtractor):
 class SfExtractor(_SortedLstmExtractor):
     """SF_RL: pedestrian interactions summarised by social-force terms (the paper's baseline).
 
-    The paper gives no detail of SF_RL. **Choice:** for every present pedestrian, the input is
-    [robot features (7), pedestrian features (7), total Helbing-Molnár repulsive force of the
-    other present pedestrians on it (2), its repulsive force on the robot (2)], forces in the
-    robot-centric frame (:func:`~sb3_crowdnav.nn.interactions.social_forces`, A = 2.1 m/s²,
-    B = 0.3 m); an MLP embeds it and an LSTM pools the pedestrians sorted by distance, farthest
-    first. Latest history step only.
+    The paper gives no detail of SF_RL. **Choice:** for every present pedestrian, the input is [robot features (7),
+    pedestrian features (7), total Helbing-Molnár repulsive force of the other present pedestrians on it (2), its
+    repulsive force on the robot (2)], forces in the robot-centric frame
+    (:func:`~sb3_crowdnav.nn.interactions.social_forces`, A = 2.1 m/s², B = 0.3 m); an MLP embeds it and an LSTM pools
+    the pedestrians sorted by distance, farthest first. Latest history step only.
 
     Output: ``concat[robot features (7), h]``; features_dim = 7 + ``lstm_hidden_size``.
 
