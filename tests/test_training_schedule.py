@@ -361,3 +361,29 @@ def test_the_stopping_check_is_refused_before_any_work(tmp_path, capsys):
     with pytest.raises(ValueError, match="max_acceleration"):
         train_schedule(out, ScheduleConfig(stopping_check=True, imitation_episodes=1, rl_episodes=1))
     assert not (out / "imitation.zip").exists()
+
+
+@pytest.mark.slow  # two training runs
+@pytest.mark.parametrize("overlap", ["thread", "process"])
+def test_the_validation_is_of_the_saved_checkpoint(tmp_path, monkeypatch, overlap):
+    """While training overlaps the acting loop, the live model acts with a copy of V one training call stale; the
+    validation of a checkpoint acts with the V of its saved file (what best.zip copies)."""
+    import torch as th
+
+    from sb3_crowdnav.training import callbacks
+
+    acted = []
+
+    def recording(model, *args, **kwargs):  # the V that acts in the validation episodes
+        acted.append({k: v.clone() for k, v in model.learner.acting_net().state_dict().items()})
+        return run_episodes(model, *args, **kwargs)
+
+    run_episodes = callbacks.run_episodes
+    monkeypatch.setattr(callbacks, "run_episodes", recording)
+    out = tmp_path / "run"
+    _run(monkeypatch, "--out", str(out), "--il-episodes", "2", "--il-epochs", "1", "--num-humans", "2",
+         "--checkpoint-episodes", "2", "--eval-episodes", "1", "--rl-episodes", "2", "--train-freq", "1",
+         "--overlap", overlap)
+    saved = APGValue.load(out / "checkpoint_2.zip").policy.value_net.state_dict()
+    assert len(acted) == 1 and acted[0].keys() == saved.keys()
+    assert all(th.equal(acted[0][k], saved[k]) for k in saved)

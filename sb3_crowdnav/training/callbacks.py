@@ -33,7 +33,9 @@ class EpisodeCheckpoint(BaseCallback):
     """Stop after ``max_episodes`` RL episodes in total; every ``every`` episodes checkpoint and validate.
 
     Validation: ``eval_episodes`` greedy episodes on fixed seeds (the ε-greedy rollout rates of the
-    training log understate the greedy policy while ε is large), logged as ``eval/*`` and appended
+    training log understate the greedy policy while ε is large) of the checkpoint's saved file (the
+    model that ``best.zip`` then is; while training overlaps, the live model acts with a copy of V one
+    training call stale), logged as ``eval/*`` and appended
     to ``OUT/eval_curve.jsonl``; every checkpoint is kept as ``OUT/checkpoint_<episodes>.zip``
     and the best one so far as ``OUT/best.zip``: highest success, then shortest navigation time
     (``select_by="success"``), or highest mean discounted return under the variant's own reward
@@ -71,7 +73,10 @@ class EpisodeCheckpoint(BaseCallback):
         row = next((r for r in rows if r["episodes"] == n), None)
         if row is None:
             start = time.time()
-            s = summarize(run_episodes(model, self.eval_episodes, self.env_kwargs, env_id=self.env_id,
+            # the checkpoint's file, as best.zip copies it: inside learn() with overlap_training the model itself
+            # acts with a copy of V one training call older than the V it saved
+            saved = type(model).load(checkpoint_path(self.out, n))
+            s = summarize(run_episodes(saved, self.eval_episodes, self.env_kwargs, env_id=self.env_id,
                                        seed_offset=VALIDATION_SEED_OFFSET))
             row = {"episodes": n, "timesteps": model.num_timesteps, "wall": time.time(),
                    "eval_seconds": time.time() - start,
