@@ -170,8 +170,21 @@ def test_train_with_imitation_and_checkpoints(tmp_path, capsys):
                  "--imitation-episodes", "2", "--imitation-epochs", "1", "--checkpoint-freq", "64", "--verbose", "1",
                  *FAST]) == 0
     assert "imitation:" in capsys.readouterr().out
-    assert sorted(p.name for p in (out / "checkpoints").iterdir()) == ["ppo_128_steps.zip", "ppo_64_steps.zip"]
-    assert json.loads((out / "config.json").read_text())["imitation_episodes"] == 2
+    # 0: after the imitation; 64: at the start of the second rollout (the run ends at 128 with the final model)
+    assert sorted(p.name for p in (out / "checkpoints").iterdir()) == ["ppo_0_steps.zip", "ppo_64_steps.zip"]
+    config = json.loads((out / "config.json").read_text())
+    assert config["imitation_episodes"] == 2
+    progress = json.loads((out / "progress.json").read_text())
+    assert progress["finished"] and progress["timesteps"] == 128 and progress["wall_time_s"] == config["wall_time_s"]
+    written = (out / "ppo.zip").stat().st_mtime_ns
+    argv = ["train", "--algo", "ppo", "--hyperparams", str(yml), "--timesteps", "128", "--out", str(out),
+            "--imitation-episodes", "2", "--imitation-epochs", "1", "--checkpoint-freq", "64", *FAST]
+    assert main(argv) == 0  # a finished run run again: nothing trained, nothing written
+    assert (out / "ppo.zip").stat().st_mtime_ns == written and "imitation:" not in capsys.readouterr().out
+    with pytest.raises(SystemExit) as exc:  # another run in the same folder: refused, naming what differs
+        main([*argv, "--seed", "3"])
+    assert exc.value.code == 2
+    assert "holds another run (seed differ" in capsys.readouterr().err
 
 
 def test_a_wall_time_budget_stops_training_before_its_timesteps(tmp_path):

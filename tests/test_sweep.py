@@ -126,7 +126,11 @@ def test_a_hyperparams_cell_is_done_when_train_has_written_its_model(tmp_path):
     cell = cells(grid, tmp_path / "out")[2]
     assert cell.method.name == "PPO" and cell.model_path.name == "ppo.zip"
     _touch(cell.train_folder / "tb" / "x")
-    assert cell_state(cell, grid) == ("partial", "started; a --hyperparams run starts over")
+    assert cell_state(cell, grid) == ("partial", "started; training starts over")
+    assert cell.train_argv()[cell.train_argv().index("--checkpoint-freq") + 1] == "50000"  # resumable
+    _touch(cell.train_folder / "progress.json", json.dumps({"run": {"timesteps": 64}, "timesteps": 32,
+                                                            "checkpoint": "ppo_32_steps.zip"}))
+    assert cell_state(cell, grid) == ("partial", "resumes at 32 env steps of 64")
     _touch(cell.model_path)
     _touch(cell.train_folder / "config.json", json.dumps({"wall_time_s": 1.0}))
     assert cell_state(cell, grid)[1] == "trained; to evaluate: same, more"

@@ -39,6 +39,7 @@ TRAIN_FLAGS = {**SCHEDULE_FLAGS, **{k: v for k, v in HYPERPARAMS_FLAGS.items() i
                "imitation_episodes": "--imitation-episodes", "imitation_epochs": "--imitation-epochs",
                "imitation_learning_rate": "--imitation-learning-rate", "verbose": "--verbose"}
 MODELS = ("best", "final")
+HYPERPARAMS_CHECKPOINT_FREQ = 50_000  # env steps between a --hyperparams cell's checkpoints, unless its train sets it
 NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*\Z")
 STATES = ("todo", "partial", "done")
 
@@ -224,6 +225,8 @@ class Cell:
         mode = ["--variant", m.variant] if m.variant else ["--hyperparams", str(m.hyperparams), "--algo", str(m.algo),
                                                            "--env", str(m.env)]
         kwargs = ["--env-kwargs", repr(self.env_kwargs)] if self.env_kwargs else []
+        if m.hyperparams and "--checkpoint-freq" not in m.train:  # resumable: a rerun goes on from the newest
+            kwargs += ["--checkpoint-freq", str(HYPERPARAMS_CHECKPOINT_FREQ)]
         return ["train", *mode, "--seed", str(self.seed), *kwargs, *m.train, "--out", str(self.train_folder),
                 "--threads", str(threads), "--no-progress"]
 
@@ -346,7 +349,10 @@ def cell_state(cell: Cell, grid: Grid) -> tuple[str, str]:
 def _training_detail(cell: Cell) -> str:
     folder = cell.train_folder
     if cell.method.hyperparams:
-        return "started; a --hyperparams run starts over"
+        progress = _read(folder / "progress.json") or {}
+        if progress.get("checkpoint"):
+            return f"resumes at {progress.get('timesteps')} env steps of {(progress.get('run') or {}).get('timesteps')}"
+        return "started; training starts over"
     from sb3_crowdnav.training.run_folder import latest_checkpoint
 
     latest = latest_checkpoint(folder) if folder.is_dir() else None

@@ -2,10 +2,11 @@
 
 Each cell (:mod:`sb3_crowdnav.cli.grid`) is one Ray task that runs ``sb3-crowdnav train`` into the cell's folder and then
 ``sb3-crowdnav evaluate`` for each column, in the Ray worker's process. A rerun of the sweep skips the finished cells and
-resumes the others from their folders (a ``--variant`` run from its newest checkpoint; a ``--hyperparams`` run starts
-over); a worker that dies is retried by Ray (``--retries``) and the retry resumes the same way. A cell that fails is
-reported and the others go on; the command exits with 1 at the end if any failed. Then the evaluations of the finished
-cells are aggregated with rliable (:mod:`sb3_crowdnav.evaluation.aggregate`) into ``OUT/aggregate.md`` and its CSVs.
+resumes the others from their folders, from their newest checkpoints (a ``--hyperparams`` cell checkpoints every
+50,000 env steps unless its ``train`` options set ``checkpoint_freq``); a worker that dies is retried by Ray
+(``--retries``) and the retry resumes the same way. A cell that fails is reported and the others go on; the command
+exits with 1 at the end if any failed. Then the evaluations of the finished cells are aggregated with rliable
+(:mod:`sb3_crowdnav.evaluation.aggregate`) into ``OUT/aggregate.md`` and its CSVs.
 """
 
 from __future__ import annotations

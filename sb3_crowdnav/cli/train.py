@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import time
 from pathlib import Path
 from typing import Any
 
@@ -112,11 +111,12 @@ def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
     g.add_argument("--algo", choices=ALGOS, help="algorithm (required with --hyperparams)")
     g.add_argument("--timesteps", type=common.positive_int, help="total timesteps (default: n_timesteps of the file)")
     g.add_argument("--checkpoint-freq", type=common.nonneg_int,
-                   help="save DIR/checkpoints/ every this many env steps (default: 0, only the final model)")
+                   help="save a checkpoint in DIR/checkpoints/ every this many env steps (and after the imitation); "
+                        "the same command again resumes from the newest (default: 0, only the final model)")
     g.add_argument("--wall-time", type=common.positive_float, metavar="MIN",
-                   help="stop training after this many minutes of wall time since the command started (imitation "
+                   help="stop training after this many minutes of wall time in all (imitation and resumed segments "
                         "included), whatever the timesteps reached: a baseline with the wall time of the run it is "
-                        "compared with (config.json records the timesteps reached)")
+                        "compared with (config.json records the timesteps reached and the wall time used)")
     p.set_defaults(func=cmd_train)
 
 
@@ -259,19 +259,27 @@ def _train_hyperparams(args: argparse.Namespace, checked: dict[str, Any]) -> int
 
     hp, cfg, env_kwargs = checked["hp"], checked["cfg"], checked["env_kwargs"]
     imitation_episodes, imitation_epochs = checked["imitation_episodes"], checked["imitation_epochs"]
+    from sb3_crowdnav.training.run_folder import RunLockedError, read_json
+    from sb3_crowdnav.training.zoo_run import PROGRESS, RunMismatchError
+
     common.check_out(args.out)
-    start = time.perf_counter()
-    model, path = train_from_hyperparams(
-        args.algo, hp, args.out, env_id=args.env, timesteps=args.timesteps, seed=args.seed,
-        progress_bar=common.progress_enabled(args), verbose=args.verbose or 0, env_overrides=common.env_kwargs_from_args(args),
-        imitation_episodes=imitation_episodes, imitation_epochs=imitation_epochs,
-        imitation_learning_rate=1e-3 if args.imitation_learning_rate is None else args.imitation_learning_rate,
-        checkpoint_freq=args.checkpoint_freq or 0, wall_time=None if args.wall_time is None else 60 * args.wall_time)
+    try:
+        model, path = train_from_hyperparams(
+            args.algo, hp, args.out, env_id=args.env, timesteps=args.timesteps, seed=args.seed,
+            progress_bar=common.progress_enabled(args), verbose=args.verbose or 0,
+            env_overrides=common.env_kwargs_from_args(args), imitation_episodes=imitation_episodes,
+            imitation_epochs=imitation_epochs,
+            imitation_learning_rate=1e-3 if args.imitation_learning_rate is None else args.imitation_learning_rate,
+            checkpoint_freq=args.checkpoint_freq or 0, wall_time=None if args.wall_time is None else 60 * args.wall_time)
+    except RunLockedError as exc:
+        raise UsageError(str(exc)) from None
+    except RunMismatchError as exc:
+        raise UsageError(f"--out: {exc}") from None
     config = {"algo": args.algo, "env": args.env, "hyperparams": hp, "env_kwargs": env_kwargs, "seed": args.seed,
               "timesteps": model.num_timesteps, "timesteps_asked": args.timesteps or cfg["n_timesteps"],
               "wall_time_budget_s": None if args.wall_time is None else 60 * args.wall_time,
               "imitation_episodes": imitation_episodes, "imitation_epochs": imitation_epochs,
-              "wall_time_s": round(time.perf_counter() - start, 1)}
+              "wall_time_s": read_json(Path(args.out) / PROGRESS)["wall_time_s"]}
     write_json(Path(args.out) / "config.json", json.loads(json.dumps(config, default=str)))
     print(f"trained {args.algo} for {config['timesteps']} steps in {config['wall_time_s']} s -> {path} "
           f"(TensorBoard logs: {Path(args.out) / 'tb'})")

@@ -33,6 +33,7 @@ stays fully usable through ``sb3-crowdnav-zoo`` (:mod:`sb3_crowdnav.training.zoo
 from __future__ import annotations
 
 import ast
+import json
 import operator
 import time
 from collections.abc import Mapping
@@ -288,16 +289,21 @@ def train_from_hyperparams(algo: str, hyperparams: Mapping[str, Any], out_dir: s
 
     With ``imitation_episodes`` > 0 (PPO, A2C, DQN), the model first imitates that many episodes of
     the ORCA robot (:mod:`sb3_crowdnav.imitation`); APGValue has its own ``imitation_episodes``
-    hyperparameter instead. ``checkpoint_freq`` > 0 saves ``out_dir/checkpoints/`` every that many
-    env steps (SB3's ``CheckpointCallback``; with the replay buffer for off-policy algorithms). ``wall_time`` [s]
-    stops training at the first env step after that much wall time since this call began (imitation included;
+    hyperparameter instead. ``checkpoint_freq`` > 0 saves a checkpoint in ``out_dir/checkpoints/`` every that
+    many env steps (over all envs) and after the imitation, with the replay buffer of an off-policy algorithm as
+    plain arrays; the same call again resumes the run from the newest one, and returns a finished run as it is
+    (:mod:`sb3_crowdnav.training.zoo_run`; another run in the folder is refused). ``wall_time`` [s] stops training at
+    the first env step after that much wall time in all (imitation and every resumed segment included;
     :class:`~sb3_crowdnav.training.callbacks.WallTimeBudget`), whatever the timesteps reached: the model's
-    ``num_timesteps`` says how many.
+    ``num_timesteps`` says how many, ``out_dir/progress.json`` the wall time used.
     """
     start = time.perf_counter()
     from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 
-    from sb3_crowdnav.models import algorithms
+    from sb3_crowdnav.models import algorithms, load_model
+    from sb3_crowdnav.training import zoo_run
+    from sb3_crowdnav.training.run_folder import RunLock, atomic_write
 
     algos = algorithms()
     if algo not in algos:
@@ -307,10 +313,53 @@ def train_from_hyperparams(algo: str, hyperparams: Mapping[str, Any], out_dir: s
     if n_timesteps is None or n_timesteps < 1:
         raise ValueError("the number of timesteps is missing: give --timesteps or n_timesteps in the YAML")
     env_kwargs = {**cfg["env_kwargs"], **dict(env_overrides or {})}
+    _check_arguments(algo, imitation_episodes, imitation_epochs, checkpoint_freq, wall_time)
+    identity = json.loads(json.dumps({
+        "algo": algo, "env_id": env_id, "seed": seed, "hyperparams": dict(hyperparams), "env_kwargs": env_kwargs,
+        "timesteps": int(n_timesteps), "wall_time_s": wall_time, "imitation_episodes": imitation_episodes,
+        "imitation_epochs": imitation_epochs, "imitation_learning_rate": imitation_learning_rate}, default=str))
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    env = make_vec_env(env_id, n_envs=cfg["n_envs"], seed=seed, env_kwargs=env_kwargs, wrapper_class=env_wrapper_class(algo))
-    kwargs = algorithm_kwargs(algo, cfg, env)
+    model_path = out / f"{algo}.zip"
+    with RunLock(out):
+        progress = zoo_run.read_progress(out, identity)  # another run in this folder is refused before any work
+        env = make_vec_env(env_id, n_envs=cfg["n_envs"], seed=seed, env_kwargs=env_kwargs,
+                           wrapper_class=env_wrapper_class(algo))
+        if progress.get("finished") and model_path.is_file():  # nothing left to do
+            return load_model(model_path, env=env, algo=algo), model_path
+        kwargs = algorithm_kwargs(algo, cfg, env)
+        off_policy = issubclass(algos[algo], OffPolicyAlgorithm)
+        resumed = zoo_run.latest_checkpoint(out, algo, off_policy) if progress else None
+        clock = zoo_run.RunClock(progress.get("wall_time_s", 0.0) if resumed is not None else 0.0, start)
+        if resumed is None:
+            model = algos[algo](cfg["policy"], env, seed=seed, tensorboard_log=str(out / "tb"), verbose=verbose, **kwargs)
+            if imitation_episodes:
+                _imitate(model, env, algo, imitation_episodes, imitation_epochs, imitation_learning_rate, verbose)
+            if checkpoint_freq:  # the imitation's end: a resumed run does not imitate again
+                zoo_run.save_checkpoint(model, out, algo, clock, identity)
+        else:
+            model = _resume(out, algo, resumed, env, seed, verbose, imitation_episodes)
+            if verbose:
+                print(f"resuming from {zoo_run.checkpoint_file(out, algo, resumed)} ({clock.used:.0f} s used)")
+        callbacks: list[Any] = []
+        if checkpoint_freq:
+            callbacks.append(zoo_run.ZooCheckpoint(out, algo, checkpoint_freq, clock, identity))
+        left = None if wall_time is None else wall_time - clock.used
+        if left is not None:
+            from sb3_crowdnav.training.callbacks import WallTimeBudget
+
+            callbacks.append(WallTimeBudget(max(left, 1e-9), start))
+        if int(n_timesteps) > model.num_timesteps and (left is None or left > 0):
+            model.learn(total_timesteps=int(n_timesteps) - (model.num_timesteps if resumed is not None else 0),
+                        progress_bar=progress_bar, callback=callbacks or None, reset_num_timesteps=resumed is None)
+        atomic_write(model_path, lambda tmp: zoo_run.save_model(model, tmp))
+        zoo_run.finish(out, model, clock, identity)
+    env.close()
+    return model, model_path
+
+
+def _check_arguments(algo: str, imitation_episodes: int, imitation_epochs: int, checkpoint_freq: int,
+                     wall_time: float | None) -> None:
     for name, value, minimum in (("imitation_episodes", imitation_episodes, 0), ("imitation_epochs", imitation_epochs, 1),
                                  ("checkpoint_freq", checkpoint_freq, 0)):
         check_int(name, value, minimum)
@@ -320,40 +369,45 @@ def train_from_hyperparams(algo: str, hyperparams: Mapping[str, Any], out_dir: s
         raise ValueError(f"imitation_episodes is for ppo, a2c, dqn and dqfd; {algo} sets imitation in its hyperparameters")
     if algo == "dqfd" and not imitation_episodes:
         raise ValueError("algo 'dqfd' learns from demonstrations: give imitation_episodes >= 1")
-    model = algos[algo](cfg["policy"], env, seed=seed, tensorboard_log=str(out / "tb"), verbose=verbose, **kwargs)
-    if imitation_episodes:
+
+
+def _resume(out: Path, algo: str, steps: int, env: Any, seed: int, verbose: int, imitation_episodes: int) -> Any:
+    """The checkpoint of ``steps`` (:mod:`~sb3_crowdnav.training.zoo_run`) with its replay buffer, and DQfD's
+    demonstrations collected again."""
+    from sb3_crowdnav.models import load_model
+    from sb3_crowdnav.training import zoo_run
+
+    model = load_model(zoo_run.checkpoint_file(out, algo, steps), env=env, algo=algo, tensorboard_log=str(out / "tb"),
+                       verbose=verbose)
+    model.set_random_seed(seed + steps)  # the resumed segment's own draws, the same on every resume
+    if getattr(model, "replay_buffer", None) is not None:
+        from sb3_crowdnav.apg_value.buffers import load_buffer
+
+        load_buffer(model.replay_buffer, zoo_run.buffer_file(out, algo, steps))
+    if algo == "dqfd":  # the demonstrations beside the buffer: the same ORCA episodes again
         from sb3_crowdnav import imitation
 
-        demos = imitation.collect_demonstrations(env, imitation_episodes)
-        if algo == "dqfd":  # the demonstrations stay beside the replay buffer, not in it
-            losses = imitation.pretrain_dqn(model, demos, epochs=imitation_epochs, learning_rate=imitation_learning_rate,
-                                            margin=model.margin, margin_coef=model.margin_coef, fill_buffer=False)
-            model.set_demonstrations(demos)
-        else:
-            pretrain = imitation.pretrain_dqn if algo == "dqn" else imitation.pretrain_actor_critic
-            losses = pretrain(model, demos, epochs=imitation_epochs, learning_rate=imitation_learning_rate)
-        if verbose:
-            print(f"imitation: {len(demos)} transitions of {imitation_episodes} ORCA episodes {demos.outcomes}; "
-                  f"loss per epoch {[round(x, 4) for x in losses]}")
+        model.set_demonstrations(imitation.collect_demonstrations(env, imitation_episodes))
         env.reset()
-    callbacks = []
-    if checkpoint_freq:
-        from stable_baselines3.common.callbacks import CheckpointCallback
+    return model
 
-        callbacks.append(CheckpointCallback(max(checkpoint_freq // cfg["n_envs"], 1), str(out / "checkpoints"),
-                                            name_prefix=algo, save_replay_buffer=hasattr(model, "replay_buffer")))
-    if wall_time is not None:
-        from sb3_crowdnav.training.callbacks import WallTimeBudget
 
-        callbacks.append(WallTimeBudget(wall_time, start))
-    model.learn(total_timesteps=int(n_timesteps), progress_bar=progress_bar, callback=callbacks or None)
-    model_path = out / f"{algo}.zip"
-    model.save(model_path)
-    from sb3_crowdnav.serialization import write_spaces
+def _imitate(model: Any, env: Any, algo: str, episodes: int, epochs: int, learning_rate: float, verbose: int) -> None:
+    """The ORCA robot's ``episodes`` imitated first (PPO, A2C, DQN; DQfD keeps them beside its replay buffer)."""
+    from sb3_crowdnav import imitation
 
-    write_spaces(model_path, model.observation_space, model.action_space, env)  # loads later without unpickling
-    env.close()
-    return model, model_path
+    demos = imitation.collect_demonstrations(env, episodes)
+    if algo == "dqfd":  # the demonstrations stay beside the replay buffer, not in it
+        losses = imitation.pretrain_dqn(model, demos, epochs=epochs, learning_rate=learning_rate,
+                                        margin=model.margin, margin_coef=model.margin_coef, fill_buffer=False)
+        model.set_demonstrations(demos)
+    else:
+        pretrain = imitation.pretrain_dqn if algo == "dqn" else imitation.pretrain_actor_critic
+        losses = pretrain(model, demos, epochs=epochs, learning_rate=learning_rate)
+    if verbose:
+        print(f"imitation: {len(demos)} transitions of {episodes} ORCA episodes {demos.outcomes}; "
+              f"loss per epoch {[round(x, 4) for x in losses]}")
+    env.reset()
 
 
 __all__ = ["ALGO_WRAPPERS", "DEFAULT_POLICIES", "algorithm_kwargs", "env_wrapper_class", "load_hyperparams",

@@ -1,0 +1,135 @@
+"""Checkpoints and resume of a hyperparameter-file run (``sb3-crowdnav train --hyperparams FILE --checkpoint-freq N``).
+
+A run's folder holds, beside the final ``<algo>.zip``:
+
+- ``checkpoints/<algo>_<steps>_steps.zip``: the model every ``checkpoint_freq`` env steps (and right after the
+  imitation phase, at 0 steps), saved with its spaces as plain JSON so that it loads without unpickling;
+- ``checkpoints/<algo>_replay_buffer_<steps>_steps.npz``: an off-policy algorithm's replay buffer beside the newest
+  checkpoint, as plain arrays (:func:`~sb3_crowdnav.apg_value.buffers.save_buffer`; older ones are removed);
+- ``progress.json``: what the run is (algorithm, env, seed, hyperparameters, env keywords, the timesteps and wall
+  time asked) and how far it got (timesteps, wall time used over all its segments, the newest checkpoint,
+  ``finished``);
+- ``run.lock`` while a process trains in it (:class:`~sb3_crowdnav.training.run_folder.RunLock`).
+
+Running the same command again resumes from the newest checkpoint: SB3's ``learn(reset_num_timesteps=False)`` for
+the timesteps left, the replay buffer reloaded, the learning-rate and exploration schedules where they were, and a
+wall-time budget counting the time already used. A finished run is not trained again. The envs restart from new
+episodes, so a resumed run is a valid run, not the same run to the bit as one never stopped. A different command in
+the same folder (another algorithm, env, seed, hyperparameters or budget) is refused. DQfD's demonstrations, which sit
+beside its replay buffer, are collected again on resume from the same seeds (the ORCA robot's episodes are the same).
+"""
+
+from __future__ import annotations
+
+import re
+import time
+from pathlib import Path
+from typing import Any
+
+from stable_baselines3.common.callbacks import BaseCallback
+
+from sb3_crowdnav.training.run_folder import atomic_write, kill_point, read_json, write_json
+
+PROGRESS = "progress.json"
+CHECKPOINTS = "checkpoints"
+
+
+def checkpoint_file(out: Path, algo: str, steps: int) -> Path:
+    return out / CHECKPOINTS / f"{algo}_{steps}_steps.zip"
+
+
+def buffer_file(out: Path, algo: str, steps: int) -> Path:
+    return out / CHECKPOINTS / f"{algo}_replay_buffer_{steps}_steps.npz"
+
+
+def latest_checkpoint(out: Path, algo: str, off_policy: bool) -> int | None:
+    """The steps of the newest complete checkpoint (an off-policy one with its replay buffer), or None."""
+    pattern = re.compile(rf"{re.escape(algo)}_(\d+)_steps\.zip")
+    found = sorted((int(m.group(1)) for p in (out / CHECKPOINTS).glob("*.zip") if (m := pattern.fullmatch(p.name))),
+                   reverse=True)
+    return next((n for n in found if not off_policy or buffer_file(out, algo, n).is_file()), None)
+
+
+class RunClock:
+    """Wall time of a run over its segments: ``used`` seconds before this segment, plus this segment's so far."""
+
+    def __init__(self, used: float = 0.0, start: float | None = None) -> None:
+        self.used, self.start = float(used), time.perf_counter() if start is None else start
+
+    def total(self) -> float:
+        return self.used + time.perf_counter() - self.start
+
+
+def save_checkpoint(model: Any, out: Path, algo: str, clock: RunClock, identity: dict[str, Any]) -> None:
+    """Write the model (then an off-policy replay buffer) under temporary names, then ``progress.json``; remove
+    older buffers. A kill at any point leaves the previous checkpoint whole."""
+    from sb3_crowdnav.apg_value.buffers import save_buffer
+
+    steps = int(model.num_timesteps)
+    (out / CHECKPOINTS).mkdir(parents=True, exist_ok=True)
+    buffer = getattr(model, "replay_buffer", None)
+    if buffer is not None:
+        atomic_write(buffer_file(out, algo, steps), lambda tmp: save_buffer(buffer, tmp))
+
+    atomic_write(checkpoint_file(out, algo, steps), lambda tmp: save_model(model, tmp))
+    write_json(out / PROGRESS, {"run": identity, "timesteps": steps, "wall_time_s": round(clock.total(), 1),
+                                "checkpoint": checkpoint_file(out, algo, steps).name, "finished": False})
+    for old in (out / CHECKPOINTS).glob(f"{algo}_replay_buffer_*_steps.npz"):
+        if old != buffer_file(out, algo, steps):
+            old.unlink(missing_ok=True)
+    kill_point("zoo_checkpoint")
+
+
+def save_model(model: Any, path: Path) -> None:
+    """``model.save(path)`` with its spaces and world as plain JSON (it loads without unpickling)."""
+    from sb3_crowdnav.serialization import write_spaces
+
+    model.save(path)
+    write_spaces(path, model.observation_space, model.action_space, model.get_env())
+
+
+class ZooCheckpoint(BaseCallback):
+    """Save a checkpoint (:func:`save_checkpoint`) every ``every`` env steps, counted over all envs, at the start of
+    the first rollout past each multiple: there every transition collected is stored and every gradient step of
+    the previous rollout taken (PPO's rollout buffer is empty, an off-policy replay buffer complete)."""
+
+    def __init__(self, out: Path, algo: str, every: int, clock: RunClock, identity: dict[str, Any]) -> None:
+        super().__init__()
+        self.out, self.algo, self.every, self.clock, self.identity = Path(out), algo, int(every), clock, identity
+        self._next = 0
+
+    def _on_training_start(self) -> None:
+        self._next = (self.model.num_timesteps // self.every + 1) * self.every
+
+    def _on_rollout_start(self) -> None:
+        if self.model.num_timesteps >= self._next:
+            save_checkpoint(self.model, self.out, self.algo, self.clock, self.identity)
+            self._next = (self.model.num_timesteps // self.every + 1) * self.every
+
+    def _on_step(self) -> bool:
+        return True
+
+
+class RunMismatchError(ValueError):
+    """The folder holds a run of another command."""
+
+
+def read_progress(out: Path, identity: dict[str, Any]) -> dict[str, Any]:
+    """The run's ``progress.json`` ({} for a new folder); :class:`RunMismatchError` when it records another run."""
+    progress = read_json(out / PROGRESS) or {}
+    recorded = progress.get("run")
+    if recorded is not None and recorded != identity:
+        changed = sorted(k for k in set(recorded) | set(identity) if recorded.get(k) != identity.get(k))
+        raise RunMismatchError(f"{out} holds another run ({', '.join(changed)} differ from this command's: "
+                         f"{', '.join(f'{k}={recorded.get(k)!r}' for k in changed)}); rerun it as it was, or use "
+                         "another --out")
+    return progress
+
+
+def finish(out: Path, model: Any, clock: RunClock, identity: dict[str, Any]) -> None:
+    write_json(out / PROGRESS, {"run": identity, "timesteps": int(model.num_timesteps),
+                                "wall_time_s": round(clock.total(), 1), "checkpoint": None, "finished": True})
+
+
+__all__ = ["RunClock", "RunMismatchError", "ZooCheckpoint", "buffer_file", "checkpoint_file", "finish", "latest_checkpoint",
+           "read_progress", "save_checkpoint", "save_model"]
