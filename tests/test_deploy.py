@@ -72,7 +72,10 @@ def test_wrap_and_atan2_are_the_numpy_ones():
     np.testing.assert_allclose(atan2(th.as_tensor(y), th.as_tensor(x)).numpy(), np.arctan2(y, x), rtol=0, atol=1e-15)
 
 
-@pytest.mark.parametrize("case", list(WORLDS))
+SLOW_WORLDS = ("warehouse, stopping check", "holonomic, limited, stopping check")  # 200 observations each: make slow
+
+
+@pytest.mark.parametrize("case", [pytest.param(c, marks=pytest.mark.slow) if c in SLOW_WORLDS else c for c in WORLDS])
 def test_the_graph_decision_is_the_policys(case):
     """The torch propagation, reward and value ceiling give the numpy lookahead's values on real observations."""
     env_id, env_kwargs, policy_kwargs = WORLDS[case]
