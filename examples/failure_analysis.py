@@ -49,6 +49,7 @@ from sb3_crowdnav.evaluation.failures import (
 from sb3_crowdnav.evaluation.plots import plot_collisions
 from sb3_crowdnav.evaluation.policy_spec import PolicySpec
 from sb3_crowdnav.evaluation.runner import DEFAULT_ENV_ID, TEST_SEED_OFFSET, make_env, make_policy
+from sb3_crowdnav.training.callbacks import VALIDATION_SEED_OFFSET
 
 SHARES = {  # the rows of the shares table: key of FailureSummary.shares -> what it counts
     "person_faster": "the person closing faster than the robot (not already overlapping)",
@@ -192,7 +193,8 @@ def main(argv: list[str] | None = None) -> None:
         print(sections[-1], flush=True)
         report["policies"][label] = {"policy": text, "summary": asdict(summary),
                                      "failures": [r.to_dict() for r in records if r.outcome != "success"]}
-    head = (f"# Failure analysis\n\n`{env_id}` with {kwargs or 'its defaults'}, {args.episodes} test episodes per "
+    kind = {TEST_SEED_OFFSET: "test ", VALIDATION_SEED_OFFSET: "validation "}.get(args.seed_offset, "")
+    head = (f"# Failure analysis\n\n`{env_id}` with {kwargs or 'its defaults'}, {args.episodes} {kind}episodes per "
             f"policy (seeds {args.seed_offset:,} + i); written by `examples/failure_analysis.py` "
             "(the rules: `sb3_crowdnav.evaluation.failures`).\n\n")
     (args.out / "failures.md").write_text(head + "\n".join(sections))

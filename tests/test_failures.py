@@ -257,6 +257,10 @@ def test_the_script_writes_its_report_and_refuses_bad_input_in_one_line(tmp_path
     assert len(report["failures"]) == collided + report["summary"]["timeouts"]
     assert (tmp_path / "collisions_Random.png").exists() == (collided > 0)
     assert "## Random" in (tmp_path / "failures.md").read_text()
+    assert "3 test episodes per policy (seeds 1,000,000 + i)" in (tmp_path / "failures.md").read_text()
+    script.main(["--policy", "random:1", "--episodes", "1", "--seed-offset", "2000000", "--out", str(tmp_path / "v"),
+                 "--env-kwargs", "dict(time_limit=2.0)"])
+    assert "1 validation episodes per policy (seeds 2,000,000 + i)" in (tmp_path / "v" / "failures.md").read_text()
     for bad in (["--policy", "pretrained:nothing"], ["--policy", "orca", "--crowd", "nobody"],
                 ["--policy", "orca", "--warning", "0"], ["--policy", "orca", "--env", "CartPole-v1"]):
         with pytest.raises(SystemExit) as exit_info:
