@@ -140,6 +140,11 @@ class GraphMetadata:
                                  f"{self.braking_steps!r}")
 
     @property
+    def fastest_fraction(self) -> float:
+        """The action table's largest speed fraction (speeds are ``v_pref`` times the fractions)."""
+        return float(np.max(self.world.action_table(1.0)[0]))
+
+    @property
     def braking_speed(self) -> float | None:
         """The fastest robot [m/s] the graph's stopping check brakes to a stand (braking_steps·a_max·Δt), or None."""
         if self.braking_steps is None:

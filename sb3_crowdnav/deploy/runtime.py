@@ -59,6 +59,7 @@ class OnnxPolicy:
             raise ValueError(f"{self.path} is not an ONNX graph ONNX Runtime can run: {exc}") from None
         self.metadata = GraphMetadata.from_props(self.session.get_modelmeta().custom_metadata_map)
         self._check_graph()
+        self._fastest = self.metadata.fastest_fraction  # read once: the braking check runs on every call
         if env is not None:
             self.check_env(env, allow_env_mismatch)
 
@@ -140,9 +141,8 @@ class OnnxPolicy:
         brakes to a stand (:attr:`~sb3_crowdnav.deploy.metadata.GraphMetadata.braking_speed`): its velocity, or its
         v_pref times the table's fastest action."""
         meta = self.metadata
-        fastest = float(np.max(meta.world.action_table(1.0)[0]))
         speed = np.maximum(np.hypot(robot[:, Robot.VEL][:, 0], robot[:, Robot.VEL][:, 1]),
-                           robot[:, Robot.V_PREF].astype(np.float64) * fastest)
+                           robot[:, Robot.V_PREF].astype(np.float64) * self._fastest)
         if np.any(speed > meta.braking_speed * (1 + 1e-9)):
             raise ValueError(f"observation['robot']: a speed of {float(speed.max()):.3f} m/s (velocity, or v_pref x "
                              f"the fastest action) is beyond the {meta.braking_speed:.3f} m/s the graph's stopping "
