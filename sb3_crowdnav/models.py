@@ -61,7 +61,7 @@ PRETRAINED_SHA256 = {
     "ppo_warehouse": "e71d387a6b327616c7d26df7b92ed14f7166616286530fcc8ed31c5a293df208",
     "apg_warehouse_paper": "e1e2ae06da71b01fe614afe609866df603dda9f5a74e1f10030430387395254c",
     "apg_robust": "43fd62697dfcbf7f6d319560d738f03b7698f197f50ec3b156a10ff64be89668",
-    "apg_warehouse": "d57303eda116d7f3893d5392c84f1c29e1b8c5574d47fdb6454c59bcc3bc333a",
+    "apg_warehouse": "6fc887371772eecea3ccf6ac391e9b1036df7d89b77da9600613c5dd6b4cc312",
 }
 
 

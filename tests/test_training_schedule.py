@@ -321,6 +321,8 @@ def test_a_variant_brings_its_env_settings_and_schedule_and_a_run_overrides_them
     assert ScheduleConfig(variant="apg_rl", train_freq=4).train_freq == 4
     assert (warehouse.rl_episodes, warehouse.exploration_episodes, warehouse.imitation_epochs) == (7_000, 3_500, 5)
     assert warehouse.pedestrian_model == "cautious" and paper.pedestrian_model is None
+    assert warehouse.stopping_check is True and paper.stopping_check is None  # the warehouse recipe brakes in time
+    assert ScheduleConfig(variant="apg_warehouse", stopping_check=False).stopping_check is False
     assert warehouse.num_humans == (4, 10) and warehouse.training_env_kwargs["worlds"] == "warehouse"
     old = ScheduleConfig(variant="apg_warehouse_paper")  # the shipped apg_warehouse_paper's world
     assert old.spec.env_id == "CrowdNavWarehouse-v0" and old.training_env_kwargs["actions"] == "paper"

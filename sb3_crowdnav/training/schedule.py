@@ -111,12 +111,14 @@ VARIANTS = {
     "sarl": Variant("SarlPolicy"),
     # the paper's method among racks, with route-progress shaping (progress_reward=0: the paper's reward), for the
     # warehouse robot (stop, limits, racks that hide pickers) among ORCA and social-force pickers at measured speeds,
-    # 4 in 5 ORCA pickers seeing it, 4 to 10 pickers, the cautious lookahead (docs/training.md); the schedule cut
+    # 4 in 5 ORCA pickers seeing it, 4 to 10 pickers, the cautious lookahead with the stopping-distance check
+    # (docs/training.md); the schedule cut
     # so that the whole command fits 2 hours on 2 cores of an AVX2 machine
     "apg_warehouse": Variant("ApgPolicy", env_id="CrowdNavWorlds-v0",
                              env_kwargs={"worlds": "warehouse", "progress_reward": 0.1},
                              schedule={"rl_episodes": 7_000, "exploration_episodes": 3_500, "num_humans": (4, 10),
-                                       "pedestrian_model": "cautious", "imitation_epochs": 5, "train_freq": 8}),
+                                       "pedestrian_model": "cautious", "stopping_check": True, "imitation_epochs": 5,
+                                       "train_freq": 8}),
     # the same in the world the shipped apg_warehouse was trained in: the paper's robot among blind ORCA pickers,
     # seen through racks at any range (sim.warehouse.config.PAPER_WAREHOUSE)
     "apg_warehouse_paper": Variant("ApgPolicy", env_id="CrowdNavWarehouse-v0",
@@ -171,8 +173,9 @@ class ScheduleConfig:
         :class:`~sb3_crowdnav.apg_value.ValueLookaheadPolicy`); None: the model's own (``"constant_velocity"``
         for a new one)
     :param stopping_check: the acting lookahead's stopping-distance check (``ValueLookaheadPolicy``'s
-        ``stopping_check``: also charge the actions it cannot brake from); None: the model's own (off for a new
-        one); True is refused before any work in a world without ``max_acceleration``
+        ``stopping_check``: also charge the actions it cannot brake from); None: the variant's (``apg_warehouse``:
+        on), else the model's own (off for a new one); True is refused before any work in a world without
+        ``max_acceleration``
     :param optimizer: RL optimiser, ``"adam"`` (APGValue's default) or ``"sgd"`` (momentum 0.9, the field's code)
     :param value_target: see :class:`~sb3_crowdnav.apg_value.APGValue`
     :param overlap: ``APGValue(overlap_training=...)``: gradient steps on the second core while acting, in a
