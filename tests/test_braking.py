@@ -134,3 +134,21 @@ def test_stopping_check_round_trips_through_save_and_load_and_into_the_graph_dec
     loaded.policy.set_stopping_check(False)
     loaded.save(tmp_path / "off.zip")
     assert APGValue.load(tmp_path / "off.zip").policy.stopping_check is False
+
+
+def test_a_sub_step_that_moves_the_robot_by_a_rounding_residue_is_standing():
+    """Braking from a whole number of a_max·Δt leaves a speed of ~1e-16 m/s at the last sub-step: whether that moves
+    the position by an ulp depends on the last bit of the arithmetic, so it counts as standing (STANDING_STEP), in the
+    numpy lookahead and in an exported graph alike; a slow but real motion is still charged."""
+    from sb3_crowdnav.apg_value.propagation import braking_hits
+    from sb3_crowdnav.sim.rewards import STANDING_STEP
+
+    def hit(last_step: float) -> bool:
+        # the robot stands at (0.5, 0) after 0.25 s, then moves by last_step; a person walks into that spot
+        path = np.array([[0.0, 0.0], [0.5, 0.0], [0.5 + last_step, 0.0]])[:, None, None, :]  # (n + 1, B, A, 2)
+        person, velocity = np.array([[[1.8, 0.0]]]), np.array([[[-2.0, 0.0]]])  # 0.8 m away at 0.25 s, 0.3 m at 0.5 s
+        return bool(braking_hits(path, np.array([0.3]), [person], [velocity], np.array([[0.3]]), np.ones((1, 1)),
+                                 0.25)[0, 0])
+
+    assert not hit(0.0) and not hit(1e-16) and not hit(STANDING_STEP / 2)
+    assert hit(1e-6) and hit(0.01)

@@ -23,6 +23,7 @@ from sb3_crowdnav.sim.actions import apply_action
 from sb3_crowdnav.sim.geometry import SEGMENT_DIM, swept_clearance
 from sb3_crowdnav.sim.observation import HUMAN_DIM, Human, ObservationSchema, Robot
 from sb3_crowdnav.sim.rewards import (
+    STANDING_STEP,
     RewardTerms,
     closest_approach,
     compute_reward,
@@ -135,7 +136,8 @@ def braking_hits(path: np.ndarray, radius: np.ndarray, human_starts: list[np.nda
                  human_radius: np.ndarray, mask: np.ndarray, time_step: float) -> np.ndarray:
     """Whether the robot braking along ``path`` (:func:`braking_path`) comes within the radii sum of an observed
     person: per sub-step the closest approach of the two straight motions (the reward's collision rule,
-    :func:`~sb3_crowdnav.sim.rewards.closest_approach`), only while the robot still moves.
+    :func:`~sb3_crowdnav.sim.rewards.closest_approach`), only in the sub-steps that move the robot by more than
+    :data:`~sb3_crowdnav.sim.rewards.STANDING_STEP`.
 
     :param path: (n + 1, B, A, 2) [m]; :param radius: (B,) the robot's [m]
     :param human_starts: the people's positions (B, M, 2) [m] at the braking's start, one array per prediction
@@ -154,7 +156,7 @@ def braking_hits(path: np.ndarray, radius: np.ndarray, human_starts: list[np.nda
     off1 = path[1:, None, :, :, None] - h1[:, :, :, None]
     origin = np.zeros_like(off0)
     gap = closest_approach(off0, off1, origin, origin)
-    moving = np.any(path[1:] != path[:-1], axis=-1)  # (n, B, A): a standing robot is not charged
+    moving = np.sum((path[1:] - path[:-1]) ** 2, axis=-1) > STANDING_STEP ** 2  # (n, B, A): standing is not charged
     near = gap < (human_radius + np.asarray(radius, dtype=np.float64)[:, None])[:, None]  # (n, P, B, A, M)
     near &= (np.asarray(mask, dtype=bool)[:, None, :] & moving[:, None, :, :, None])
     return near.any(axis=(0, 1, 4))

@@ -39,7 +39,7 @@ from sb3_crowdnav.sim.observation import (
     ObservationSchema,
     Robot,
 )
-from sb3_crowdnav.sim.rewards import ANGLE_TOLERANCE, STILL_SPEED
+from sb3_crowdnav.sim.rewards import ANGLE_TOLERANCE, STANDING_STEP, STILL_SPEED
 from sb3_crowdnav.sim.world import World
 
 TWO_PI = 2 * math.pi
@@ -316,7 +316,8 @@ class GraphPropagation(nn.Module):
         seen = present[:, None, :]
         person = th.zeros_like(terms.collision)
         for k in range(self.braking_steps):
-            moving = (path[k + 1] != path[k]).any(dim=-1)[..., None]  # (B, A, 1): a standing robot is not charged
+            step = path[k + 1] - path[k]  # a standing robot (a step below STANDING_STEP) is not charged
+            moving = (step.square().sum(dim=-1) > STANDING_STEP ** 2)[..., None]  # (B, A, 1)
             r0, r1 = path[k][:, :, None, :], path[k + 1][:, :, None, :]  # (B, A, 1, 2)
             predictions = [(hpos1 + hvel * f64(k * dt), hpos1 + hvel * f64(k * dt + dt))]
             if self.cautious:  # or they stand where they are

@@ -36,6 +36,10 @@ from sb3_crowdnav.sim.geometry import JIT, as_rows
 
 STILL_SPEED = 1e-3  # [m/s] below this a pedestrian counts as standing still
 ANGLE_TOLERANCE = 1e-9  # [rad] a turn of exactly the threshold (a table direction) counts despite rounding
+# [m] a braking sub-step that moves the robot less than this is standing: braking from a whole number of a_max·Δt
+# leaves a speed residue of ~1e-16 m/s at the last sub-step, and whether it moves the position by an ulp depends on
+# the last bit of the arithmetic (the numpy lookahead, an exported graph's operators)
+STANDING_STEP = 1e-9
 
 
 @njit(**JIT)
