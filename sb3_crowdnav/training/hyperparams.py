@@ -325,36 +325,38 @@ def train_from_hyperparams(algo: str, hyperparams: Mapping[str, Any], out_dir: s
         progress = zoo_run.read_progress(out, identity)  # another run in this folder is refused before any work
         env = make_vec_env(env_id, n_envs=cfg["n_envs"], seed=seed, env_kwargs=env_kwargs,
                            wrapper_class=env_wrapper_class(algo))
-        if progress.get("finished") and model_path.is_file():  # nothing left to do
-            return load_model(model_path, env=env, algo=algo), model_path
-        kwargs = algorithm_kwargs(algo, cfg, env)
-        off_policy = issubclass(algos[algo], OffPolicyAlgorithm)
-        resumed = zoo_run.latest_checkpoint(out, algo, off_policy) if progress else None
-        clock = zoo_run.RunClock(progress.get("wall_time_s", 0.0) if resumed is not None else 0.0, start)
-        if resumed is None:
-            model = algos[algo](cfg["policy"], env, seed=seed, tensorboard_log=str(out / "tb"), verbose=verbose, **kwargs)
-            if imitation_episodes:
-                _imitate(model, env, algo, imitation_episodes, imitation_epochs, imitation_learning_rate, verbose)
-            if checkpoint_freq:  # the imitation's end: a resumed run does not imitate again
-                zoo_run.save_checkpoint(model, out, algo, clock, identity)
-        else:
-            model = _resume(out, algo, resumed, env, seed, verbose, imitation_episodes)
-            if verbose:
-                print(f"resuming from {zoo_run.checkpoint_file(out, algo, resumed)} ({clock.used:.0f} s used)")
-        callbacks: list[Any] = []
-        if checkpoint_freq:
-            callbacks.append(zoo_run.ZooCheckpoint(out, algo, checkpoint_freq, clock, identity))
-        left = None if wall_time is None else wall_time - clock.used
-        if left is not None:
-            from sb3_crowdnav.training.callbacks import WallTimeBudget
+        try:  # the envs are closed however the run ends (finished before, stopped, or failed)
+            if progress.get("finished") and model_path.is_file():  # nothing left to do
+                return load_model(model_path, env=env, algo=algo), model_path
+            kwargs = algorithm_kwargs(algo, cfg, env)
+            off_policy = issubclass(algos[algo], OffPolicyAlgorithm)
+            resumed = zoo_run.latest_checkpoint(out, algo, off_policy) if progress else None
+            clock = zoo_run.RunClock(progress.get("wall_time_s", 0.0) if resumed is not None else 0.0, start)
+            if resumed is None:
+                model = algos[algo](cfg["policy"], env, seed=seed, tensorboard_log=str(out / "tb"), verbose=verbose, **kwargs)
+                if imitation_episodes:
+                    _imitate(model, env, algo, imitation_episodes, imitation_epochs, imitation_learning_rate, verbose)
+                if checkpoint_freq:  # the imitation's end: a resumed run does not imitate again
+                    zoo_run.save_checkpoint(model, out, algo, clock, identity)
+            else:
+                model = _resume(out, algo, resumed, env, seed, verbose, imitation_episodes)
+                if verbose:
+                    print(f"resuming from {zoo_run.checkpoint_file(out, algo, resumed)} ({clock.used:.0f} s used)")
+            callbacks: list[Any] = []
+            if checkpoint_freq:
+                callbacks.append(zoo_run.ZooCheckpoint(out, algo, checkpoint_freq, clock, identity))
+            left = None if wall_time is None else wall_time - clock.used
+            if left is not None:
+                from sb3_crowdnav.training.callbacks import WallTimeBudget
 
-            callbacks.append(WallTimeBudget(max(left, 1e-9), start))
-        if int(n_timesteps) > model.num_timesteps and (left is None or left > 0):
-            model.learn(total_timesteps=int(n_timesteps) - (model.num_timesteps if resumed is not None else 0),
-                        progress_bar=progress_bar, callback=callbacks or None, reset_num_timesteps=resumed is None)
-        atomic_write(model_path, lambda tmp: zoo_run.save_model(model, tmp))
-        zoo_run.finish(out, model, clock, identity)
-    env.close()
+                callbacks.append(WallTimeBudget(max(left, 1e-9), start))
+            if int(n_timesteps) > model.num_timesteps and (left is None or left > 0):
+                model.learn(total_timesteps=int(n_timesteps) - (model.num_timesteps if resumed is not None else 0),
+                            progress_bar=progress_bar, callback=callbacks or None, reset_num_timesteps=resumed is None)
+            atomic_write(model_path, lambda tmp: zoo_run.save_model(model, tmp))
+            zoo_run.finish(out, model, clock, identity)
+        finally:
+            env.close()
     return model, model_path
 
 
