@@ -37,7 +37,7 @@ def test_hyperparameter_files_carry_the_paper_settings():
         assert set(section) <= allowed
 
 
-ALGO_OF_FILE = {"ppo_from_demonstrations": "ppo", "dqn_from_demonstrations": "dqn"}
+ALGO_OF_FILE = {"ppo_from_demonstrations": "ppo", "dqn_from_demonstrations": "dqn", "dqn_nstep_from_demonstrations": "dqn"}
 ENTRIES = [(path.name, env_id) for path in sorted(HYPER.glob("*.yml")) for env_id in yaml.safe_load(path.read_text())]
 
 
