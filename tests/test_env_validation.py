@@ -26,6 +26,7 @@ BAD_ENV_KWARGS = [
     (dict(time_step="0.25"), TypeError, "time_step"),
     (dict(time_step=math.nan), ValueError, "time_step"),
     (dict(time_step=30.0), ValueError, "time_step"),  # longer than the time limit
+    (dict(time_step=5e-324), ValueError, "time_step"),  # a few ulps: 25 s / time_step overflows to inf
     (dict(time_limit=0.0), ValueError, "time_limit"),
     (dict(time_limit=math.inf), ValueError, "time_limit"),
     (dict(robot_radius=0.0), ValueError, "robot_radius"),

@@ -195,9 +195,10 @@ class SceneConfig:
         check_int("orca_max_neighbors", self.orca_max_neighbors, 1)
         for name, limit, unit in SCENE_LIMITS:
             check_at_most(name, getattr(self, name), limit, unit)
-        if self.max_steps > MAX_EPISODE_STEPS:
+        steps = self.time_limit / self.time_step  # inf for a time_step of a few ulps: compared before rounding
+        if not steps <= MAX_EPISODE_STEPS:
             raise ValueError(f"time_limit / time_step must be <= {MAX_EPISODE_STEPS} steps per episode, got "
-                             f"{self.time_limit} / {self.time_step} = {self.max_steps}")
+                             f"{self.time_limit} / {self.time_step} = {steps:.6g}")
         self._check_placement()
 
     def _check_sensor(self) -> None:
