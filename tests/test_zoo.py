@@ -112,3 +112,32 @@ def test_rl_zoo3_trains_ppo_and_apg_value(tmp_path):
     out = subprocess.run([*zoo, "enjoy", "--algo", "apg_value", "--env", "CrowdNav-v0", "-f", str(tmp_path),
                           "--no-render", "-n", "120"], check=True, capture_output=True, text=True, timeout=300)
     assert "Episodes" in out.stdout or "episode" in out.stdout.lower()
+
+
+def test_zoo_evaluations_play_validation_episodes(tmp_path):
+    """rl-zoo3 seeds its eval envs as its training envs; the package's zoo seeds them at the validation offset, so
+    that --eval-freq's best model and every Optuna trial are scored on validation episodes, never training ones."""
+    import argparse
+
+    import gymnasium as gym
+    import numpy as np
+
+    from sb3_crowdnav.training import VALIDATION_SEED_OFFSET
+    from sb3_crowdnav.training.zoo import experiment_manager
+
+    manager = experiment_manager()(argparse.Namespace(), "ppo", "CrowdNav-v0", str(tmp_path), seed=7)
+    assert experiment_manager() is type(manager)
+
+    def first_people(vec_env) -> np.ndarray:  # the people of the first episode (the robot always starts alike)
+        people = vec_env.reset()["humans"][0]
+        vec_env.close()
+        return people
+
+    def seeded_people(seed: int) -> np.ndarray:
+        return gym.make("CrowdNav-v0").reset(seed=seed)[0]["humans"]
+
+    evaluation, training = first_people(manager.create_envs(1, eval_env=True)), first_people(manager.create_envs(1))
+    np.testing.assert_array_equal(evaluation, seeded_people(VALIDATION_SEED_OFFSET))
+    np.testing.assert_array_equal(training, seeded_people(7))
+    assert not np.array_equal(evaluation, training)
+    assert manager.seed == 7  # the training seed is restored

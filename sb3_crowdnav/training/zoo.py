@@ -6,6 +6,12 @@ does exactly that and then hands the command line to rl-zoo3 unchanged, so every
 works (``--storage sqlite:///tune.db --study-name apg -optimize`` spreads tuning over machines
 through a shared database). ``--gym-packages sb3_crowdnav`` is added when missing.
 
+Its evaluations (``--eval-freq``, which keeps ``best_model.zip``, and every Optuna trial's, which scores the trial)
+play validation episodes: the eval envs are seeded with
+:data:`~sb3_crowdnav.training.callbacks.VALIDATION_SEED_OFFSET` (env ``i``: 2,000,000 + i) whatever ``--seed`` is,
+where rl-zoo3 seeds them as the training envs (:func:`experiment_manager`). Model and hyperparameter selection then
+never scores the training episodes, and every trial of a study starts its evaluations from the same episodes.
+
 Optuna tuning of ``dqn`` and ``qrdqn`` also samples ``n_steps`` (n-step returns, which the zoo's ``dqn`` and
 ``qrdqn`` build on this package's Dict observations with :class:`~sb3_crowdnav.nn.NStepDictReplayBuffer`).
 
@@ -23,6 +29,7 @@ with ``policy_kwargs: "dict(features_extractor_class=...)"``).
 
 from __future__ import annotations
 
+import functools
 import sys
 from typing import Any, ClassVar
 
@@ -32,6 +39,7 @@ from stable_baselines3.common.policies import BasePolicy
 
 from sb3_crowdnav.nn.buffers import DictNStepMixin
 from sb3_crowdnav.nn.policies import APG_POLICIES
+from sb3_crowdnav.training.callbacks import VALIDATION_SEED_OFFSET
 
 COMMANDS = ("train", "enjoy")
 
@@ -135,6 +143,28 @@ def register() -> None:
     hyperparams_opt.HYPERPARAMS_SAMPLER["qrdqn"] = sample_qrdqn_params
 
 
+@functools.cache
+def experiment_manager() -> type:
+    """``ZooExperimentManager``: rl-zoo3's ``ExperimentManager`` whose eval envs play validation episodes (built
+    on first use: rl-zoo3 is an optional extra)."""
+    from rl_zoo3.exp_manager import ExperimentManager
+
+    class ZooExperimentManager(ExperimentManager):
+        """rl-zoo3's experiment manager with its eval envs seeded at :data:`VALIDATION_SEED_OFFSET` (training envs as
+        rl-zoo3 seeds them: ``--seed``)."""
+
+        def create_envs(self, n_envs: int, eval_env: bool = False, no_log: bool = False) -> Any:
+            if not eval_env:
+                return super().create_envs(n_envs, eval_env=eval_env, no_log=no_log)
+            training_seed, self.seed = self.seed, VALIDATION_SEED_OFFSET
+            try:
+                return super().create_envs(n_envs, eval_env=eval_env, no_log=no_log)
+            finally:
+                self.seed = training_seed
+
+    return ZooExperimentManager
+
+
 def main(argv: list[str] | None = None) -> None:
     argv = list(sys.argv[1:] if argv is None else argv)
     if not argv or argv[0] not in COMMANDS:
@@ -146,9 +176,10 @@ def main(argv: list[str] | None = None) -> None:
     register()
     sys.argv = [f"rl_zoo3.{command}", *rest]
     if command == "train":
-        from rl_zoo3.train import train
+        from rl_zoo3 import train as zoo_train
 
-        train()
+        zoo_train.ExperimentManager = experiment_manager()  # the name rl_zoo3.train.train() builds its manager from
+        zoo_train.train()
     else:
         from rl_zoo3.enjoy import enjoy
 
