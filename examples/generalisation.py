@@ -3,7 +3,7 @@ crowds than the one they were trained in.
 
     python examples/generalisation.py [--episodes 500] [--workers 2] [--out paper_results/generalisation] \\
         [--scene eth=DIR/biwi_eth.txt,frame_rate=15 --scene hotel=DIR/biwi_hotel.txt ...] \\
-        [--markdown-into docs/results.md] [--resume]
+        [--markdown-into docs/results.md] [--resume] [--keep paper_results/generalisation/generalisation.csv]
 
 Rows: ``pretrained:NAME`` for each shipped open-floor model and the ORCA robot (``orca-constrained``: ORCA's velocity
 mapped onto the robot's 80 actions), or the ``--policy`` given. Columns (``--columns``, default all five), each one
@@ -26,8 +26,11 @@ refused with a message, never skipped. ``OUT/generalisation.md`` / ``.csv`` hold
 policy and column, with every metric and interval), ``OUT/headline.md`` the README's rows (``apg_rl`` and the ORCA
 robot), ``OUT/columns.json`` what each column is, and ``OUT/cells/COLUMN/POLICY/`` each cell's own table, its
 episode CSV and its ``meta.json``. The rows run one after the other over every column (the README's first), and
-``--resume`` keeps the finished cells of an interrupted run. ``--markdown-into FILE`` also replaces the block between
-``<!-- generalisation:begin -->`` and ``<!-- generalisation:end -->`` in FILE (docs/results.md) with the table.
+``--resume`` keeps the finished cells of an interrupted run; ``--keep CSV`` (an earlier run's
+``generalisation.csv``) keeps its rows of the policies this run does not run, so that one model's row can be run
+again (``--policy pretrained:apg_robust --keep paper_results/generalisation/generalisation.csv``).
+``--markdown-into FILE`` also replaces the block between ``<!-- generalisation:begin -->`` and
+``<!-- generalisation:end -->`` in FILE (docs/results.md) with the table.
 """
 
 from __future__ import annotations
@@ -143,6 +146,25 @@ def combine(out: Path, planned: dict[str, tuple[str, CrowdSpec, dict[str, Any]]]
     return CrowdTable(rows)
 
 
+def earlier_rows(path: Path, keys: list[str]) -> CrowdTable:
+    """An earlier run's table (its ``generalisation.csv``), checked to have this run's columns."""
+    if not path.is_file():
+        raise UsageError(f"--keep: no table at {str(path)!r}")
+    earlier = CrowdTable.read_csv(path)
+    if earlier.crowds != keys:
+        raise UsageError(f"--keep: {str(path)!r} has the columns {earlier.crowds}, this run {keys}")
+    return earlier
+
+
+def merged(earlier: CrowdTable, table: CrowdTable) -> CrowdTable:
+    """``earlier``'s rows with the methods of ``table`` put in their place (in the earlier order; new ones last)."""
+    fresh = {method: [row for row in table.rows if row["method"] == method] for method in table.policies}
+    rows = []
+    for method in earlier.policies:
+        rows += fresh.pop(method, [row for row in earlier.rows if row["method"] == method])
+    return CrowdTable(rows + [row for method_rows in fresh.values() for row in method_rows])
+
+
 def markdown_block(table: CrowdTable, planned, episodes: int) -> str:
     """The docs' block: the table, then what each column is."""
     titles = {key: title for key, (title, _, _) in planned.items()}
@@ -174,6 +196,9 @@ def main(argv: list[str] | None = None) -> None:
                         "choosing a model or a recipe; refuses the held-out scenes and --markdown-into)")
     p.add_argument("--resume", action="store_true",
                    help="keep the finished cells (one policy in one column) of an earlier run into --out")
+    p.add_argument("--keep", type=Path, metavar="CSV",
+                   help="an earlier run's generalisation.csv (the same columns): its rows of the policies this run does "
+                        "not run are kept in the table, so that one row can be run again")
     p.add_argument("--markdown-into", type=Path, metavar="FILE",
                    help=f"replace the block between <!-- {BLOCK}:begin --> and <!-- {BLOCK}:end --> in FILE with the table")
     args = p.parse_args(argv)
@@ -185,6 +210,7 @@ def main(argv: list[str] | None = None) -> None:
             if args.markdown_into is not None:
                 raise UsageError("--seeds validation: the docs' table is of the test seeds; leave out --markdown-into")
         planned = plan(list(dict.fromkeys(args.columns)), args.scene)
+        earlier = None if args.keep is None else earlier_rows(args.keep, list(planned))
         check_out(args.out)
         if args.markdown_into is not None:
             check_block(args.markdown_into, BLOCK)
@@ -203,6 +229,8 @@ def main(argv: list[str] | None = None) -> None:
                 continue
             benchmark(folder, spec, kwargs, policy, args.episodes, args.workers, SEEDS[args.seeds])
     table = combine(args.out, planned, policies)
+    if earlier is not None:
+        table = merged(earlier, table)
     titles = {key: title for key, (title, _, _) in planned.items()}
     table.save(args.out / "generalisation", titles)
     (args.out / "columns.json").write_text(json.dumps(

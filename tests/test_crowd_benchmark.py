@@ -280,3 +280,32 @@ def test_validation_seeds_choose_without_the_held_out_scenes_or_the_docs(tmp_pat
                  "orca6", "--out", str(out)])
     meta = json.loads((out / "cells" / "orca6" / "random_0" / "meta.json").read_text())
     assert meta["seeds"] == [2_000_000, 2_000_001]
+
+
+def test_keep_runs_one_row_again_inside_an_earlier_table(tmp_path, capsys):
+    """--keep: the earlier table's other rows stay, in their order; the row run again replaces its old one."""
+    script = _script()
+    first = tmp_path / "first"
+    script.main(["--episodes", "2", "--workers", "1", "--policy", "random:0", "--policy", "orca-constrained",
+                 "--columns", "orca6", "empty", "--out", str(first)])
+    earlier = _csv(first / "generalisation.csv")
+    stale = next(r for r in earlier if (r["method"], r["crowd"]) == ("Random", "orca6"))
+    stale["success"] = "0.123"  # an old model's number, which the new run must replace
+    with (first / "generalisation.csv").open("w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(earlier[0]))
+        writer.writeheader()
+        writer.writerows(earlier)
+    _refused(capsys, ["--episodes", "2", "--workers", "1", "--policy", "random:0", "--columns", "orca6",
+                      "--out", str(tmp_path / "o"), "--keep", str(first / "generalisation.csv")],
+             "--keep", script.main)
+    assert not (tmp_path / "o").exists()
+    again = tmp_path / "again"
+    script.main(["--episodes", "2", "--workers", "1", "--policy", "random:0", "--columns", "orca6", "empty",
+                 "--out", str(again), "--keep", str(first / "generalisation.csv")])
+    rows = _csv(again / "generalisation.csv")
+    assert [(r["method"], r["crowd"]) for r in rows] == [
+        (p, c) for p in ("Random", "ORCA-constrained") for c in ("orca6", "empty")]
+    fresh = next(r for r in rows if (r["method"], r["crowd"]) == ("Random", "orca6"))
+    assert fresh["success"] != "0.123"
+    assert [r for r in rows if r["method"] == "ORCA-constrained"] == [
+        r for r in earlier if r["method"] == "ORCA-constrained"]

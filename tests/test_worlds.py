@@ -113,9 +113,12 @@ def test_apg_robust_brings_its_worlds_and_people_and_a_run_overrides_them():
     assert robust.num_humans == (0, 10) and ScheduleConfig(variant="apg_rl").num_humans == 6
     assert robust.training_env_kwargs["worlds"] == "robust" and robust.train_freq == 8
     # the schedule that fits an hour on 2 cores; the paper's variants keep theirs, and a run's own value wins
-    assert (robust.rl_episodes, robust.exploration_episodes, robust.imitation_epochs) == (3_000, 1_500, 5)
+    assert (robust.rl_episodes, robust.exploration_episodes, robust.imitation_epochs, robust.checkpoint_episodes) \
+        == (3_000, 1_500, 3, 750)
     paper = ScheduleConfig(variant="apg_rl")
-    assert (paper.rl_episodes, paper.exploration_episodes, paper.imitation_epochs) == (10_000, 5_000, 10)
+    assert (paper.rl_episodes, paper.exploration_episodes, paper.imitation_epochs, paper.checkpoint_episodes) \
+        == (10_000, 5_000, 10, 500)
+    assert ScheduleConfig(variant="apg_robust", checkpoint_episodes=100).checkpoint_episodes == 100
     assert ScheduleConfig(variant="apg_robust", imitation_epochs=7, rl_episodes=4).imitation_epochs == 7
     assert ScheduleConfig(variant="apg_robust", num_humans=(2, 8)).training_env_kwargs["num_humans"] == (2, 8)
 

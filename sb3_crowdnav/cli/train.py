@@ -56,7 +56,8 @@ def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
                    help="ORCA-robot episodes imitated first (default: 3000 with --variant; 0 with --hyperparams, "
                         "where it is for ppo, a2c, dqn and dqfd)")
     p.add_argument("--imitation-epochs", "--il-epochs", dest="imitation_epochs", type=common.nonneg_int,
-                   help="passes over the demonstrations (default: the variant's: 10, apg_robust 5; 10 with --hyperparams)")
+                   help="passes over the demonstrations (default: the variant's: 10, apg_warehouse 5, apg_robust 3; 10 "
+                        "with --hyperparams)")
     p.add_argument("--imitation-learning-rate", "--il-learning-rate", dest="imitation_learning_rate",
                    type=common.positive_float,
                    help="learning rate of the imitation (default: 0.01 with --variant, Table 1; 0.001 with --hyperparams)")
@@ -71,7 +72,7 @@ def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
                    help="one gradient step every this many env steps (default: the variant's: apg_rl 8, the others 4)")
     g.add_argument("--buffer-size", type=common.positive_int, help="replay capacity [transitions] (default: 100000)")
     g.add_argument("--checkpoint-episodes", type=common.positive_int,
-                   help="checkpoint and validate every N RL episodes (default: 500)")
+                   help="checkpoint and validate every N RL episodes (default: the variant's: 500, apg_robust 750)")
     g.add_argument("--eval-episodes", type=common.nonneg_int,
                    help="greedy validation episodes per checkpoint, 0: none (default: 100)")
     g.add_argument("--no-bootstrap-timeouts", dest="bootstrap_timeouts", action="store_const", const=False,
