@@ -29,7 +29,8 @@ episode CSV and its ``meta.json``. The rows run one after the other over every c
 ``--resume`` keeps the finished cells of an interrupted run; ``--keep CSV`` (an earlier run's
 ``generalisation.csv``) keeps its rows of the policies this run does not run, so that one model's row can be run
 again (``--policy pretrained:apg_robust --keep paper_results/generalisation/generalisation.csv``).
-``--markdown-into FILE`` also replaces the block between ``<!-- generalisation:begin -->`` and
+With two or more scenes, ``OUT/pooled.md`` also pools each row's episodes over the scenes (success and collision rates
+with Wilson intervals). ``--markdown-into FILE`` also replaces the block between ``<!-- generalisation:begin -->`` and
 ``<!-- generalisation:end -->`` in FILE (docs/results.md) with the table.
 """
 
@@ -45,6 +46,7 @@ from sb3_crowdnav.cli import main as cli
 from sb3_crowdnav.cli.common import Parser, UsageError, check_env, check_out, positive_int
 from sb3_crowdnav.evaluation.aggregate import check_block, write_block
 from sb3_crowdnav.evaluation.crowd_spec import CrowdSpec
+from sb3_crowdnav.evaluation.metrics import wilson_interval
 from sb3_crowdnav.evaluation.runner import TEST_SEED_OFFSET
 from sb3_crowdnav.evaluation.tables import CrowdTable
 from sb3_crowdnav.sim.crowd import CROWD_MODELS
@@ -165,6 +167,22 @@ def merged(earlier: CrowdTable, table: CrowdTable) -> CrowdTable:
     return CrowdTable(rows + [row for method_rows in fresh.values() for row in method_rows])
 
 
+def pooled_scenes(table: CrowdTable, scenes: list[str], titles: dict[str, str]) -> str:
+    """Per policy, the episodes of every scene column pooled: success and collision rates of all of them, with Wilson
+    intervals (a markdown table)."""
+    lines = [f"| method | {' + '.join(titles[key] for key in scenes)} | episodes |", "|---|---|---|"]
+    for method in table.policies:
+        rows = [row for row in table.rows if row["method"] == method and row["crowd"] in scenes]
+        n = sum(int(row["episodes"]) for row in rows)
+        cells = []
+        for rate in ("success", "collision"):
+            count = round(sum(float(row[rate]) * int(row["episodes"]) for row in rows))
+            low, high = wilson_interval(count, n)
+            cells.append(f"{count / n:.3f} [{low:.3f}, {high:.3f}]")
+        lines.append(f"| {method} | {' / '.join(cells)} | {n:,} |")
+    return "\n".join(lines) + "\n\nEach cell: success [95 % interval] / collision [95 % interval], pooled over the scenes.\n"
+
+
 def markdown_block(table: CrowdTable, planned, episodes: int) -> str:
     """The docs' block: the table, then what each column is."""
     titles = {key: title for key, (title, _, _) in planned.items()}
@@ -238,6 +256,11 @@ def main(argv: list[str] | None = None) -> None:
          for key, (title, spec, kwargs) in planned.items()}, indent=1, default=list) + "\n")
     block = markdown_block(table, planned, args.episodes)
     print(block)
+    scenes = [key for key, (_, spec, _) in planned.items() if spec.model == "replay"]
+    if len(scenes) > 1:
+        text = pooled_scenes(table, scenes, titles)
+        (args.out / "pooled.md").write_text(text)
+        print(f"The scenes pooled:\n\n{text}")
     headline = [row for row in table.rows if row["method"] in HEADLINE]
     if headline:
         text = CrowdTable(headline).to_markdown(titles)

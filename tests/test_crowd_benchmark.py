@@ -309,3 +309,15 @@ def test_keep_runs_one_row_again_inside_an_earlier_table(tmp_path, capsys):
     assert fresh["success"] != "0.123"
     assert [r for r in rows if r["method"] == "ORCA-constrained"] == [
         r for r in earlier if r["method"] == "ORCA-constrained"]
+
+
+def test_the_scenes_pool_by_episodes_with_wilson_intervals():
+    from sb3_crowdnav.evaluation.metrics import wilson_interval
+
+    script = _script()
+    rows = [{"method": "A", "crowd": crowd, "success": success, "collision": 1 - success, "episodes": n}
+            for crowd, success, n in (("orca6", 0.0, 100), ("eth", 0.5, 4), ("univ", 0.75, 12))]
+    text = script.pooled_scenes(CrowdTable(rows), ["eth", "univ"], {"eth": "ETH", "univ": "UNIV"})
+    low, high = wilson_interval(11, 16)  # 2 of 4 and 9 of 12; the orca6 column is not a scene
+    assert f"| A | {11 / 16:.3f} [{low:.3f}, {high:.3f}] / {5 / 16:.3f}" in text and "| 16 |" in text
+    assert "ETH + UNIV" in text
