@@ -56,6 +56,7 @@ from sb3_crowdnav.training import VALIDATION_SEED_OFFSET
 ENV = "CrowdNav-v0"
 MODELS = ("apg_rl", "apg_robust", "lm_rl", "sf_rl", "cadrl", "ppo_apg", "dqn_apg", "apg_crl", "apg_carl")
 POLICIES = (*(f"pretrained:{name}" for name in MODELS), "orca-constrained")
+ROW_ORDER = (*(name.upper() for name in MODELS), "ORCA-constrained")  # their rows' labels, in a full run's order
 HEADLINE = ("APG_RL", "APG_ROBUST", "ORCA-constrained")  # the README's rows (table labels)
 FIRST = ("pretrained:apg_rl", "orca-constrained")  # their policies, run first
 HELD_OUT = ("eth", "hotel")  # scenes never used for training or model selection
@@ -159,12 +160,13 @@ def earlier_rows(path: Path, keys: list[str]) -> CrowdTable:
 
 
 def merged(earlier: CrowdTable, table: CrowdTable) -> CrowdTable:
-    """``earlier``'s rows with the methods of ``table`` put in their place (in the earlier order; new ones last)."""
+    """``earlier``'s rows with the methods of ``table`` in their place, in the order of a full run (the shipped models'
+    rows, then the ORCA robot's: :data:`ROW_ORDER`), any other rows after them in the order they come."""
     fresh = {method: [row for row in table.rows if row["method"] == method] for method in table.policies}
-    rows = []
-    for method in earlier.policies:
-        rows += fresh.pop(method, [row for row in earlier.rows if row["method"] == method])
-    return CrowdTable(rows + [row for method_rows in fresh.values() for row in method_rows])
+    given = list(dict.fromkeys([*earlier.policies, *fresh]))
+    methods = sorted(given, key=lambda m: (ROW_ORDER.index(m), 0) if m in ROW_ORDER else (len(ROW_ORDER), given.index(m)))
+    return CrowdTable([row for method in methods
+                       for row in fresh.get(method, [r for r in earlier.rows if r["method"] == method])])
 
 
 def pooled_scenes(table: CrowdTable, scenes: list[str], titles: dict[str, str]) -> str:

@@ -283,7 +283,7 @@ def test_validation_seeds_choose_without_the_held_out_scenes_or_the_docs(tmp_pat
 
 
 def test_keep_runs_one_row_again_inside_an_earlier_table(tmp_path, capsys):
-    """--keep: the earlier table's other rows stay, in their order; the row run again replaces its old one."""
+    """--keep: the earlier table's other rows stay; the row run again replaces its old one."""
     script = _script()
     first = tmp_path / "first"
     script.main(["--episodes", "2", "--workers", "1", "--policy", "random:0", "--policy", "orca-constrained",
@@ -302,9 +302,9 @@ def test_keep_runs_one_row_again_inside_an_earlier_table(tmp_path, capsys):
     again = tmp_path / "again"
     script.main(["--episodes", "2", "--workers", "1", "--policy", "random:0", "--columns", "orca6", "empty",
                  "--out", str(again), "--keep", str(first / "generalisation.csv")])
-    rows = _csv(again / "generalisation.csv")
+    rows = _csv(again / "generalisation.csv")  # a full run's rows first (the ORCA robot), the others after them
     assert [(r["method"], r["crowd"]) for r in rows] == [
-        (p, c) for p in ("Random", "ORCA-constrained") for c in ("orca6", "empty")]
+        (p, c) for p in ("ORCA-constrained", "Random") for c in ("orca6", "empty")]
     fresh = next(r for r in rows if (r["method"], r["crowd"]) == ("Random", "orca6"))
     assert fresh["success"] != "0.123"
     assert [r for r in rows if r["method"] == "ORCA-constrained"] == [
@@ -321,3 +321,11 @@ def test_the_scenes_pool_by_episodes_with_wilson_intervals():
     low, high = wilson_interval(11, 16)  # 2 of 4 and 9 of 12; the orca6 column is not a scene
     assert f"| A | {11 / 16:.3f} [{low:.3f}, {high:.3f}] / {5 / 16:.3f}" in text and "| 16 |" in text
     assert "ETH + UNIV" in text
+
+
+def test_kept_rows_take_a_full_runs_order():
+    script = _script()
+    rows = lambda *methods: CrowdTable([{"method": m, "crowd": "orca6", "success": 1.0, "episodes": 1}  # noqa: E731
+                                        for m in methods])
+    table = script.merged(rows("APG_RL", "LM_RL", "ORCA-constrained", "X"), rows("APG_ROBUST", "Y"))
+    assert table.policies == ["APG_RL", "APG_ROBUST", "LM_RL", "ORCA-constrained", "X", "Y"]
