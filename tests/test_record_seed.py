@@ -1,0 +1,92 @@
+"""examples/record_seed.py: a seed's evaluations copied into the per-seed records, checked before anything is written."""
+
+import json
+
+import pytest
+from example_scripts import load_example
+
+from sb3_crowdnav.evaluation.aggregate import read_seed_score
+
+HEADER = "seed,outcome,steps,discounted_return\n"
+
+
+def _episodes(path, outcomes):
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(HEADER + "".join(f"{1_000_000 + i},{o},10,0.5\n" for i, o in enumerate(outcomes)))
+    return path
+
+
+def _generalisation(root, columns):
+    """An examples/generalisation.py output of one policy: OUT/cells/COLUMN/POLICY/episodes_LABEL_COLUMN.csv."""
+    for column, outcomes in columns.items():
+        _episodes(root / "cells" / column / "_runs_s1_best.zip" / f"episodes_best_{column}.csv", outcomes)
+    return root
+
+
+def _run(root):
+    root.mkdir(parents=True)
+    (root / "config.json").write_text(json.dumps({"variant": "apg_robust", "seed": 1}))
+    (root / "eval_curve.jsonl").write_text('{"episodes": 750, "success": 0.9}\n')
+    return root
+
+
+def test_columns_of_generalisation_and_benchmark_outputs_are_recorded(tmp_path):
+    gen = _generalisation(tmp_path / "gen", {"orca6": ["success", "collision"], "orca10": ["success", "success"]})
+    lead = _generalisation(tmp_path / "lead", {"eth": ["collision", "timeout"]})
+    bench = tmp_path / "bench"
+    _episodes(bench / "episodes_APG_WAREHOUSE.csv", ["success", "success", "collision", "success"])
+    into = tmp_path / "seeds"
+    load_example("record_seed").main(["apg_robust", "1", "--run", str(_run(tmp_path / "run")), "--eval", str(gen),
+                                      "--eval", f"{lead}:_lead_in", "--eval", f"pickers6={bench}",
+                                      "--into", str(into)])
+    seed = into / "apg_robust" / "seed_1"
+    assert sorted(p.name for p in seed.iterdir()) == ["eth_lead_in", "eval_curve.jsonl", "orca10", "orca6",
+                                                       "pickers6", "train_config.json"]
+    assert read_seed_score(seed / "orca6", "APG_ROBUST", "orca6", 1).success == pytest.approx(0.5)
+    assert read_seed_score(seed / "orca10", "APG_ROBUST", "orca10", 1).success == pytest.approx(1.0)
+    assert read_seed_score(seed / "eth_lead_in", "APG_ROBUST", "eth_lead_in", 1).success == pytest.approx(0.0)
+    assert read_seed_score(seed / "pickers6", "APG_ROBUST", "pickers6", 1).success == pytest.approx(0.75)
+    assert json.loads((seed / "train_config.json").read_text())["seed"] == 1
+
+
+def test_a_recorded_column_is_kept_unless_replace(tmp_path, capsys):
+    into = tmp_path / "seeds"
+    first = _generalisation(tmp_path / "a", {"orca6": ["success"]})
+    second = _generalisation(tmp_path / "b", {"orca6": ["collision"]})
+    record = load_example("record_seed").main
+    record(["m", "0", "--eval", str(first), "--into", str(into)])
+    with pytest.raises(SystemExit) as exit_info:
+        record(["m", "0", "--eval", str(second), "--into", str(into)])
+    assert exit_info.value.code == 2 and "--replace" in capsys.readouterr().err
+    assert read_seed_score(into / "m" / "seed_0" / "orca6", "M", "orca6", 0).success == 1.0  # untouched
+    record(["m", "0", "--eval", str(second), "--into", str(into), "--replace"])
+    assert read_seed_score(into / "m" / "seed_0" / "orca6", "M", "orca6", 0).success == 0.0
+
+
+@pytest.mark.parametrize("case", ["no_cells", "two_policies", "twice", "two_csvs", "no_run_config", "bad_column"])
+def test_bad_sources_are_refused_before_anything_is_written(tmp_path, capsys, case):
+    into = tmp_path / "seeds"
+    gen = _generalisation(tmp_path / "gen", {"orca6": ["success"]})
+    evals = ["--eval", str(gen)]
+    extra = []
+    if case == "no_cells":
+        evals += ["--eval", str(tmp_path)]
+    elif case == "two_policies":
+        _episodes(gen / "cells" / "orca6" / "orca-constrained" / "episodes_ORCA.csv", ["success"])
+    elif case == "twice":
+        evals += ["--eval", f"orca6={gen / 'cells' / 'orca6' / '_runs_s1_best.zip'}"]
+    elif case == "two_csvs":
+        bench = tmp_path / "bench"
+        _episodes(bench / "episodes_A.csv", ["success"])
+        _episodes(bench / "episodes_B.csv", ["success"])
+        evals += ["--eval", f"pickers6={bench}"]
+    elif case == "no_run_config":
+        (tmp_path / "run").mkdir()
+        extra = ["--run", str(tmp_path / "run")]
+    else:
+        evals += ["--eval", f"a/b={gen}"]
+    with pytest.raises(SystemExit) as exit_info:
+        load_example("record_seed").main(["m", "0", *evals, *extra, "--into", str(into)])
+    assert exit_info.value.code == 2
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1
+    assert not into.exists()
