@@ -141,3 +141,87 @@ def test_zoo_evaluations_play_validation_episodes(tmp_path):
     np.testing.assert_array_equal(training, seeded_people(7))
     assert not np.array_equal(evaluation, training)
     assert manager.seed == 7  # the training seed is restored
+
+
+def test_imitation_settings_come_from_the_file_or_the_caller_once():
+    """A hyperparameter file's imitation_* keys are what the command line's --imitation-* give; both at once must
+    agree; APGValue keeps its own imitation_* hyperparameters; an algorithm without imitation refuses them."""
+    from sb3_crowdnav.training.hyperparams import imitation_settings, prepare
+
+    cfg = prepare("dqn", {"policy": "ApgPolicy", "imitation_episodes": 30, "imitation_epochs": 2})
+    assert "imitation_episodes" not in cfg["kwargs"]
+    assert imitation_settings("dqn", cfg) == {"imitation_episodes": 30, "imitation_epochs": 2,
+                                              "imitation_learning_rate": 1e-3}
+    assert imitation_settings("dqn", cfg, imitation_episodes=30)["imitation_episodes"] == 30
+    assert imitation_settings("dqn", prepare("dqn", {}), imitation_episodes=5)["imitation_episodes"] == 5
+    with pytest.raises(ValueError, match="imitation_episodes is 30 in the hyperparameter file and 5"):
+        imitation_settings("dqn", cfg, imitation_episodes=5)
+    with pytest.raises(ValueError, match="imitation_epochs"):
+        imitation_settings("ppo", prepare("ppo", {"imitation_epochs": 0}))
+    with pytest.raises(ValueError, match="dqfd"):
+        imitation_settings("dqfd", prepare("dqfd", {}))
+    assert prepare("apg_value", {"imitation_episodes": 7})["kwargs"]["imitation_episodes"] == 7
+    with pytest.raises(ValueError, match="imitation_episodes"):
+        prepare("qrdqn", {"imitation_episodes": 7})
+
+
+def _dqn(imitation_episodes: int, **kwargs):
+    from stable_baselines3.common.env_util import make_vec_env
+
+    env = make_vec_env("CrowdNav-v0", n_envs=1, seed=0, env_kwargs={"num_humans": 2})
+    return ZOO_ALGOS["dqn"]("ApgPolicy", env, seed=0, buffer_size=5_000, learning_starts=10_000,
+                            imitation_episodes=imitation_episodes, imitation_epochs=1, **kwargs)
+
+
+def test_the_zoo_dqn_imitates_once_before_its_first_learn(tmp_path):
+    """imitation_episodes fills the replay buffer with the ORCA robot's episodes (and trains on them) at the first
+    learn() only: a second learn() and a loaded model do not imitate again."""
+    plain, model = _dqn(0), _dqn(3)
+    assert plain.imitated and not model.imitated
+    plain.learn(8)
+    assert plain.replay_buffer.size() == 8
+    model.learn(8)
+    demonstrations = model.replay_buffer.size() - 8
+    assert model.imitated and demonstrations > 3  # three whole episodes, each several steps
+    model.learn(8, reset_num_timesteps=False)
+    assert model.replay_buffer.size() == demonstrations + 16
+    model.save(tmp_path / "dqn.zip")
+    loaded = ZOO_ALGOS["dqn"].load(tmp_path / "dqn.zip", env=model.env)
+    assert loaded.imitated and loaded.imitation_episodes == 3
+
+
+def test_the_zoo_ppo_imitates_the_orca_robot():
+    """Behaviour cloning before PPO's first update: the policy moves towards the demonstrated actions."""
+    import torch as th
+    from stable_baselines3.common.env_util import make_vec_env
+
+    from sb3_crowdnav.imitation import collect_demonstrations
+
+    def ppo(episodes):
+        env = make_vec_env("CrowdNav-v0", n_envs=1, seed=0, env_kwargs={"num_humans": 2})
+        return ZOO_ALGOS["ppo"]("ApgPolicy", env, seed=0, n_steps=64, batch_size=32, imitation_episodes=episodes,
+                                imitation_epochs=3)
+
+    demos = collect_demonstrations(make_vec_env("CrowdNav-v0", n_envs=1, seed=5, env_kwargs={"num_humans": 2}), 3)
+
+    def log_likelihood(model):
+        obs, _ = model.policy.obs_to_tensor({k: v for k, v in demos.observations.items()})
+        with th.no_grad():
+            _, log_prob, _ = model.policy.evaluate_actions(obs, th.as_tensor(demos.actions).flatten())
+        return float(log_prob.mean())
+
+    plain, imitating = ppo(0), ppo(20)
+    imitating.learn(0)  # the imitation alone (no env step)
+    assert imitating.imitated and imitating.num_timesteps == 0
+    assert log_likelihood(imitating) > log_likelihood(plain) + 0.5
+
+
+@pytest.mark.parametrize(("kwargs", "name"), [({"imitation_episodes": -1}, "imitation_episodes"),
+                                              ({"imitation_episodes": 2, "imitation_epochs": 0}, "imitation_epochs"),
+                                              ({"imitation_learning_rate": 0.0}, "imitation_learning_rate")])
+def test_bad_imitation_hyperparameters_are_refused_at_construction(kwargs, name):
+    from stable_baselines3.common.env_util import make_vec_env
+
+    env = make_vec_env("CrowdNav-v0", n_envs=1, seed=0)
+    with pytest.raises(ValueError, match=name):
+        ZOO_ALGOS["ppo"]("ApgPolicy", env, **kwargs)

@@ -224,7 +224,7 @@ def _dry_run(algo: str, cfg: dict[str, Any], env_id: str, env_kwargs: dict[str, 
 def _hyperparams_config(args: argparse.Namespace) -> dict[str, Any]:
     """The checked file, env and imitation settings of a ``--hyperparams`` run (the algorithm built once)."""
     from sb3_crowdnav.models import algorithms
-    from sb3_crowdnav.training.hyperparams import load_hyperparams, prepare
+    from sb3_crowdnav.training.hyperparams import imitation_settings, load_hyperparams, prepare
 
     _refuse(args, SCHEDULE_FLAGS, "--hyperparams (it is for --variant runs)")
     if args.algo is None:
@@ -239,20 +239,17 @@ def _hyperparams_config(args: argparse.Namespace) -> dict[str, Any]:
         raise UsageError(f"--hyperparams: {exc}") from None
     env_kwargs = {**cfg["env_kwargs"], **common.env_kwargs_from_args(args)}
     common.check_env(args.env, env_kwargs, common.single_crowd(args))
-    imitation_episodes = args.imitation_episodes or 0
-    imitation_epochs = 10 if args.imitation_epochs is None else args.imitation_epochs
     if args.timesteps is None and cfg["n_timesteps"] is None:
         raise UsageError("give --timesteps or n_timesteps in the hyperparameter file")
-    if imitation_episodes and args.algo not in ("ppo", "a2c", "dqn", "dqfd"):
-        raise UsageError(f"--imitation-episodes is for ppo, a2c, dqn and dqfd; {args.algo} sets imitation_episodes in "
-                         "its hyperparameter file")
-    if args.algo == "dqfd" and not imitation_episodes:
-        raise UsageError("--algo dqfd learns from demonstrations: give --imitation-episodes N")
-    if imitation_episodes and imitation_epochs < 1:
-        raise UsageError(f"--imitation-epochs: expected a positive integer with --imitation-episodes, got {imitation_epochs}")
+    try:  # the command line's, else the file's, else the defaults (0 episodes, 10 epochs, 1e-3)
+        imitation = imitation_settings(args.algo, cfg, imitation_episodes=args.imitation_episodes,
+                                       imitation_epochs=args.imitation_epochs,
+                                       imitation_learning_rate=args.imitation_learning_rate)
+    except ValueError as exc:
+        raise UsageError(f"--imitation-episodes / --imitation-epochs / --imitation-learning-rate (or the file's "
+                         f"imitation_* keys): {exc}") from None
     _dry_run(args.algo, cfg, args.env, env_kwargs)
-    return {"hp": hp, "cfg": cfg, "env_kwargs": env_kwargs, "imitation_episodes": imitation_episodes,
-            "imitation_epochs": imitation_epochs}
+    return {"hp": hp, "cfg": cfg, "env_kwargs": env_kwargs, **imitation}
 
 
 def _train_hyperparams(args: argparse.Namespace, checked: dict[str, Any]) -> int:
@@ -269,8 +266,7 @@ def _train_hyperparams(args: argparse.Namespace, checked: dict[str, Any]) -> int
             args.algo, hp, args.out, env_id=args.env, timesteps=args.timesteps, seed=args.seed,
             progress_bar=common.progress_enabled(args), verbose=args.verbose or 0,
             env_overrides=common.env_kwargs_from_args(args), imitation_episodes=imitation_episodes,
-            imitation_epochs=imitation_epochs,
-            imitation_learning_rate=1e-3 if args.imitation_learning_rate is None else args.imitation_learning_rate,
+            imitation_epochs=imitation_epochs, imitation_learning_rate=checked["imitation_learning_rate"],
             checkpoint_freq=args.checkpoint_freq or 0, wall_time=None if args.wall_time is None else 60 * args.wall_time)
     except RunLockedError as exc:
         raise UsageError(str(exc)) from None

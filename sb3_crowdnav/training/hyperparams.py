@@ -48,6 +48,9 @@ DEFAULT_POLICIES = {"apg_value": "ApgPolicy", "dqn": "MultiInputPolicy", "dqfd":
 # the env wrapper an algorithm needs, which train_from_hyperparams applies itself (an rl-zoo3 file names it as
 # env_wrapper for rl-zoo3; here that entry is accepted for this algorithm only)
 ALGO_WRAPPERS = {"maskableppo": "sb3_crowdnav.apg_value.action_masks.WallActionMasker"}
+# the ORCA robot imitated before RL: keys a hyperparameter file may set (or the command line), with their defaults
+IMITATION_DEFAULTS = {"imitation_episodes": 0, "imitation_epochs": 10, "imitation_learning_rate": 1e-3}
+IMITATION_ALGOS = ("ppo", "a2c", "dqn", "dqfd")
 ZOO_ONLY_KEYS = ("env_wrapper", "callback", "vec_env_wrapper", "frame_stack")
 SCHEDULE_KEYS = ("learning_rate", "clip_range", "clip_range_vf")
 _BINOPS = {ast.Add: operator.add, ast.Sub: operator.sub, ast.Mult: operator.mul, ast.Div: operator.truediv}
@@ -234,13 +237,40 @@ def prepare(algo: str, hyperparams: Mapping[str, Any]) -> dict[str, Any]:
             hp[key] = _schedule(hp[key])
     if isinstance(hp.get("train_freq"), list):
         hp["train_freq"] = tuple(hp["train_freq"])
+    # the ORCA robot imitated first (APGValue's imitation_* are its own constructor's; others' are refused below)
+    imitation = {key: hp.pop(key) for key in IMITATION_DEFAULTS if key in hp} if algo in IMITATION_ALGOS else {}
     _check_keys(algo, hp)
     try:
         n_timesteps = None if n_timesteps is None else int(float(n_timesteps))
     except (TypeError, ValueError):
         raise ValueError(f"n_timesteps must be a number, got {n_timesteps!r}") from None
     return {"policy": policy, "policy_kwargs": policy_kwargs, "env_kwargs": env_kwargs, "n_envs": n_envs,
-            "n_timesteps": n_timesteps, "kwargs": hp}
+            "n_timesteps": n_timesteps, "kwargs": hp, "imitation": imitation}
+
+
+def imitation_settings(algo: str, cfg: Mapping[str, Any], **given: Any) -> dict[str, Any]:
+    """The imitation of a run: each of :data:`IMITATION_DEFAULTS` as ``given`` (None: not given), else as the
+    hyperparameter file sets it (:func:`prepare`'s ``cfg["imitation"]``), else its default. ``ValueError`` naming the
+    setting when the file and ``given`` both set it to different values, when a value is out of range, or when
+    ``algo`` takes no imitation (ppo, a2c, dqn and dqfd do; dqfd needs it)."""
+    unknown = sorted(set(given) - set(IMITATION_DEFAULTS))
+    if unknown:
+        raise TypeError(f"imitation_settings got {unknown}; it takes {sorted(IMITATION_DEFAULTS)}")
+    settings = {}
+    for key, default in IMITATION_DEFAULTS.items():
+        mine, files = given.get(key), cfg["imitation"].get(key)
+        if mine is not None and files is not None and mine != files:
+            raise ValueError(f"{key} is {files!r} in the hyperparameter file and {mine!r} here: give it once")
+        settings[key] = mine if mine is not None else files if files is not None else default
+    check_int("imitation_episodes", settings["imitation_episodes"], 0)
+    check_int("imitation_epochs", settings["imitation_epochs"], 1)
+    check_positive("imitation_learning_rate", settings["imitation_learning_rate"])
+    if settings["imitation_episodes"] and algo not in IMITATION_ALGOS:
+        own = "sets imitation_episodes in its hyperparameter file" if algo == "apg_value" else "takes no imitation"
+        raise ValueError(f"imitation_episodes is for {', '.join(IMITATION_ALGOS)}; {algo} {own}")
+    if algo == "dqfd" and not settings["imitation_episodes"]:
+        raise ValueError("algo 'dqfd' learns from demonstrations: give imitation_episodes >= 1")
+    return settings
 
 
 def _mapping(name: str, value: Any, names: Mapping[str, Any]) -> dict[str, Any]:
@@ -280,8 +310,9 @@ def env_wrapper_class(algo: str) -> type | None:
 
 def train_from_hyperparams(algo: str, hyperparams: Mapping[str, Any], out_dir: str | Path, env_id: str = "CrowdNav-v0",
           timesteps: int | None = None, seed: int = 0, progress_bar: bool = False, verbose: int = 0,
-          env_overrides: Mapping[str, Any] | None = None, imitation_episodes: int = 0, imitation_epochs: int = 10,
-          imitation_learning_rate: float = 1e-3, checkpoint_freq: int = 0, wall_time: float | None = None):
+          env_overrides: Mapping[str, Any] | None = None, imitation_episodes: int | None = None,
+          imitation_epochs: int | None = None, imitation_learning_rate: float | None = None, checkpoint_freq: int = 0,
+          wall_time: float | None = None):
     """Train ``algo`` with rl-zoo3 hyperparameters; save ``out_dir/<algo>.zip`` and TensorBoard logs in ``out_dir/tb``.
 
     Training envs are seeded ``seed, seed + 1, ...`` (``make_vec_env``), far from the test seeds
@@ -289,13 +320,15 @@ def train_from_hyperparams(algo: str, hyperparams: Mapping[str, Any], out_dir: s
 
     With ``imitation_episodes`` > 0 (PPO, A2C, DQN), the model first imitates that many episodes of
     the ORCA robot (:mod:`sb3_crowdnav.imitation`); APGValue has its own ``imitation_episodes``
-    hyperparameter instead. ``checkpoint_freq`` > 0 saves a checkpoint in ``out_dir/checkpoints/`` every that
-    many env steps (over all envs) and after the imitation, with the replay buffer of an off-policy algorithm as
-    plain arrays; the same call again resumes the run from the newest one, and returns a finished run as it is
-    (:mod:`sb3_crowdnav.training.zoo_run`; another run in the folder is refused). ``wall_time`` [s] stops training at
-    the first env step after that much wall time in all (imitation and every resumed segment included;
-    :class:`~sb3_crowdnav.training.callbacks.WallTimeBudget`), whatever the timesteps reached: the model's
-    ``num_timesteps`` says how many, ``out_dir/progress.json`` the wall time used.
+    hyperparameter instead. The three imitation settings may also be keys of the file (None here: the file's, else
+    0 episodes, 10 epochs, a learning rate of 1e-3; :func:`imitation_settings`).
+
+    ``checkpoint_freq`` > 0 saves a checkpoint in ``out_dir/checkpoints/`` every that many env steps (over all envs) and
+    after the imitation, with the replay buffer of an off-policy algorithm as plain arrays; the same call again resumes
+    the run from the newest one, and returns a finished run as it is (:mod:`sb3_crowdnav.training.zoo_run`; another run
+    in the folder is refused). ``wall_time`` [s] stops training at the first env step after that much wall time in all
+    (imitation and every resumed segment included; :class:`~sb3_crowdnav.training.callbacks.WallTimeBudget`), whatever
+    the timesteps reached: the model's ``num_timesteps`` says how many, ``out_dir/progress.json`` the wall time used.
     """
     start = time.perf_counter()
     from stable_baselines3.common.env_util import make_vec_env
@@ -313,7 +346,11 @@ def train_from_hyperparams(algo: str, hyperparams: Mapping[str, Any], out_dir: s
     if n_timesteps is None or n_timesteps < 1:
         raise ValueError("the number of timesteps is missing: give --timesteps or n_timesteps in the YAML")
     env_kwargs = {**cfg["env_kwargs"], **dict(env_overrides or {})}
-    _check_arguments(algo, imitation_episodes, imitation_epochs, checkpoint_freq, wall_time)
+    imitation = imitation_settings(algo, cfg, imitation_episodes=imitation_episodes, imitation_epochs=imitation_epochs,
+                                   imitation_learning_rate=imitation_learning_rate)
+    imitation_episodes, imitation_epochs = imitation["imitation_episodes"], imitation["imitation_epochs"]
+    imitation_learning_rate = imitation["imitation_learning_rate"]
+    _check_arguments(checkpoint_freq, wall_time)
     identity = json.loads(json.dumps({
         "algo": algo, "env_id": env_id, "seed": seed, "hyperparams": dict(hyperparams), "env_kwargs": env_kwargs,
         "timesteps": int(n_timesteps), "wall_time_s": wall_time, "imitation_episodes": imitation_episodes,
@@ -335,7 +372,7 @@ def train_from_hyperparams(algo: str, hyperparams: Mapping[str, Any], out_dir: s
             if resumed is None:
                 model = algos[algo](cfg["policy"], env, seed=seed, tensorboard_log=str(out / "tb"), verbose=verbose, **kwargs)
                 if imitation_episodes:
-                    _imitate(model, env, algo, imitation_episodes, imitation_epochs, imitation_learning_rate, verbose)
+                    imitate(model, env, algo, imitation_episodes, imitation_epochs, imitation_learning_rate, verbose)
                 if checkpoint_freq:  # the imitation's end: a resumed run does not imitate again
                     zoo_run.save_checkpoint(model, out, algo, clock, identity)
             else:
@@ -360,17 +397,10 @@ def train_from_hyperparams(algo: str, hyperparams: Mapping[str, Any], out_dir: s
     return model, model_path
 
 
-def _check_arguments(algo: str, imitation_episodes: int, imitation_epochs: int, checkpoint_freq: int,
-                     wall_time: float | None) -> None:
-    for name, value, minimum in (("imitation_episodes", imitation_episodes, 0), ("imitation_epochs", imitation_epochs, 1),
-                                 ("checkpoint_freq", checkpoint_freq, 0)):
-        check_int(name, value, minimum)
+def _check_arguments(checkpoint_freq: int, wall_time: float | None) -> None:
+    check_int("checkpoint_freq", checkpoint_freq, 0)
     if wall_time is not None:
         check_positive("wall_time", wall_time, " [s]")
-    if imitation_episodes and algo not in ("ppo", "a2c", "dqn", "dqfd"):
-        raise ValueError(f"imitation_episodes is for ppo, a2c, dqn and dqfd; {algo} sets imitation in its hyperparameters")
-    if algo == "dqfd" and not imitation_episodes:
-        raise ValueError("algo 'dqfd' learns from demonstrations: give imitation_episodes >= 1")
 
 
 def _resume(out: Path, algo: str, steps: int, env: Any, seed: int, verbose: int, imitation_episodes: int) -> Any:
@@ -394,8 +424,10 @@ def _resume(out: Path, algo: str, steps: int, env: Any, seed: int, verbose: int,
     return model
 
 
-def _imitate(model: Any, env: Any, algo: str, episodes: int, epochs: int, learning_rate: float, verbose: int) -> None:
-    """The ORCA robot's ``episodes`` imitated first (PPO, A2C, DQN; DQfD keeps them beside its replay buffer)."""
+def imitate(model: Any, env: Any, algo: str, episodes: int, epochs: int, learning_rate: float, verbose: int) -> None:
+    """The ORCA robot's ``episodes`` in ``env`` (a VecEnv) imitated by ``model`` before its RL (``algo``: ``"ppo"``
+    and ``"a2c"`` by behaviour cloning, ``"dqn"`` by DQfD's loss with the demonstrations left in the replay buffer,
+    ``"dqfd"`` by the same loss with them kept beside it)."""
     from sb3_crowdnav import imitation
 
     demos = imitation.collect_demonstrations(env, episodes)
@@ -412,5 +444,6 @@ def _imitate(model: Any, env: Any, algo: str, episodes: int, epochs: int, learni
     env.reset()
 
 
-__all__ = ["ALGO_WRAPPERS", "DEFAULT_POLICIES", "algorithm_kwargs", "env_wrapper_class", "load_hyperparams",
+__all__ = ["ALGO_WRAPPERS", "DEFAULT_POLICIES", "IMITATION_DEFAULTS", "algorithm_kwargs", "env_wrapper_class",
+           "imitate", "imitation_settings", "load_hyperparams",
            "policy_kwargs_names", "prepare", "safe_eval", "train_from_hyperparams"]

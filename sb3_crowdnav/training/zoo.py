@@ -14,6 +14,10 @@ never scores the training episodes, and every trial of a study starts its evalua
 
 Optuna tuning of ``dqn`` and ``qrdqn`` also samples ``n_steps`` (n-step returns, which the zoo's ``dqn`` and
 ``qrdqn`` build on this package's Dict observations with :class:`~sb3_crowdnav.nn.NStepDictReplayBuffer`).
+The zoo's ``ppo``, ``a2c`` and ``dqn`` take ``imitation_episodes`` (and ``imitation_epochs``,
+``imitation_learning_rate``) in a hyperparameter file: they imitate that many ORCA-robot episodes before their RL, in
+a run and in every Optuna trial, as ``sb3-crowdnav train --hyperparams`` does with the same file
+(:class:`ImitationMixin`).
 
 Its ``ppo``, ``a2c`` and ``dqn`` are SB3's algorithms, and ``qrdqn``, ``recurrentppo`` (also rl-zoo3's ``ppo_lstm``)
 and ``maskableppo`` sb3-contrib's, that also know ``policy: 'ApgPolicy'`` (the APG
@@ -39,7 +43,9 @@ from stable_baselines3.common.policies import BasePolicy
 
 from sb3_crowdnav.nn.buffers import DictNStepMixin
 from sb3_crowdnav.nn.policies import APG_POLICIES
+from sb3_crowdnav.sim.validation import check_int, check_positive
 from sb3_crowdnav.training.callbacks import VALIDATION_SEED_OFFSET
+from sb3_crowdnav.training.hyperparams import imitate
 
 COMMANDS = ("train", "enjoy")
 
@@ -79,21 +85,49 @@ def sample_qrdqn_params(trial, n_actions: int, n_envs: int, additional_args: dic
     return {**params, "n_steps": trial.suggest_categorical("n_steps", list(N_STEPS_CHOICES))}
 
 
-class ZooPPO(PPO):
-    """SB3's PPO for which ``"ApgPolicy"`` names :class:`~sb3_crowdnav.nn.ApgActorCriticPolicy`."""
+class ImitationMixin:
+    """The ORCA robot imitated before the first ``learn()``: the hyperparameters ``imitation_episodes`` (0: none),
+    ``imitation_epochs`` and ``imitation_learning_rate`` of a file or an Optuna trial, as ``sb3-crowdnav train
+    --hyperparams`` reads them (:func:`~sb3_crowdnav.training.hyperparams.imitate`: behaviour cloning for PPO and A2C,
+    DQfD's loss with the demonstrations left in the replay buffer for DQN). A model saved after it (or loaded) does not
+    imitate again."""
+
+    def __init__(self, *args: Any, imitation_episodes: int = 0, imitation_epochs: int = 10,
+                 imitation_learning_rate: float = 1e-3, **kwargs: Any) -> None:
+        check_int("imitation_episodes", imitation_episodes, 0)
+        check_int("imitation_epochs", imitation_epochs, 1)
+        check_positive("imitation_learning_rate", imitation_learning_rate)
+        self.imitation_episodes, self.imitation_epochs = imitation_episodes, imitation_epochs
+        self.imitation_learning_rate = float(imitation_learning_rate)
+        self.imitated = imitation_episodes == 0
+        super().__init__(*args, **kwargs)
+
+    def learn(self, *args: Any, **kwargs: Any) -> Any:
+        if not self.imitated:
+            imitate(self, self.env, "dqn" if isinstance(self, DQN) else "ppo", self.imitation_episodes,
+                    self.imitation_epochs, self.imitation_learning_rate, self.verbose)
+            self.imitated = True
+        return super().learn(*args, **kwargs)
+
+
+class ZooPPO(ImitationMixin, PPO):
+    """SB3's PPO for which ``"ApgPolicy"`` names :class:`~sb3_crowdnav.nn.ApgActorCriticPolicy`, imitating first with
+    ``imitation_episodes`` (:class:`ImitationMixin`)."""
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {**PPO.policy_aliases, "ApgPolicy": APG_POLICIES["ppo"]}
 
 
-class ZooA2C(A2C):
-    """SB3's A2C for which ``"ApgPolicy"`` names :class:`~sb3_crowdnav.nn.ApgActorCriticPolicy`."""
+class ZooA2C(ImitationMixin, A2C):
+    """SB3's A2C for which ``"ApgPolicy"`` names :class:`~sb3_crowdnav.nn.ApgActorCriticPolicy`, imitating first with
+    ``imitation_episodes`` (:class:`ImitationMixin`)."""
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {**A2C.policy_aliases, "ApgPolicy": APG_POLICIES["a2c"]}
 
 
-class ZooDQN(DictNStepMixin, DQN):
-    """SB3's DQN for which ``"ApgPolicy"`` names :class:`~sb3_crowdnav.nn.ApgDQNPolicy` and ``n_steps > 1`` builds an
-    :class:`~sb3_crowdnav.nn.NStepDictReplayBuffer` (:class:`~sb3_crowdnav.nn.DictNStepMixin`)."""
+class ZooDQN(ImitationMixin, DictNStepMixin, DQN):
+    """SB3's DQN for which ``"ApgPolicy"`` names :class:`~sb3_crowdnav.nn.ApgDQNPolicy`, ``n_steps > 1`` builds an
+    :class:`~sb3_crowdnav.nn.NStepDictReplayBuffer` (:class:`~sb3_crowdnav.nn.DictNStepMixin`), and
+    ``imitation_episodes`` imitates first (:class:`ImitationMixin`)."""
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {**DQN.policy_aliases, "ApgPolicy": APG_POLICIES["dqn"]}
 
