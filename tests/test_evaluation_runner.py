@@ -256,3 +256,44 @@ def test_trajectory_legend_fits_a_single_panel(env_id, tmp_path, monkeypatch):
     assert box.x0 <= legend.x0 and legend.x1 <= box.x1 and box.y0 <= legend.y0, (legend, box)
     for ax in fig.axes:  # and the panel does not sit on the legend
         assert ax.get_tightbbox(renderer).y0 >= legend.y1 - 1
+
+
+def test_lookahead_settings_reach_value_models_and_only_them():
+    """make_policy's lookahead sets a value model's pedestrian model (in the parent and in a worker), V unchanged; a
+    policy without a lookahead, an unknown key and a stopping check in a world without limits are refused."""
+    from sb3_crowdnav.evaluation import runner
+
+    env = gym.make("CrowdNav-v0")
+    plain = make_policy("pretrained:apg_rl", env)
+    cautious = make_policy("pretrained:apg_rl", env, lookahead={"pedestrian_model": "cautious"})
+    assert plain.policy.pedestrian_model == "constant_velocity" and cautious.policy.pedestrian_model == "cautious"
+    for a, b in zip(plain.policy.state_dict().values(), cautious.policy.state_dict().values(), strict=True):
+        assert torch.equal(a, b)
+    runner._init_worker(PolicySpec.parse("pretrained:apg_rl"), "CrowdNav-v0", {}, 1,
+                        lookahead={"pedestrian_model": "cautious"})
+    assert runner._WORKER["policy"].policy.pedestrian_model == "cautious"
+    with pytest.raises(ValueError, match="value model"):
+        make_policy("orca", env, lookahead={"pedestrian_model": "cautious"})
+    with pytest.raises(ValueError, match="lookahead takes"):
+        make_policy("pretrained:apg_rl", env, lookahead={"horizon": 2})
+    with pytest.raises(ValueError, match="stopping"):
+        make_policy("pretrained:apg_rl", env, lookahead={"stopping_check": True})
+
+
+def test_the_cautious_lookahead_changes_decisions_in_a_crossing(tmp_path):
+    """--pedestrian-model reaches the episodes: a value model acting with the cautious model decides differently in at
+    least one of these episodes, and the run's meta.json records the setting."""
+    import json
+
+    from sb3_crowdnav.cli import main
+
+    outs = {}
+    for name, extra in (("plain", []), ("cautious", ["--pedestrian-model", "cautious"])):
+        out = tmp_path / name
+        assert main(["evaluate", "--policy", "pretrained:apg_rl", "--episodes", "6", "--out", str(out), "--no-progress",
+                     *extra]) == 0
+        outs[name] = out
+    read = {name: (out / "episodes.csv").read_text() for name, out in outs.items()}
+    assert read["plain"] != read["cautious"]
+    assert json.loads((outs["cautious"] / "meta.json").read_text())["lookahead"] == {"pedestrian_model": "cautious"}
+    assert json.loads((outs["plain"] / "meta.json").read_text())["lookahead"] is None

@@ -11,6 +11,7 @@ from typing import Any, NoReturn
 
 from sb3_crowdnav.evaluation.crowd_spec import GRAMMAR as CROWD_GRAMMAR
 from sb3_crowdnav.evaluation.crowd_spec import CrowdSpec
+from sb3_crowdnav.evaluation.policy_spec import PolicySpec
 from sb3_crowdnav.evaluation.runner import DEFAULT_ENV_ID
 from sb3_crowdnav.sim.validation import check_int, check_positive, check_probability
 
@@ -205,3 +206,24 @@ def check_out(path: Path, option: str = "--out", is_file: bool = False) -> None:
         raise UsageError(f"{option} {str(folder)!r} cannot be written: {exc.strerror or exc}") from None
 
 
+def lookahead_settings(args: argparse.Namespace, spec: PolicySpec | None = None) -> dict[str, Any] | None:
+    """The lookahead settings ``evaluate`` / ``benchmark`` were given (``--pedestrian-model``, ``--stopping-check``;
+    None: none), or those ``spec`` acts with: the settings for a value model (APGValue, shipped or a ``.zip``), None
+    for another policy (ORCA, a DQN, an ONNX graph: its lookahead is in the graph)."""
+    given = {k: v for k, v in (("pedestrian_model", args.pedestrian_model), ("stopping_check", args.stopping_check))
+             if v is not None}
+    if not given or spec is None:
+        return given or None
+    from sb3_crowdnav.models import PRETRAINED, detect_algorithm
+
+    algo = PRETRAINED.get(str(spec.argument)) if spec.kind == "pretrained" else \
+        detect_algorithm(str(spec.argument)) if spec.is_model and not spec.is_onnx else None
+    return given if algo == "apg_value" else None
+
+
+def check_lookahead(args: argparse.Namespace, specs: list[PolicySpec]) -> None:
+    """:class:`UsageError` when lookahead settings are given and no policy of ``specs`` is a value model."""
+    given = lookahead_settings(args)
+    if given and not any(lookahead_settings(args, spec) for spec in specs):
+        raise UsageError(f"{' / '.join('--' + k.replace('_', '-') for k in given)}: set the lookahead of value models "
+                         "(APGValue, a .zip); none of the policies given is one")

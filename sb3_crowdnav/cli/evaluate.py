@@ -13,9 +13,11 @@ from sb3_crowdnav.cli.common import (
     UsageError,
     check_crowd,
     check_env,
+    check_lookahead,
     check_out,
     crowd_specs,
     env_kwargs_from_args,
+    lookahead_settings,
     nonneg_int,
     positive_int,
     progress_enabled,
@@ -42,6 +44,12 @@ def _run_options(p: argparse.ArgumentParser, default_episodes: int = 500) -> Non
                    help="wrap every policy in a protective field: while an observed person's disc is within D m of the "
                         "robot's (within DEG degrees of its heading; default all around), commands faster than CAP m/s "
                         "are capped (sb3_crowdnav.safety)")
+    g.add_argument("--pedestrian-model", choices=("constant_velocity", "cautious"),
+                   help="the lookahead's pedestrian model of every value model (APGValue) evaluated (default: each "
+                        "model's own); refused when no policy is one")
+    g.add_argument("--stopping-check", action=argparse.BooleanOptionalAction, default=None,
+                   help="the lookahead's stopping-distance check of every value model evaluated on or off (default: "
+                        "each model's own; on needs limits in the env's world)")
 
 
 def _protective_field(text: str) -> Any:
@@ -212,6 +220,7 @@ def _run(args: argparse.Namespace, spec: PolicySpec, env_kwargs: dict[str, Any],
 
     return run_episodes(spec, args.episodes, env_kwargs, env_id=args.env, seed_offset=args.seed_offset,
                         allow_env_mismatch=args.allow_env_mismatch, protective_field=args.protective_field,
+                        lookahead=lookahead_settings(args, spec),
                         workers=args.workers, deterministic=not args.stochastic, progress=progress_enabled(args),
                         torch_threads=args.threads, **kwargs)
 
@@ -222,7 +231,8 @@ def _write_meta(out: Path, args: argparse.Namespace, env_kwargs: dict[str, Any],
     meta = {"command": args.command, "env": args.env, "env_kwargs": env_kwargs, "episodes": args.episodes,
             "seeds": [args.seed_offset, args.seed_offset + args.episodes - 1], "deterministic": not args.stochastic,
             "confidence_intervals": "Wilson score, 95 %", "sb3_crowdnav": __version__,
-            "protective_field": str(args.protective_field) if args.protective_field else None, **extra}
+            "protective_field": str(args.protective_field) if args.protective_field else None,
+            "lookahead": lookahead_settings(args), **extra}
     (out / "meta.json").write_text(json.dumps(meta, indent=2, default=str) + "\n")
 
 
@@ -234,6 +244,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     env_kwargs = env_kwargs_from_args(args)
     check_env(args.env, env_kwargs, single_crowd(args))
     spec = _check_policy(args.policy, args.env, env_kwargs, args.allow_env_mismatch)
+    check_lookahead(args, [spec])
     if args.out is not None:
         check_out(args.out)
     label = _labels([spec])[0]
@@ -258,8 +269,8 @@ def _figure_episodes(args, specs, labels, env_kwargs, seed):
 
     return {label: run_episodes(spec, seeds=[seed], env_kwargs=env_kwargs, env_id=args.env,
                                 allow_env_mismatch=args.allow_env_mismatch, protective_field=args.protective_field,
-                                deterministic=not args.stochastic, keep_trajectories=True,
-                                torch_threads=args.threads)[0]
+                                lookahead=lookahead_settings(args, spec), deterministic=not args.stochastic,
+                                keep_trajectories=True, torch_threads=args.threads)[0]
             for spec, label in zip(specs, labels, strict=True)}
 
 
@@ -272,7 +283,7 @@ def _value_map(args, spec: PolicySpec, label: str, env_kwargs: dict[str, Any], s
 
     env = make_env(args.env, env_kwargs)
     try:
-        model = make_policy(spec, env, args.allow_env_mismatch)
+        model = make_policy(spec, env, args.allow_env_mismatch, lookahead=lookahead_settings(args, spec))
         if not hasattr(getattr(model, "policy", None), "action_values"):
             return None
         obs, _ = env.reset(seed=seed)
@@ -300,6 +311,7 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
     env_kwargs = env_kwargs_from_args(args)
     check_env(args.env, env_kwargs)
     specs = [_check_policy(p, args.env, env_kwargs, args.allow_env_mismatch) for p in args.policy]
+    check_lookahead(args, specs)
     for n in args.sweep or ():  # every crowd of the sweep can be made
         try:
             check_env(args.env, {**env_kwargs, "num_humans": n, "max_humans": max(max(args.sweep), 1)})
@@ -343,7 +355,7 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
     if args.sweep:
         idx = next((i for i, s in enumerate(specs) if s.is_model), 0)
         sweep = run_sweep(specs[idx], args.sweep, args.episodes, env_kwargs, env_id=args.env,
-                          allow_env_mismatch=args.allow_env_mismatch,
+                          allow_env_mismatch=args.allow_env_mismatch, lookahead=lookahead_settings(args, specs[idx]),
                           seed_offset=args.seed_offset, workers=args.workers, deterministic=not args.stochastic,
                           progress=progress_enabled(args), torch_threads=args.threads)
         stable = sweep_table({n: summarize(r) for n, r in sweep.items()})
@@ -375,6 +387,7 @@ def _crowd_benchmark(args: argparse.Namespace) -> int:
     crowd_kwargs = {label: check_crowd(args.env, env_kwargs, crowd)
                     for crowd, label in zip(crowds, _labels(crowds), strict=True)}
     specs = [_check_policy(p, args.env, env_kwargs, args.allow_env_mismatch) for p in args.policy]
+    check_lookahead(args, specs)
     check_out(args.out)
     labels = _labels(specs)
     out: Path = args.out

@@ -74,7 +74,7 @@ def policy_label(spec: Any) -> str:
 
 
 def make_policy(spec: Any, env: gym.Env | None = None, allow_env_mismatch: bool = False,
-                protective_field: Any = None) -> Any:
+                protective_field: Any = None, lookahead: Mapping[str, Any] | None = None) -> Any:
     """Turn a spec (see :class:`PolicySpec`) into an object with ``predict``; objects with ``predict`` pass through.
 
     ``"orca"`` → :class:`~sb3_crowdnav.sim.orca.OrcaPolicy` built from ``env`` (nearest-action
@@ -86,9 +86,12 @@ def make_policy(spec: Any, env: gym.Env | None = None, allow_env_mismatch: bool 
     :class:`~sb3_crowdnav.apg_value.action_masks.WallMaskedPolicy`). A model trained in another world than ``env``
     (time step, kinematics, rotation range) is refused unless ``allow_env_mismatch``. A
     :class:`~sb3_crowdnav.safety.ProtectiveField` wraps the policy in a
-    :class:`~sb3_crowdnav.safety.ProtectedPolicy` (it needs ``env``).
+    :class:`~sb3_crowdnav.safety.ProtectedPolicy` (it needs ``env``). ``lookahead`` sets a value model's lookahead
+    (:func:`with_lookahead`).
     """
     policy = _make_policy(spec, env, allow_env_mismatch)
+    if lookahead:
+        policy = with_lookahead(policy, lookahead)
     if protective_field is None:
         return policy
     from sb3_crowdnav.safety import ProtectedPolicy
@@ -96,6 +99,27 @@ def make_policy(spec: Any, env: gym.Env | None = None, allow_env_mismatch: bool 
     if env is None:
         raise ValueError("protective_field needs the env the policy acts in (its action table)")
     return ProtectedPolicy(policy, protective_field, env)
+
+
+LOOKAHEAD_KEYS = ("pedestrian_model", "stopping_check")
+
+
+def with_lookahead(policy: Any, lookahead: Mapping[str, Any]) -> Any:
+    """``policy`` (a value model: APGValue) with its lookahead's ``pedestrian_model`` and/or ``stopping_check`` set
+    (:class:`~sb3_crowdnav.apg_value.ValueLookaheadPolicy`'s setters; V unchanged). ``ValueError`` for another policy
+    or another key; the setters refuse a value the model's world does not take (a stopping check without limits)."""
+    unknown = sorted(set(lookahead) - set(LOOKAHEAD_KEYS))
+    if unknown:
+        raise ValueError(f"lookahead takes {LOOKAHEAD_KEYS}, got {unknown}")
+    value_policy = getattr(policy, "policy", None)
+    if not hasattr(value_policy, "set_pedestrian_model"):
+        raise ValueError(f"{' and '.join(lookahead)} set a value model's lookahead (APGValue); "
+                         f"{policy_label(policy)} has none")
+    if "pedestrian_model" in lookahead:
+        value_policy.set_pedestrian_model(lookahead["pedestrian_model"])
+    if "stopping_check" in lookahead:
+        value_policy.set_stopping_check(bool(lookahead["stopping_check"]))
+    return policy
 
 
 def _make_policy(spec: Any, env: gym.Env | None, allow_env_mismatch: bool) -> Any:
@@ -246,12 +270,12 @@ def _set_torch_threads(n: int | None) -> None:
 
 
 def _init_worker(spec: PolicySpec, env_id: str, env_kwargs: dict[str, Any], torch_threads: int | None,
-                 protective_field: Any = None) -> None:
+                 protective_field: Any = None, lookahead: Mapping[str, Any] | None = None) -> None:
     _set_torch_threads(torch_threads)
     env = make_env(env_id, env_kwargs)
     _WORKER["env"] = env
     _WORKER["policy"] = make_policy(spec, env, allow_env_mismatch=True,  # the parent checked it
-                                    protective_field=protective_field)
+                                    protective_field=protective_field, lookahead=lookahead)
     _set_torch_threads(torch_threads)
 
 
@@ -281,6 +305,7 @@ def run_episodes(
     torch_threads: int | None = 1,
     allow_env_mismatch: bool = False,
     protective_field: Any = None,
+    lookahead: Mapping[str, Any] | None = None,
 ) -> list[EpisodeRecord]:
     """Evaluate ``policy`` on test episodes and return one :class:`EpisodeRecord` per episode, in seed order.
 
@@ -295,6 +320,7 @@ def run_episodes(
     :param torch_threads: torch threads in each worker (``None``: leave as is)
     :param allow_env_mismatch: evaluate a model in another world than it was trained for (see :func:`make_policy`)
     :param protective_field: a :class:`~sb3_crowdnav.safety.ProtectiveField` around the policy; None: none
+    :param lookahead: a value model's lookahead settings (:func:`with_lookahead`); None: the model's own
     """
     if seeds is None:
         if n_episodes is None:
@@ -312,7 +338,7 @@ def run_episodes(
         if workers == 1:
             env = make_env(env_id, env_kwargs)
             try:
-                pol = make_policy(policy, env, allow_env_mismatch, protective_field)
+                pol = make_policy(policy, env, allow_env_mismatch, protective_field, lookahead)
                 records = []
                 for s in seeds:
                     records.append(run_episode(env, pol, s, deterministic, keep_trajectories))
@@ -326,13 +352,13 @@ def run_episodes(
         # fail here, not in the workers: a Pool restarts workers whose initializer raises, forever
         env = make_env(env_id, env_kwargs)
         try:
-            make_policy(policy, env, allow_env_mismatch, protective_field)
+            make_policy(policy, env, allow_env_mismatch, protective_field, lookahead)
         finally:
             env.close()
         ctx = mp.get_context("spawn")
         tasks = [(s, deterministic, keep_trajectories) for s in seeds]
         chunk = max(1, min(16, len(seeds) // (workers * 8)))
-        initargs = (policy, env_id, env_kwargs, torch_threads, protective_field)
+        initargs = (policy, env_id, env_kwargs, torch_threads, protective_field, lookahead)
         with ctx.Pool(workers, initializer=_init_worker, initargs=initargs) as pool:
             records = []
             for rec in pool.imap(_worker_episode, tasks, chunksize=chunk):
@@ -388,6 +414,7 @@ def _progress(total: int, enabled: bool, desc: str):
 
 __all__ = [
     "DEFAULT_ENV_ID",
+    "LOOKAHEAD_KEYS",
     "RECORD_FIELDS",
     "TEST_SEED_OFFSET",
     "EpisodeRecord",
@@ -401,4 +428,5 @@ __all__ = [
     "run_episode",
     "run_episodes",
     "run_sweep",
+    "with_lookahead",
 ]
