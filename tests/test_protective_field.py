@@ -134,3 +134,20 @@ def test_a_cap_no_action_can_follow_is_refused_and_the_cli_answers_bad_fields_wi
         assert exc.value.code == 2
         err = capsys.readouterr().err
         assert "--protective-field" in err and len(err.strip().splitlines()) == 1
+
+
+def test_benchmark_sweep_runs_behind_the_field_too(tmp_path, monkeypatch):
+    """--protective-field reaches every run of benchmark, its --sweep included."""
+    from sb3_crowdnav.evaluation import runner
+
+    seen = {}
+    real = runner.run_sweep
+
+    def spy(*args, **kwargs):
+        seen.update(kwargs)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(runner, "run_sweep", spy)
+    assert main(["benchmark", "--policy", "orca", "--episodes", "1", "--sweep", "2", "--no-gif", "--no-progress",
+                 "--protective-field", "0.5,0.3", "--out", str(tmp_path / "b")]) == 0
+    assert str(seen["protective_field"]) == str(ProtectiveField.parse("0.5,0.3"))

@@ -356,6 +356,7 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
         idx = next((i for i, s in enumerate(specs) if s.is_model), 0)
         sweep = run_sweep(specs[idx], args.sweep, args.episodes, env_kwargs, env_id=args.env,
                           allow_env_mismatch=args.allow_env_mismatch, lookahead=lookahead_settings(args, specs[idx]),
+                          protective_field=args.protective_field,
                           seed_offset=args.seed_offset, workers=args.workers, deterministic=not args.stochastic,
                           progress=progress_enabled(args), torch_threads=args.threads)
         stable = sweep_table({n: summarize(r) for n, r in sweep.items()})
