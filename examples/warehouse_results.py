@@ -49,6 +49,15 @@ from sb3_crowdnav.cli import main as cli
 
 ENV = "CrowdNavWarehouse-v0"
 LAYOUT_FILE = Path(__file__).with_name("warehouse_layout.yaml")
+
+
+def layout_arg() -> str:
+    """The layout file as the runs name it: relative to the working folder when inside it (the tables' meta.json
+    then record the repository's path, not this machine's)."""
+    try:
+        return str(LAYOUT_FILE.resolve().relative_to(Path.cwd().resolve()))
+    except ValueError:
+        return str(LAYOUT_FILE)
 TODAY = ("pretrained:apg_warehouse", "orca", "orca-constrained")
 PAPER_MODELS = ("pretrained:apg_warehouse_paper", "pretrained:ppo_warehouse", "orca", "orca-constrained")
 SWEEP = (2, 4, 6, 8, 10)
@@ -174,7 +183,7 @@ def main(argv: list[str] | None = None) -> None:
         benchmark(args.out / "today_social_force", today, args.episodes, args.workers,
                   ["--env-kwargs", "dict(crowd='social_force')", "--no-gif"])
         benchmark(args.out / "today_layout_file", today, args.episodes, args.workers,
-                  ["--env-kwargs", f"dict(layout={str(LAYOUT_FILE)!r})", "--no-gif"])
+                  ["--env-kwargs", f"dict(layout={layout_arg()!r})", "--no-gif"])
         benchmark(args.out / "protective_field", today, args.episodes, args.workers,
                   ["--protective-field", args.protective_field, "--no-gif"])
     if args.world in ("both", "paper"):
@@ -182,7 +191,7 @@ def main(argv: list[str] | None = None) -> None:
                   ["--env-kwargs", f"dict({PAPER_ROBOT})", *(["--sweep", *map(str, args.sweep)] if args.sweep else []),
                    *([] if args.gif else ["--no-gif"])])
         benchmark(args.out / "layout_file", PAPER_MODELS, args.episodes, args.workers,
-                  ["--env-kwargs", f"dict(layout={str(LAYOUT_FILE)!r}, {PAPER_ROBOT})", "--no-gif"])
+                  ["--env-kwargs", f"dict(layout={layout_arg()!r}, {PAPER_ROBOT})", "--no-gif"])
         benchmark(args.out / "today_paper_models", PAPER_MODELS, args.episodes, args.workers,
                   ["--allow-env-mismatch", "--no-gif"])
     field = json.loads((args.out / "protective_field" / "meta.json").read_text())["protective_field"] \

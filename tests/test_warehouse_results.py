@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import json
 import os
+from pathlib import Path
 
 import pytest
 from example_scripts import load_example
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def _script():
@@ -41,14 +44,17 @@ def test_the_script_writes_every_table(tmp_path):
     for title in titles:
         assert title in summary
     assert summary.count("| min TTC [s] |") == len(titles)  # every table has its safety figures
-    for world in ("today", "protective_field"):
+    for world in ("today", "protective_field"):  # today's model and the ORCA robot (a PPO row with --policy)
         table = (out / world / "results.md").read_text()
-        assert all(f"| {row} |" in table for row in ("APG_WAREHOUSE", "PPO_WAREHOUSE", "ORCA", "ORCA-constrained"))
+        assert all(f"| {row} |" in table for row in ("APG_WAREHOUSE", "ORCA", "ORCA-constrained"))
     meta = json.loads((out / "today" / "meta.json").read_text())
     assert meta["env_kwargs"] == {} and meta["protective_field"] is None  # today's defaults, no field
     assert json.loads((out / "protective_field" / "meta.json").read_text())["protective_field"]
+    layout = json.loads((out / "today_layout_file" / "meta.json").read_text())["env_kwargs"]["layout"]
+    assert Path(layout).resolve() == (ROOT / "examples" / "warehouse_layout.yaml").resolve()
+    assert not Path(layout).is_absolute()  # run from the repository: its path, not this machine's
     generated = (out / "generated" / "results.md").read_text()
-    for row in ("APG_WAREHOUSE", "PPO_WAREHOUSE", "ORCA", "ORCA-constrained"):
+    for row in ("APG_WAREHOUSE_PAPER", "PPO_WAREHOUSE", "ORCA", "ORCA-constrained"):  # the paper-world models
         assert f"| {row} |" in generated
     assert "obstacle collision" in generated  # the warehouse columns
     assert (out / "layout_file" / "results.md").read_text().count("| 2 |") == 4  # 4 policies, 2 episodes each
