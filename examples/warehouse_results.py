@@ -49,6 +49,13 @@ from sb3_crowdnav.cli import main as cli
 
 ENV = "CrowdNavWarehouse-v0"
 LAYOUT_FILE = Path(__file__).with_name("warehouse_layout.yaml")
+TODAY = ("pretrained:apg_warehouse", "orca", "orca-constrained")
+PAPER_MODELS = ("pretrained:apg_warehouse_paper", "pretrained:ppo_warehouse", "orca", "orca-constrained")
+SWEEP = (2, 4, 6, 8, 10)
+# the world the shipped warehouse models were trained in, not today's defaults: the paper's robot (80 actions, no
+# limits) among pickers who do not see it (robot_visible=False), seen through racks at any range
+PAPER_ROBOT = ("actions='paper', max_acceleration=None, max_turn_rate=None, robot_visible=False, occlusion=False, "
+               "people_sensor_range=None")
 
 
 def layout_arg() -> str:
@@ -58,13 +65,6 @@ def layout_arg() -> str:
         return str(LAYOUT_FILE.resolve().relative_to(Path.cwd().resolve()))
     except ValueError:
         return str(LAYOUT_FILE)
-TODAY = ("pretrained:apg_warehouse", "orca", "orca-constrained")
-PAPER_MODELS = ("pretrained:apg_warehouse_paper", "pretrained:ppo_warehouse", "orca", "orca-constrained")
-SWEEP = (2, 4, 6, 8, 10)
-# the world the shipped warehouse models were trained in, not today's defaults: the paper's robot (80 actions, no
-# limits) among pickers who do not see it (robot_visible=False), seen through racks at any range
-PAPER_ROBOT = ("actions='paper', max_acceleration=None, max_turn_rate=None, robot_visible=False, occlusion=False, "
-               "people_sensor_range=None")
 
 
 def benchmark(out: Path, policies, episodes: int, workers: int, extra=()) -> None:

@@ -44,7 +44,9 @@ def _run_options(p: argparse.ArgumentParser, default_episodes: int = 500) -> Non
                    help="wrap every policy in a protective field: while an observed person's disc is within D m of the "
                         "robot's (within DEG degrees of its heading; default all around), commands faster than CAP m/s "
                         "are capped (sb3_crowdnav.safety)")
-    g.add_argument("--pedestrian-model", choices=("constant_velocity", "cautious"),
+    from sb3_crowdnav.training.schedule import PEDESTRIAN_MODELS
+
+    g.add_argument("--pedestrian-model", choices=PEDESTRIAN_MODELS,
                    help="the lookahead's pedestrian model of every value model (APGValue) evaluated (default: each "
                         "model's own); refused when no policy is one")
     g.add_argument("--stopping-check", action=argparse.BooleanOptionalAction, default=None,

@@ -248,23 +248,27 @@ def prepare(algo: str, hyperparams: Mapping[str, Any]) -> dict[str, Any]:
             "n_timesteps": n_timesteps, "kwargs": hp, "imitation": imitation}
 
 
-def imitation_settings(algo: str, cfg: Mapping[str, Any], **given: Any) -> dict[str, Any]:
-    """The imitation of a run: each of :data:`IMITATION_DEFAULTS` as ``given`` (None: not given), else as the
-    hyperparameter file sets it (:func:`prepare`'s ``cfg["imitation"]``), else its default. ``ValueError`` naming the
-    setting when the file and ``given`` both set it to different values, when a value is out of range, or when
-    ``algo`` takes no imitation (ppo, a2c, dqn and dqfd do; dqfd needs it)."""
-    unknown = sorted(set(given) - set(IMITATION_DEFAULTS))
-    if unknown:
-        raise TypeError(f"imitation_settings got {unknown}; it takes {sorted(IMITATION_DEFAULTS)}")
+def check_imitation(imitation_episodes: int, imitation_epochs: int, imitation_learning_rate: float) -> None:
+    """``ValueError`` naming an imitation setting out of its range (episodes >= 0, epochs >= 1, a rate > 0)."""
+    check_int("imitation_episodes", imitation_episodes, 0)
+    check_int("imitation_epochs", imitation_epochs, 1)
+    check_positive("imitation_learning_rate", imitation_learning_rate)
+
+
+def imitation_settings(algo: str, cfg: Mapping[str, Any], imitation_episodes: int | None = None,
+                       imitation_epochs: int | None = None, imitation_learning_rate: float | None = None) -> dict[str, Any]:
+    """The imitation of a run: each setting as given (None: not given), else the file's (``cfg["imitation"]``), else
+    :data:`IMITATION_DEFAULTS`'. ``ValueError`` naming the setting when the file and the caller disagree, when a value
+    is out of range, or when ``algo`` takes no imitation (ppo, a2c, dqn and dqfd do; dqfd needs it)."""
+    given = {"imitation_episodes": imitation_episodes, "imitation_epochs": imitation_epochs,
+             "imitation_learning_rate": imitation_learning_rate}
     settings = {}
-    for key, default in IMITATION_DEFAULTS.items():
-        mine, files = given.get(key), cfg["imitation"].get(key)
+    for key, mine in given.items():
+        files = cfg["imitation"].get(key)
         if mine is not None and files is not None and mine != files:
             raise ValueError(f"{key} is {files!r} in the hyperparameter file and {mine!r} here: give it once")
-        settings[key] = mine if mine is not None else files if files is not None else default
-    check_int("imitation_episodes", settings["imitation_episodes"], 0)
-    check_int("imitation_epochs", settings["imitation_epochs"], 1)
-    check_positive("imitation_learning_rate", settings["imitation_learning_rate"])
+        settings[key] = mine if mine is not None else files if files is not None else IMITATION_DEFAULTS[key]
+    check_imitation(**settings)
     if settings["imitation_episodes"] and algo not in IMITATION_ALGOS:
         own = "sets imitation_episodes in its hyperparameter file" if algo == "apg_value" else "takes no imitation"
         raise ValueError(f"imitation_episodes is for {', '.join(IMITATION_ALGOS)}; {algo} {own}")
@@ -320,8 +324,7 @@ def train_from_hyperparams(algo: str, hyperparams: Mapping[str, Any], out_dir: s
 
     With ``imitation_episodes`` > 0 (PPO, A2C, DQN), the model first imitates that many episodes of
     the ORCA robot (:mod:`sb3_crowdnav.imitation`); APGValue has its own ``imitation_episodes``
-    hyperparameter instead. The three imitation settings may also be keys of the file (None here: the file's, else
-    0 episodes, 10 epochs, a learning rate of 1e-3; :func:`imitation_settings`).
+    hyperparameter instead. The imitation settings may also be keys of the file (None: :func:`imitation_settings`).
 
     ``checkpoint_freq`` > 0 saves a checkpoint in ``out_dir/checkpoints/`` every that many env steps (over all envs) and
     after the imitation, with the replay buffer of an off-policy algorithm as plain arrays; the same call again resumes
@@ -348,13 +351,11 @@ def train_from_hyperparams(algo: str, hyperparams: Mapping[str, Any], out_dir: s
     env_kwargs = {**cfg["env_kwargs"], **dict(env_overrides or {})}
     imitation = imitation_settings(algo, cfg, imitation_episodes=imitation_episodes, imitation_epochs=imitation_epochs,
                                    imitation_learning_rate=imitation_learning_rate)
-    imitation_episodes, imitation_epochs = imitation["imitation_episodes"], imitation["imitation_epochs"]
-    imitation_learning_rate = imitation["imitation_learning_rate"]
+    imitation_episodes, imitation_epochs, imitation_learning_rate = imitation.values()  # (IMITATION_DEFAULTS' order)
     _check_arguments(checkpoint_freq, wall_time)
     identity = json.loads(json.dumps({
         "algo": algo, "env_id": env_id, "seed": seed, "hyperparams": dict(hyperparams), "env_kwargs": env_kwargs,
-        "timesteps": int(n_timesteps), "wall_time_s": wall_time, "imitation_episodes": imitation_episodes,
-        "imitation_epochs": imitation_epochs, "imitation_learning_rate": imitation_learning_rate}, default=str))
+        "timesteps": int(n_timesteps), "wall_time_s": wall_time, **imitation}, default=str))
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     model_path = out / f"{algo}.zip"
@@ -444,6 +445,6 @@ def imitate(model: Any, env: Any, algo: str, episodes: int, epochs: int, learnin
     env.reset()
 
 
-__all__ = ["ALGO_WRAPPERS", "DEFAULT_POLICIES", "IMITATION_DEFAULTS", "algorithm_kwargs", "env_wrapper_class",
-           "imitate", "imitation_settings", "load_hyperparams",
-           "policy_kwargs_names", "prepare", "safe_eval", "train_from_hyperparams"]
+__all__ = ["ALGO_WRAPPERS", "DEFAULT_POLICIES", "IMITATION_DEFAULTS", "algorithm_kwargs", "check_imitation",
+           "env_wrapper_class", "imitate", "imitation_settings", "load_hyperparams", "policy_kwargs_names", "prepare",
+           "safe_eval", "train_from_hyperparams"]

@@ -43,9 +43,8 @@ from stable_baselines3.common.policies import BasePolicy
 
 from sb3_crowdnav.nn.buffers import DictNStepMixin
 from sb3_crowdnav.nn.policies import APG_POLICIES
-from sb3_crowdnav.sim.validation import check_int, check_positive
 from sb3_crowdnav.training.callbacks import VALIDATION_SEED_OFFSET
-from sb3_crowdnav.training.hyperparams import imitate
+from sb3_crowdnav.training.hyperparams import IMITATION_DEFAULTS, check_imitation, imitate
 
 COMMANDS = ("train", "enjoy")
 
@@ -92,11 +91,10 @@ class ImitationMixin:
     DQfD's loss with the demonstrations left in the replay buffer for DQN). A model saved after it (or loaded) does not
     imitate again."""
 
-    def __init__(self, *args: Any, imitation_episodes: int = 0, imitation_epochs: int = 10,
-                 imitation_learning_rate: float = 1e-3, **kwargs: Any) -> None:
-        check_int("imitation_episodes", imitation_episodes, 0)
-        check_int("imitation_epochs", imitation_epochs, 1)
-        check_positive("imitation_learning_rate", imitation_learning_rate)
+    def __init__(self, *args: Any, imitation_episodes: int = IMITATION_DEFAULTS["imitation_episodes"],
+                 imitation_epochs: int = IMITATION_DEFAULTS["imitation_epochs"],
+                 imitation_learning_rate: float = IMITATION_DEFAULTS["imitation_learning_rate"], **kwargs: Any) -> None:
+        check_imitation(imitation_episodes, imitation_epochs, imitation_learning_rate)
         self.imitation_episodes, self.imitation_epochs = imitation_episodes, imitation_epochs
         self.imitation_learning_rate = float(imitation_learning_rate)
         self.imitated = imitation_episodes == 0
