@@ -139,3 +139,36 @@ def test_cli_refusals(tmp_path, capsys, argv, fragment):
     assert exc.value.code == 2
     err = capsys.readouterr().err
     assert fragment in err and len(err.strip().splitlines()) == 1
+
+
+def test_cli_wide_table_one_row_per_method(tmp_path, capsys):
+    results = []
+    for method, wins in (("A", {"x": [4, 3], "y": [2, 2]}), ("B", {"x": [1, 1], "y": [0, 0]})):
+        for column, per_seed in wins.items():
+            for seed, k in enumerate(per_seed):
+                folder = _episodes_csv(tmp_path / method / column / str(seed), ["success"] * k + ["collision"] * (4 - k))
+                results.append(f"{method}/{column}@{seed}={folder}")
+    doc = tmp_path / "README.md"
+    doc.write_text("<!-- readme:begin -->\nold\n<!-- readme:end -->\n")
+    assert main(["aggregate", *results, "--reps", str(REPS), "--table", "wide", "--label", "x=crowd X",
+                 "--markdown-into", str(doc), "--block", "readme"]) == 0
+    out = capsys.readouterr().out
+    assert "| method (success IQM [95 % CI]) | seeds | crowd X | y | all |" in out
+    assert "| A | 2 | 0.875 [0.750, 1.000] | 0.500 [0.500, 0.500] |" in out  # seeds 1.0 and 0.75; 0.5 and 0.5
+    assert "| B | 2 | 0.250 [0.250, 0.250] | 0.000 [0.000, 0.000] |" in out
+    assert "Per seed" not in out and "P(X > Y)" not in out
+    assert "| A | 2 | 0.875" in doc.read_text() and "old" not in doc.read_text()
+
+
+@pytest.mark.parametrize("argv, fragment", [
+    (["--label", "x=X"], "pass --table wide"),
+    (["--table", "wide", "--label", "z=Z"], "no result has the column 'z'"),
+    (["--table", "wide", "--label", "x"], "expected COLUMN=TEXT"),
+    (["--table", "wide", "--label", "x=a|b"], "expected COLUMN=TEXT"),
+])
+def test_cli_label_refusals(tmp_path, capsys, argv, fragment):
+    a = _episodes_csv(tmp_path / "a", ["success"] * 3)
+    with pytest.raises(SystemExit) as exc:
+        main(["aggregate", f"A/x@0={a}", *argv])
+    assert exc.value.code == 2
+    assert fragment in capsys.readouterr().err

@@ -12,6 +12,7 @@ from sb3_crowdnav.cli.common import UsageError, check_out, nonneg_int, positive_
 RESULT = re.compile(r"(?P<method>[^/@=]+)(?:/(?P<column>[^/@=]+))?@(?P<seed>\d+)=(?P<path>.+)")
 RESULT_GRAMMAR = "METHOD[/COLUMN]@SEED=PATH"
 DEFAULT_COLUMN = "test"
+TABLES = ("full", "wide")
 
 
 def _confidence(text: str) -> float:
@@ -44,6 +45,14 @@ def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
     p.add_argument("--markdown-into", type=Path, metavar="FILE",
                    help="replace the block between <!-- NAME:begin --> and <!-- NAME:end --> in FILE with the tables")
     p.add_argument("--block", default="seeds", metavar="NAME", help="the block's NAME (default: seeds)")
+    p.add_argument("--table", choices=TABLES, default="full",
+                   help="what is printed and written into --markdown-into: 'full' (the default: the aggregates, the "
+                        "probabilities of improvement and the per-seed rows, one row per method and column) or 'wide' "
+                        "(one row per method, one column per evaluation column: success IQM and interval; the "
+                        "README's form). --out writes every table either way")
+    p.add_argument("--label", action="append", default=[], metavar="COLUMN=TEXT",
+                   help="the header of COLUMN in the wide table, e.g. 'orca10=ORCA, 10 people' (repeatable; a COLUMN "
+                        "that no result has is refused)")
     p.set_defaults(func=cmd_aggregate)
 
 
@@ -56,10 +65,29 @@ def parse_result(text: str) -> tuple[str, str, int, Path]:
             Path(match["path"].strip()))
 
 
+def parse_labels(texts: list[str], columns: set[str], table: str) -> dict[str, str]:
+    """``--label COLUMN=TEXT`` -> {column: text}; refused unless the table is wide and every COLUMN is a result's."""
+    from sb3_crowdnav.evaluation.aggregate import ALL_COLUMNS
+
+    if texts and table != "wide":
+        raise UsageError("--label: names the columns of the wide table; pass --table wide")
+    labels = {}
+    for text in texts:
+        column, sep, label = text.partition("=")
+        if not sep or not column.strip() or not label.strip() or "|" in label:
+            raise UsageError(f"--label: expected COLUMN=TEXT (no '|' in TEXT), e.g. 'orca10=ORCA, 10 people', got {text!r}")
+        if column.strip() not in columns | {ALL_COLUMNS}:
+            raise UsageError(f"--label: no result has the column {column.strip()!r}; the columns are "
+                             f"{', '.join(sorted(columns))} and {ALL_COLUMNS}")
+        labels[column.strip()] = label.strip()
+    return labels
+
+
 def cmd_aggregate(args: argparse.Namespace) -> int:
     from sb3_crowdnav.evaluation.aggregate import aggregate, check_block, read_seed_score, write_block
 
     parsed = [parse_result(text) for text in args.results]
+    labels = parse_labels(args.label, {column for _, column, _, _ in parsed}, args.table)
     if args.out is not None:
         check_out(args.out)
     if args.markdown_into is not None:
@@ -72,11 +100,12 @@ def cmd_aggregate(args: argparse.Namespace) -> int:
         result = aggregate(scores, reps=args.reps, confidence=args.confidence, random_seed=args.bootstrap_seed)
     except (FileNotFoundError, ValueError, ImportError) as exc:
         raise UsageError(str(exc)) from None
-    print(result.to_markdown(), end="")
+    text = result.to_markdown() if args.table == "full" else result.wide_markdown_block(labels)
+    print(text, end="")
     if args.out is not None:
         written = result.save(args.out / "aggregate")
         print(f"\nwrote {', '.join(p.name for p in written)} in {args.out}")
     if args.markdown_into is not None:
-        write_block(args.markdown_into, args.block, result.to_markdown())
+        write_block(args.markdown_into, args.block, text)
         print(f"wrote the tables into {args.markdown_into}")
     return 0

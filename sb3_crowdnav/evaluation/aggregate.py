@@ -202,6 +202,28 @@ class Aggregates:
                   f"{_estimate(r.return_iqm, r.return_ci, 4)} |" for r in self.rows]
         return "\n".join(lines) + "\n"
 
+    def wide_markdown(self, labels: dict[str, str] | None = None) -> str:
+        """One row per method, one column per evaluation column (and ``all``): the success IQM with its interval, the
+        number of seeds beside the method (the README's form). ``labels`` renames columns in the header."""
+        labels = labels or {}
+        columns = list(dict.fromkeys(r.column for r in self.rows))
+        percent = f"{self.confidence * 100:g} %"
+        lines = [f"| method (success IQM [{percent} CI]) | seeds | "
+                 + " | ".join(labels.get(c, c) for c in columns) + " |", "|---" * (len(columns) + 2) + "|"]
+        for method in dict.fromkeys(r.method for r in self.rows):
+            rows = {r.column: r for r in self.rows if r.method == method}
+            seeds = sorted({r.seeds for r in rows.values()})
+            cells = [_estimate(rows[c].success_iqm, rows[c].success_ci, 3).replace(" (1 seed)", "") if c in rows else "–"
+                     for c in columns]
+            lines.append(f"| {method} | {'/'.join(map(str, seeds))} | " + " | ".join(cells) + " |")
+        return "\n".join(lines) + "\n"
+
+    def wide_markdown_block(self, labels: dict[str, str] | None = None) -> str:
+        """The wide table with a line that says how it was computed (``--table wide``)."""
+        return (f"Success: interquartile mean (IQM) over training seeds with stratified bootstrap "
+                f"{self.confidence * 100:g} % confidence intervals ({self.reps} resamples), computed with rliable; "
+                f"'all' pools the columns.\n\n{self.wide_markdown(labels)}")
+
     def improvement_markdown(self) -> str:
         percent = f"{self.confidence * 100:g} %"
         lines = [f"| X | Y | column | P(X > Y) [{percent} CI] | interval excludes 0.5 |", "|---|---|---|---|---|"]
