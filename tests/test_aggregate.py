@@ -156,7 +156,7 @@ def test_cli_wide_table_one_row_per_method(tmp_path, capsys):
     assert "| method (success IQM [95 % CI]) | seeds | crowd X | y | all |" in out
     assert "| A | 2 | 0.875 [0.750, 1.000] | 0.500 [0.500, 0.500] |" in out  # seeds 1.0 and 0.75; 0.5 and 0.5
     assert "| B | 2 | 0.250 [0.250, 0.250] | 0.000 [0.000, 0.000] |" in out
-    assert "Per seed" not in out and "P(X > Y)" not in out
+    assert "Per seed" not in out and "P(X > Y)" not in out and "'all' pools the columns" in out
     assert "| A | 2 | 0.875" in doc.read_text() and "old" not in doc.read_text()
 
 

@@ -220,9 +220,11 @@ class Aggregates:
 
     def wide_markdown_block(self, labels: dict[str, str] | None = None) -> str:
         """The wide table with a line that says how it was computed (``--table wide``)."""
+        pooled = any(r.column == ALL_COLUMNS for r in self.rows)
+        note = f"; '{(labels or {}).get(ALL_COLUMNS, ALL_COLUMNS)}' pools the columns" if pooled else ""
         return (f"Success: interquartile mean (IQM) over training seeds with stratified bootstrap "
-                f"{self.confidence * 100:g} % confidence intervals ({self.reps} resamples), computed with rliable; "
-                f"'all' pools the columns.\n\n{self.wide_markdown(labels)}")
+                f"{self.confidence * 100:g} % confidence intervals ({self.reps} resamples), computed with rliable"
+                f"{note}.\n\n{self.wide_markdown(labels)}")
 
     def improvement_markdown(self) -> str:
         percent = f"{self.confidence * 100:g} %"
