@@ -100,7 +100,7 @@ class Method:
     algo: str | None = None
     env: str | None = None
     train: tuple[str, ...] = ()  # train flags (the grid's, then the method's own)
-    model: str = "best"  # the model evaluated: best.zip or final.zip of a variant run
+    model: str = "best"  # the model evaluated: best.zip or final.zip (a --hyperparams run: best.zip or ALGO.zip)
 
 
 @dataclass(frozen=True)
@@ -136,10 +136,11 @@ def _method(where: str, name: str, entry: Any, common: list[str], base: Path) ->
         return Method(name, variant=entry["variant"], train=tuple(train), model=model)
     if entry.get("algo") not in ALGOS:
         raise _refuse(f"{where}.algo", f"expected one of {', '.join(ALGOS)}, got {entry.get('algo')!r}")
-    if model != "final":
-        if "model" in entry:
-            raise _refuse(f"{where}.model", "a --hyperparams run saves its final model only: leave it out or write final")
+    if "model" not in entry:  # a --hyperparams run keeps its best model only when it validates its checkpoints
         model = "final"
+    elif model == "best" and "--eval-episodes" not in train:
+        raise _refuse(f"{where}.model", "a --hyperparams run keeps a best model only when it validates its checkpoints: "
+                                        "give train: {eval_episodes: N}, or write final")
     path = Path(str(entry["hyperparams"]))
     path = path if path.is_absolute() else base / path
     if not path.is_file():
@@ -233,7 +234,7 @@ class Cell:
     @property
     def model_path(self) -> Path:
         m = self.method
-        return self.train_folder / (f"{m.algo}.zip" if m.hyperparams else f"{m.model}.zip")
+        return self.train_folder / (f"{m.algo}.zip" if m.hyperparams and m.model == "final" else f"{m.model}.zip")
 
     def eval_folder(self, column: str) -> Path:
         return self.folder / "eval" / column

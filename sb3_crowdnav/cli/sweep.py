@@ -60,7 +60,7 @@ def check_grid(grid: Grid, all_cells: list[Cell]) -> None:
             continue
         checked.add((cell.method.name, cell.env))
         where = f"methods.{cell.method.name} in envs.{cell.env}"
-        if cell.method.variant and cell.method.model == "best" and "--eval-episodes" in cell.method.train \
+        if cell.method.model == "best" and "--eval-episodes" in cell.method.train \
                 and cell.method.train[cell.method.train.index("--eval-episodes") + 1] == "0":
             raise UsageError(f"{where}: model 'best' needs validation (eval_episodes > 0); write model: final")
         try:

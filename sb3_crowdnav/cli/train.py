@@ -28,6 +28,7 @@ SCHEDULE_FLAGS = {
     "exploration_initial_eps": "--epsilon-start", "exploration_final_eps": "--epsilon-end",
     "pedestrian_model": "--pedestrian-model", "stopping_check": "--stopping-check",
 }
+SHARED_FLAGS = ("eval_episodes",)  # schedule flags that a --hyperparams run takes too
 HYPERPARAMS_FLAGS = {"algo": "--algo", "timesteps": "--timesteps", "checkpoint_freq": "--checkpoint-freq",
                      "wall_time": "--wall-time"}
 
@@ -74,7 +75,9 @@ def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
     g.add_argument("--checkpoint-episodes", type=common.positive_int,
                    help="checkpoint and validate every N RL episodes (default: the variant's: 500, apg_robust 750)")
     g.add_argument("--eval-episodes", type=common.nonneg_int,
-                   help="greedy validation episodes per checkpoint, 0: none (default: 100)")
+                   help="greedy validation episodes per checkpoint, 0: none (default: 100; with --hyperparams "
+                        "and --checkpoint-freq it validates every checkpoint and keeps the best as OUT/best.zip, "
+                        "default 0)")
     g.add_argument("--no-bootstrap-timeouts", dest="bootstrap_timeouts", action="store_const", const=False,
                    help="end timed-out episodes with zero future value (the field's reference code)")
     g.add_argument("--exploration-episodes", type=common.positive_int,
@@ -226,7 +229,10 @@ def _hyperparams_config(args: argparse.Namespace) -> dict[str, Any]:
     from sb3_crowdnav.models import algorithms
     from sb3_crowdnav.training.hyperparams import imitation_settings, load_hyperparams, prepare
 
-    _refuse(args, SCHEDULE_FLAGS, "--hyperparams (it is for --variant runs)")
+    _refuse(args, {k: v for k, v in SCHEDULE_FLAGS.items() if k not in SHARED_FLAGS},
+            "--hyperparams (it is for --variant runs)")
+    if args.eval_episodes and not args.checkpoint_freq:
+        raise UsageError("--eval-episodes with --hyperparams validates every checkpoint: give --checkpoint-freq too")
     if args.algo is None:
         raise UsageError(f"--hyperparams needs --algo, one of {', '.join(ALGOS)}")
     if args.algo not in algorithms():
@@ -267,7 +273,8 @@ def _train_hyperparams(args: argparse.Namespace, checked: dict[str, Any]) -> int
             progress_bar=common.progress_enabled(args), verbose=args.verbose or 0,
             env_overrides=common.env_kwargs_from_args(args), imitation_episodes=imitation_episodes,
             imitation_epochs=imitation_epochs, imitation_learning_rate=checked["imitation_learning_rate"],
-            checkpoint_freq=args.checkpoint_freq or 0, wall_time=None if args.wall_time is None else 60 * args.wall_time)
+            checkpoint_freq=args.checkpoint_freq or 0, wall_time=None if args.wall_time is None else 60 * args.wall_time,
+            eval_episodes=args.eval_episodes or 0)
     except RunLockedError as exc:
         raise UsageError(str(exc)) from None
     except RunMismatchError as exc:

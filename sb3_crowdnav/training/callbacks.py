@@ -7,6 +7,7 @@ import json
 import shutil
 import signal
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +28,59 @@ from sb3_crowdnav.training.run_folder import (
 
 VALIDATION_SEED_OFFSET = 2_000_000  # greedy validation episodes: disjoint from training and from the test seeds
 SELECT_BY = ("success", "return")
+
+
+def validate_file(load: Callable[[], Any], episodes: int, env_kwargs: dict[str, Any], env_id: str) -> dict[str, Any]:
+    """The validation row of the model ``load()`` returns: ``episodes`` greedy episodes from
+    :data:`VALIDATION_SEED_OFFSET` (the same episodes for every checkpoint of every run). The global random states
+    (Python's, NumPy's, torch's) are given back afterwards, so that a run trains the same with or without it."""
+    import random
+
+    import numpy as np
+    import torch
+
+    start, py_state, np_state = time.time(), random.getstate(), np.random.get_state()
+    with torch.random.fork_rng(devices=[]):
+        s = summarize(run_episodes(load(), episodes, env_kwargs, env_id=env_id, seed_offset=VALIDATION_SEED_OFFSET))
+    random.setstate(py_state)
+    np.random.set_state(np_state)
+    return {"wall": time.time(), "eval_seconds": time.time() - start,
+            "success": s.success_rate, "collision": s.collision_rate, "timeout": s.timeout_rate,
+            "time": s.navigation_time, "gap": s.min_separation, "return": s.discounted_return,
+            "comfort_time": s.comfort_zone_time, "heading": s.heading_change, "sharp_turns": s.sharp_turns}
+
+
+def record_validation(out: Path, key: str, value: int, compute: Callable[[], dict[str, Any]]) -> dict[str, Any]:
+    """The row of ``OUT/eval_curve.jsonl`` whose ``key`` is ``value`` (``episodes`` of a paper-schedule run,
+    ``timesteps`` of a hyperparameter-file run): the one a resumed run wrote before, else ``compute()``'s, appended."""
+    curve = Path(out) / "eval_curve.jsonl"
+    rows = [json.loads(line) for line in curve.read_text().splitlines()] if curve.exists() else []
+    row = next((r for r in rows if r.get(key) == value), None)
+    if row is None:
+        row = {key: value, **compute()}
+        rows.append(row)
+        atomic_write(curve, lambda tmp: tmp.write_text("".join(json.dumps(r) + "\n" for r in rows)))
+    return row
+
+
+def update_best(out: Path, row: dict[str, Any], source: Path, select_by: str = "success") -> bool:
+    """Copy ``source`` (the model validated in ``row``) to ``OUT/best.zip`` and ``row`` to ``OUT/best.json`` when it
+    beats the best so far: highest success, then shortest navigation time (``select_by="success"``), or highest
+    mean discounted return (``"return"``). Returns whether it did."""
+    check_choice("select_by", select_by, SELECT_BY)
+    if select_by == "return":
+        score = [row["return"]]
+    else:
+        score = [row["success"], -row["time"] if row["time"] == row["time"] else 0.0]
+    best = read_json(Path(out) / "best.json")
+    if best is not None and best.get("select_by", "success") == select_by and score <= list(best["score"]):
+        return False
+    atomic_write(Path(out) / "best.zip", lambda tmp: shutil.copyfile(source, tmp))
+    kill_point("best_zip")
+    write_json(Path(out) / "best.json", {"score": score, "select_by": select_by, "sha256": sha256(Path(out) / "best.zip"),
+                                         **row})
+    kill_point("best_json")
+    return True
 
 
 class EpisodeCheckpoint(BaseCallback):
@@ -68,46 +122,21 @@ class EpisodeCheckpoint(BaseCallback):
         """Validate the checkpoint of the current episode count (once: a row an interrupted attempt left is reused),
         update the best model, and mark the checkpoint validated in ``progress.json``."""
         model, n = self.model, self.model.episodes_done
-        curve = self.out / "eval_curve.jsonl"
-        rows = [json.loads(line) for line in curve.read_text().splitlines()] if curve.exists() else []
-        row = next((r for r in rows if r["episodes"] == n), None)
-        if row is None:
-            start = time.time()
-            # the checkpoint's file, as best.zip copies it: inside learn() with overlap_training the model itself
-            # acts with a copy of V one training call older than the V it saved
-            saved = type(model).load(checkpoint_path(self.out, n))
-            s = summarize(run_episodes(saved, self.eval_episodes, self.env_kwargs, env_id=self.env_id,
-                                       seed_offset=VALIDATION_SEED_OFFSET))
-            row = {"episodes": n, "timesteps": model.num_timesteps, "wall": time.time(),
-                   "eval_seconds": time.time() - start,
-                   "success": s.success_rate, "collision": s.collision_rate, "timeout": s.timeout_rate,
-                   "time": s.navigation_time, "gap": s.min_separation, "return": s.discounted_return,
-                   "comfort_time": s.comfort_zone_time, "heading": s.heading_change, "sharp_turns": s.sharp_turns}
-            rows.append(row)
-            atomic_write(curve, lambda tmp: tmp.write_text("".join(json.dumps(r) + "\n" for r in rows)))
-            kill_point("eval")
+        # the checkpoint's file, as best.zip copies it: inside learn() with overlap_training the model itself acts
+        # with a copy of V one training call older than the V it saved
+        row = record_validation(self.out, "episodes", n, lambda: {
+            "timesteps": model.num_timesteps,
+            **validate_file(lambda: type(model).load(checkpoint_path(self.out, n)), self.eval_episodes,
+                            self.env_kwargs, self.env_id)})
+        kill_point("eval")
         for key in ("success", "collision", "timeout", "time", "gap", "return"):
             model.logger.record(f"eval/{key}", row[key])
-        self._update_best(row)
+        update_best(self.out, row, checkpoint_path(self.out, n), self.select_by)
         progress = read_json(self.out / "progress.json") or {}
         progress["validated"] = sorted({*progress.get("validated", []), n})
         write_json(self.out / "progress.json", progress)
         print(f"validation after {n} RL episodes: success {row['success']:.2f}, "
               f"collision {row['collision']:.2f}, time {row['time']:.2f} s", flush=True)
-
-    def _update_best(self, row: dict[str, Any]) -> None:
-        if self.select_by == "return":
-            score = [row["return"]]
-        else:
-            score = [row["success"], -row["time"] if row["time"] == row["time"] else 0.0]
-        best = read_json(self.out / "best.json")
-        if best is None or best.get("select_by", "success") != self.select_by or score > list(best["score"]):
-            source = checkpoint_path(self.out, row["episodes"])
-            atomic_write(self.out / "best.zip", lambda tmp: shutil.copyfile(source, tmp))
-            kill_point("best_zip")
-            write_json(self.out / "best.json", {"score": score, "select_by": self.select_by,
-                                                "sha256": sha256(self.out / "best.zip"), **row})
-            kill_point("best_json")
 
     def save(self) -> None:
         """Write ``replay_buffer_<N>.npz`` then ``checkpoint_<N>.zip`` (each atomically), then ``progress.json``;

@@ -316,7 +316,7 @@ def train_from_hyperparams(algo: str, hyperparams: Mapping[str, Any], out_dir: s
           timesteps: int | None = None, seed: int = 0, progress_bar: bool = False, verbose: int = 0,
           env_overrides: Mapping[str, Any] | None = None, imitation_episodes: int | None = None,
           imitation_epochs: int | None = None, imitation_learning_rate: float | None = None, checkpoint_freq: int = 0,
-          wall_time: float | None = None):
+          wall_time: float | None = None, eval_episodes: int = 0):
     """Train ``algo`` with rl-zoo3 hyperparameters; save ``out_dir/<algo>.zip`` and TensorBoard logs in ``out_dir/tb``.
 
     Training envs are seeded ``seed, seed + 1, ...`` (``make_vec_env``), far from the test seeds
@@ -332,6 +332,8 @@ def train_from_hyperparams(algo: str, hyperparams: Mapping[str, Any], out_dir: s
     in the folder is refused). ``wall_time`` [s] stops training at the first env step after that much wall time in all
     (imitation and every resumed segment included; :class:`~sb3_crowdnav.training.callbacks.WallTimeBudget`), whatever
     the timesteps reached: the model's ``num_timesteps`` says how many, ``out_dir/progress.json`` the wall time used.
+    ``eval_episodes`` > 0 (with ``checkpoint_freq``) validates every checkpoint and the final model on that many
+    validation episodes and keeps the best as ``out_dir/best.zip`` (:class:`~sb3_crowdnav.training.zoo_run.Validation`).
     """
     start = time.perf_counter()
     from stable_baselines3.common.env_util import make_vec_env
@@ -352,10 +354,11 @@ def train_from_hyperparams(algo: str, hyperparams: Mapping[str, Any], out_dir: s
     imitation = imitation_settings(algo, cfg, imitation_episodes=imitation_episodes, imitation_epochs=imitation_epochs,
                                    imitation_learning_rate=imitation_learning_rate)
     imitation_episodes, imitation_epochs, imitation_learning_rate = imitation.values()  # (IMITATION_DEFAULTS' order)
-    _check_arguments(checkpoint_freq, wall_time)
+    _check_arguments(checkpoint_freq, wall_time, eval_episodes)
     identity = json.loads(json.dumps({
         "algo": algo, "env_id": env_id, "seed": seed, "hyperparams": dict(hyperparams), "env_kwargs": env_kwargs,
-        "timesteps": int(n_timesteps), "wall_time_s": wall_time, **imitation}, default=str))
+        "timesteps": int(n_timesteps), "wall_time_s": wall_time, **imitation,
+        **({"eval_episodes": eval_episodes} if eval_episodes else {})}, default=str))
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     model_path = out / f"{algo}.zip"
@@ -370,19 +373,22 @@ def train_from_hyperparams(algo: str, hyperparams: Mapping[str, Any], out_dir: s
             off_policy = issubclass(algos[algo], OffPolicyAlgorithm)
             resumed = zoo_run.latest_checkpoint(out, algo, off_policy) if progress else None
             clock = zoo_run.RunClock(progress.get("wall_time_s", 0.0) if resumed is not None else 0.0, start)
+            validation = zoo_run.Validation(out, algo, eval_episodes, env_id, env_kwargs) if eval_episodes else None
             if resumed is None:
                 model = algos[algo](cfg["policy"], env, seed=seed, tensorboard_log=str(out / "tb"), verbose=verbose, **kwargs)
                 if imitation_episodes:
                     imitate(model, env, algo, imitation_episodes, imitation_epochs, imitation_learning_rate, verbose)
                 if checkpoint_freq:  # the imitation's end: a resumed run does not imitate again
-                    zoo_run.save_checkpoint(model, out, algo, clock, identity)
+                    zoo_run.save_checkpoint(model, out, algo, clock, identity, validation)
             else:
-                model = _resume(out, algo, resumed, env, seed, verbose, imitation_episodes)
+                model = zoo_run.resume_model(out, algo, resumed, env, seed, verbose, imitation_episodes)
+                if validation is not None:  # a kill between the checkpoint and its validation: validated now
+                    validation(resumed, zoo_run.checkpoint_file(out, algo, resumed))
                 if verbose:
                     print(f"resuming from {zoo_run.checkpoint_file(out, algo, resumed)} ({clock.used:.0f} s used)")
             callbacks: list[Any] = []
             if checkpoint_freq:
-                callbacks.append(zoo_run.ZooCheckpoint(out, algo, checkpoint_freq, clock, identity))
+                callbacks.append(zoo_run.ZooCheckpoint(out, algo, checkpoint_freq, clock, identity, validation))
             left = None if wall_time is None else wall_time - clock.used
             if left is not None:
                 from sb3_crowdnav.training.callbacks import WallTimeBudget
@@ -392,37 +398,21 @@ def train_from_hyperparams(algo: str, hyperparams: Mapping[str, Any], out_dir: s
                 model.learn(total_timesteps=int(n_timesteps) - (model.num_timesteps if resumed is not None else 0),
                             progress_bar=progress_bar, callback=callbacks or None, reset_num_timesteps=resumed is None)
             atomic_write(model_path, lambda tmp: zoo_run.save_model(model, tmp))
+            if validation is not None:
+                validation(int(model.num_timesteps), model_path)
             zoo_run.finish(out, model, clock, identity)
         finally:
             env.close()
     return model, model_path
 
 
-def _check_arguments(checkpoint_freq: int, wall_time: float | None) -> None:
+def _check_arguments(checkpoint_freq: int, wall_time: float | None, eval_episodes: int) -> None:
     check_int("checkpoint_freq", checkpoint_freq, 0)
+    check_int("eval_episodes", eval_episodes, 0)
+    if eval_episodes and not checkpoint_freq:
+        raise ValueError("eval_episodes validates the checkpoints: give checkpoint_freq > 0 too")
     if wall_time is not None:
         check_positive("wall_time", wall_time, " [s]")
-
-
-def _resume(out: Path, algo: str, steps: int, env: Any, seed: int, verbose: int, imitation_episodes: int) -> Any:
-    """The checkpoint of ``steps`` (:mod:`~sb3_crowdnav.training.zoo_run`) with its replay buffer, and DQfD's
-    demonstrations collected again."""
-    from sb3_crowdnav.models import load_model
-    from sb3_crowdnav.training import zoo_run
-
-    model = load_model(zoo_run.checkpoint_file(out, algo, steps), env=env, algo=algo, tensorboard_log=str(out / "tb"),
-                       verbose=verbose)
-    model.set_random_seed(seed + steps)  # the resumed segment's own draws, the same on every resume
-    if getattr(model, "replay_buffer", None) is not None:
-        from sb3_crowdnav.apg_value.buffers import load_buffer
-
-        load_buffer(model.replay_buffer, zoo_run.buffer_file(out, algo, steps))
-    if algo == "dqfd":  # the demonstrations beside the buffer: the same ORCA episodes again
-        from sb3_crowdnav import imitation
-
-        model.set_demonstrations(imitation.collect_demonstrations(env, imitation_episodes))
-        env.reset()
-    return model
 
 
 def imitate(model: Any, env: Any, algo: str, episodes: int, epochs: int, learning_rate: float, verbose: int) -> None:

@@ -60,9 +60,11 @@ class RunClock:
         return self.used + time.perf_counter() - self.start
 
 
-def save_checkpoint(model: Any, out: Path, algo: str, clock: RunClock, identity: dict[str, Any]) -> None:
+def save_checkpoint(model: Any, out: Path, algo: str, clock: RunClock, identity: dict[str, Any],
+                    validation: Validation | None = None) -> None:
     """Write the model (then an off-policy replay buffer) under temporary names, then ``progress.json``; remove
-    older buffers. A kill at any point leaves the previous checkpoint whole."""
+    older buffers; then validate the checkpoint with ``validation``, if given. A kill at any point leaves the previous
+    checkpoint whole (a resumed run validates its checkpoint first, unless it was)."""
     from sb3_crowdnav.apg_value.buffers import save_buffer
 
     steps = int(model.num_timesteps)
@@ -78,6 +80,30 @@ def save_checkpoint(model: Any, out: Path, algo: str, clock: RunClock, identity:
         if old != buffer_file(out, algo, steps):
             old.unlink(missing_ok=True)
     kill_point("zoo_checkpoint")
+    if validation is not None:
+        validation(steps, checkpoint_file(out, algo, steps))
+
+
+class Validation:
+    """Validate a hyperparameter-file run's checkpoints as a paper-schedule run's are: ``episodes`` greedy episodes
+    from the validation seeds (:func:`~sb3_crowdnav.training.callbacks.validate_file`), one row per checkpoint in
+    ``OUT/eval_curve.jsonl`` (keyed by ``timesteps``; a resumed run reuses the rows), and the best so far (highest
+    success, then shortest time) copied to ``OUT/best.zip`` with its row in ``OUT/best.json``. The model is loaded from
+    its file as ``sb3-crowdnav evaluate`` loads it (a MaskablePPO model with its wall masks)."""
+
+    def __init__(self, out: Path, algo: str, episodes: int, env_id: str, env_kwargs: dict[str, Any]) -> None:
+        self.out, self.algo, self.episodes, self.env_id, self.env_kwargs = Path(out), algo, episodes, env_id, env_kwargs
+
+    def __call__(self, steps: int, path: Path) -> dict[str, Any]:
+        from sb3_crowdnav.training.callbacks import record_validation, update_best, validate_file
+
+        row = record_validation(self.out, "timesteps", steps, lambda: validate_file(
+            lambda: str(path), self.episodes, self.env_kwargs, self.env_id))
+        kill_point("zoo_eval")
+        update_best(self.out, row, path)
+        print(f"validation after {steps} steps: success {row['success']:.2f}, collision {row['collision']:.2f}, "
+              f"time {row['time']:.2f} s", flush=True)
+        return row
 
 
 def save_model(model: Any, path: Path) -> None:
@@ -93,9 +119,11 @@ class ZooCheckpoint(BaseCallback):
     the first rollout past each multiple: there every transition collected is stored and every gradient step of
     the previous rollout taken (PPO's rollout buffer is empty, an off-policy replay buffer complete)."""
 
-    def __init__(self, out: Path, algo: str, every: int, clock: RunClock, identity: dict[str, Any]) -> None:
+    def __init__(self, out: Path, algo: str, every: int, clock: RunClock, identity: dict[str, Any],
+                 validation: Validation | None = None) -> None:
         super().__init__()
         self.out, self.algo, self.every, self.clock, self.identity = Path(out), algo, int(every), clock, identity
+        self.validation = validation
         self._next = 0
 
     def _on_training_start(self) -> None:
@@ -103,11 +131,31 @@ class ZooCheckpoint(BaseCallback):
 
     def _on_rollout_start(self) -> None:
         if self.model.num_timesteps >= self._next:
-            save_checkpoint(self.model, self.out, self.algo, self.clock, self.identity)
+            save_checkpoint(self.model, self.out, self.algo, self.clock, self.identity, self.validation)
             self._next = (self.model.num_timesteps // self.every + 1) * self.every
 
     def _on_step(self) -> bool:
         return True
+
+
+def resume_model(out: Path, algo: str, steps: int, env: Any, seed: int, verbose: int, imitation_episodes: int) -> Any:
+    """The checkpoint of ``steps`` (:mod:`~sb3_crowdnav.training.zoo_run`) with its replay buffer, and DQfD's
+    demonstrations collected again."""
+    from sb3_crowdnav.models import load_model
+
+    model = load_model(checkpoint_file(out, algo, steps), env=env, algo=algo, tensorboard_log=str(out / "tb"),
+                       verbose=verbose)
+    model.set_random_seed(seed + steps)  # the resumed segment's own draws, the same on every resume
+    if getattr(model, "replay_buffer", None) is not None:
+        from sb3_crowdnav.apg_value.buffers import load_buffer
+
+        load_buffer(model.replay_buffer, buffer_file(out, algo, steps))
+    if algo == "dqfd":  # the demonstrations beside the buffer: the same ORCA episodes again
+        from sb3_crowdnav import imitation
+
+        model.set_demonstrations(imitation.collect_demonstrations(env, imitation_episodes))
+        env.reset()
+    return model
 
 
 class RunMismatchError(ValueError):
@@ -131,5 +179,5 @@ def finish(out: Path, model: Any, clock: RunClock, identity: dict[str, Any]) -> 
                                 "wall_time_s": round(clock.total(), 1), "checkpoint": None, "finished": True})
 
 
-__all__ = ["RunClock", "RunMismatchError", "ZooCheckpoint", "buffer_file", "checkpoint_file", "finish", "latest_checkpoint",
-           "read_progress", "save_checkpoint", "save_model"]
+__all__ = ["RunClock", "RunMismatchError", "Validation", "ZooCheckpoint", "buffer_file", "checkpoint_file", "finish",
+           "latest_checkpoint", "read_progress", "resume_model", "save_checkpoint", "save_model"]
