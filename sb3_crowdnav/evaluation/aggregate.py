@@ -213,8 +213,8 @@ class Aggregates:
         for method in dict.fromkeys(r.method for r in self.rows):
             rows = {r.column: r for r in self.rows if r.method == method}
             seeds = sorted({r.seeds for r in rows.values()})
-            cells = [_estimate(rows[c].success_iqm, rows[c].success_ci, 3).replace(" (1 seed)", "") if c in rows else "–"
-                     for c in columns]
+            cells = [("–" if c not in rows else _estimate(rows[c].success_iqm, rows[c].success_ci, 3)
+                      if rows[c].success_ci is not None else _num(rows[c].success_iqm, 3)) for c in columns]
             lines.append(f"| {method} | {'/'.join(map(str, seeds))} | " + " | ".join(cells) + " |")
         return "\n".join(lines) + "\n"
 

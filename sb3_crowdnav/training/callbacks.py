@@ -40,10 +40,12 @@ def validate_file(load: Callable[[], Any], episodes: int, env_kwargs: dict[str, 
     import torch
 
     start, py_state, np_state = time.time(), random.getstate(), np.random.get_state()
-    with torch.random.fork_rng(devices=[]):
-        s = summarize(run_episodes(load(), episodes, env_kwargs, env_id=env_id, seed_offset=VALIDATION_SEED_OFFSET))
-    random.setstate(py_state)
-    np.random.set_state(np_state)
+    try:
+        with torch.random.fork_rng(devices=[]):
+            s = summarize(run_episodes(load(), episodes, env_kwargs, env_id=env_id, seed_offset=VALIDATION_SEED_OFFSET))
+    finally:
+        random.setstate(py_state)
+        np.random.set_state(np_state)
     return {"wall": time.time(), "eval_seconds": time.time() - start,
             "success": s.success_rate, "collision": s.collision_rate, "timeout": s.timeout_rate,
             "time": s.navigation_time, "gap": s.min_separation, "return": s.discounted_return,
