@@ -17,8 +17,11 @@ different days and machines aggregate together (docs: training, "Sweeps and seed
 * ``COLUMN=DIR``, the ``--out`` of ``sb3-crowdnav evaluate`` or of ``sb3-crowdnav benchmark`` with one ``--policy``.
 
 ``--run`` copies the run's ``config.json`` (as ``train_config.json``) and its ``eval_curve.jsonl`` (the validations) beside
-them. Every source is checked before anything is written, and a column recorded already is refused unless
-``--replace`` is given.
+them, and writes ``budget.json``: the RL env steps and the wall time the run used, from its ``progress.json``
+(``sb3-crowdnav aggregate --budget METHOD@S=paper_results/seeds/METHOD/seed_S/budget.json`` states them). A run that
+recorded no wall time (APGValue runs before it was recorded) takes it from ``--wall-time MIN``, measured outside the
+run (``/usr/bin/time``); without it ``budget.json`` says ``null``. ``--run`` alone records just these files. Every
+source is checked before anything is written, and a column recorded already is refused unless ``--replace`` is given.
 """
 
 from __future__ import annotations
@@ -29,7 +32,7 @@ import re
 import shutil
 from pathlib import Path
 
-from sb3_crowdnav.cli.common import Parser, UsageError, nonneg_int
+from sb3_crowdnav.cli.common import Parser, UsageError, nonneg_int, positive_float
 
 NAME = re.compile(r"[A-Za-z0-9_.-]+")
 
@@ -74,17 +77,40 @@ def sources(text: str) -> dict[str, Path]:
     return found
 
 
+def run_budget(run: Path, wall_time: float | None) -> dict:
+    """The budget of the run folder ``run``: its RL env steps and wall time [s] (``wall_time`` [min] when the run
+    recorded none; refused when it did)."""
+    from sb3_crowdnav.evaluation.budget import read_budget
+
+    try:
+        found = read_budget(run, "run", 0)
+    except (FileNotFoundError, ValueError) as exc:
+        raise UsageError(f"--run: {exc}") from None
+    if wall_time is not None and found.wall_time_s is not None:
+        raise UsageError(f"--wall-time: the run recorded its wall time ({found.wall_time_s / 60:.1f} min); leave it out")
+    seconds = found.wall_time_s if wall_time is None else round(60 * wall_time, 1)
+    return {"env_steps": found.env_steps, "wall_time_s": seconds,
+            "source": "progress.json" if wall_time is None else "progress.json, wall time from --wall-time"}
+
+
 def main(argv: list[str] | None = None) -> None:
     p = Parser(prog="record_seed.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("method", help="the method's folder name, e.g. apg_robust")
     p.add_argument("seed", type=nonneg_int, help="the training seed")
-    p.add_argument("--eval", action="append", required=True, metavar="DIR[:SUFFIX] | COLUMN=DIR",
+    p.add_argument("--eval", action="append", default=[], metavar="DIR[:SUFFIX] | COLUMN=DIR",
                    help="evaluations to keep (repeat)")
-    p.add_argument("--run", type=Path, metavar="DIR", help="the training run: its config.json and eval_curve.jsonl")
+    p.add_argument("--run", type=Path, metavar="DIR",
+                   help="the training run: its config.json and eval_curve.jsonl, and its budget (budget.json)")
+    p.add_argument("--wall-time", type=positive_float, metavar="MIN",
+                   help="the run's wall time [min] when its progress.json has none (e.g. from /usr/bin/time)")
     p.add_argument("--into", type=Path, default=Path("paper_results/seeds"), help="default: paper_results/seeds")
     p.add_argument("--replace", action="store_true", help="replace columns recorded already")
     args = p.parse_args(argv)
     try:  # everything checked before anything is written
+        if not args.eval and args.run is None:
+            raise UsageError("nothing to record: give --eval, --run or both")
+        if args.wall_time is not None and args.run is None:
+            raise UsageError("--wall-time: is the wall time of the --run; give --run")
         if not NAME.fullmatch(args.method):
             raise UsageError(f"method {args.method!r} must be letters, digits, '_', '.' or '-'")
         columns: dict[str, Path] = {}
@@ -100,6 +126,7 @@ def main(argv: list[str] | None = None) -> None:
                 if not path.is_file():
                     raise UsageError(f"--run: no {path.name} in {str(args.run)!r}")
             json.loads(extras["train_config.json"].read_text())  # (a run's config, not any file of that name)
+            budget = run_budget(args.run, args.wall_time)
         target = args.into / args.method / f"seed_{args.seed}"
         taken = [column for column in columns if (target / column / "episodes.csv").exists()]
         if taken and not args.replace:
@@ -110,9 +137,15 @@ def main(argv: list[str] | None = None) -> None:
         (target / column).mkdir(parents=True, exist_ok=True)
         shutil.copyfile(csv, target / column / "episodes.csv")
         print(f"{target / column / 'episodes.csv'} <- {csv}")
+    target.mkdir(parents=True, exist_ok=True)
     for name, path in extras.items():
         shutil.copyfile(path, target / name)
         print(f"{target / name} <- {path}")
+    if args.run is not None:
+        (target / "budget.json").write_text(json.dumps(budget, indent=1) + "\n")
+        wall = "no wall time (give --wall-time MIN)" if budget["wall_time_s"] is None else \
+            f"{budget['wall_time_s'] / 60:.1f} min"
+        print(f"{target / 'budget.json'}: {budget['env_steps']:,} RL env steps, {wall}")
 
 
 if __name__ == "__main__":

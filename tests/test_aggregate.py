@@ -1,5 +1,6 @@
 """Aggregates over training seeds with rliable: values computed here independently, refusals, the CLI."""
 
+import json
 import math
 
 import numpy as np
@@ -8,7 +9,9 @@ import pytest
 pytest.importorskip("rliable", reason="the results extra: pip install 'sb3_crowdnav[results]'")
 
 from sb3_crowdnav.cli import main
+from sb3_crowdnav.evaluation import budget
 from sb3_crowdnav.evaluation.aggregate import SeedScore, aggregate, interval_estimates, read_seed_score
+from sb3_crowdnav.evaluation.budget import TrainingBudget, read_budget
 
 EPISODES = tuple(range(1_000_000, 1_000_010))
 REPS = 200
@@ -172,3 +175,76 @@ def test_cli_label_refusals(tmp_path, capsys, argv, fragment):
         main(["aggregate", f"A/x@0={a}", *argv])
     assert exc.value.code == 2
     assert fragment in capsys.readouterr().err
+
+
+def _budget(path, **data):
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(data))
+    return path
+
+
+def test_budgets_read_from_runs_and_records_and_stated_per_method(tmp_path):
+    run = tmp_path / "run"  # a train run folder: its progress.json
+    _budget(run / "progress.json", timesteps=511_757, wall_time_s=1727.4, finished=True)
+    assert read_budget(run, "A", 0) == TrainingBudget("A", 0, 511_757, 1727.4)
+    recorded = _budget(tmp_path / "budget.json", env_steps=520_000, wall_time_s=None)  # no wall time recorded
+    assert read_budget(recorded, "A", 1) == TrainingBudget("A", 1, 520_000, None)
+    budgets = [TrainingBudget("A", 0, 145_464, 3054.0), TrainingBudget("A", 1, 148_030, 4092.0),
+               TrainingBudget("A", 2, 144_764, 4123.0), TrainingBudget("B", 0, 2_000_000, None),
+               TrainingBudget("B", 1, 2_000_000, 60.0)]
+    assert budget.summary(budgets, "A") == ("145 k (145 k–148 k)", "68.2 min (50.9–68.7)")  # medians and ranges
+    assert budget.summary(budgets, "B") == ("2.00 M", "–")  # a seed without a wall time: none stated
+    scores = _scores("A", [0.9, 0.8, 0.7]) + _scores("B", [0.5, 0.6])
+    result = aggregate(scores, reps=REPS, budgets=budgets[::-1])
+    assert [(b.method, b.seed) for b in result.budgets] == [("A", 0), ("A", 1), ("A", 2), ("B", 0), ("B", 1)]
+    wide = result.wide_markdown()
+    assert wide.splitlines()[0].endswith("| test | RL env steps | wall time |")
+    assert "| A | 3 | 0.800 [0.700, 0.900] | 145 k (145 k–148 k) | 68.2 min (50.9–68.7) |" in wide
+    assert "| B | 0 | 2,000,000 | – |" in result.to_markdown() and "| A | 1 | 148,030 | 68.2 |" in result.to_markdown()
+    assert result.to_csv()["budget"].splitlines()[1] == "A,0,145464,3054.0"
+    assert "RL env steps" not in aggregate(scores, reps=REPS).wide_markdown()  # no budgets, no columns
+
+
+@pytest.mark.parametrize("budgets, fragment", [
+    ([("A", 0), ("A", 1)], "no budget for A seed 2"),
+    ([("A", 0), ("A", 1), ("A", 2), ("B", 0)], "a budget for B seed 0, which has no results"),
+    ([("A", 0), ("A", 0), ("A", 1), ("A", 2)], "a budget is given twice for A seed 0"),
+])
+def test_budgets_must_match_the_seeds(budgets, fragment):
+    with pytest.raises(ValueError, match=fragment):
+        aggregate(_scores("A", [0.9, 0.8, 0.7]), reps=REPS,
+                  budgets=[TrainingBudget(m, s, 1000, 1.0) for m, s in budgets])
+
+
+@pytest.mark.parametrize("data, fragment", [
+    ({"wall_time_s": 3.0}, "no env step count"),
+    ({"timesteps": -1}, "no env step count"),
+    ({"timesteps": 10, "wall_time_s": float("nan")}, "wall_time_s must be a finite number"),
+    ({"timesteps": 10, "wall_time_s": "1 h"}, "wall_time_s must be a finite number"),
+])
+def test_a_file_without_a_budget_is_refused(tmp_path, data, fragment):
+    with pytest.raises(ValueError, match=fragment):
+        read_budget(_budget(tmp_path / "progress.json", **data), "A", 0)
+    with pytest.raises(FileNotFoundError, match="no training budget"):
+        read_budget(tmp_path / "elsewhere", "A", 0)
+
+
+def test_cli_budgets(tmp_path, capsys):
+    results, budgets = [], []
+    for seed, k in enumerate([4, 3]):
+        results.append(f"A@{seed}={_episodes_csv(tmp_path / 'e' / str(seed), ['success'] * k + ['collision'] * (4 - k))}")
+        run = tmp_path / "runs" / str(seed)
+        _budget(run / "progress.json", timesteps=1000 * (seed + 1), wall_time_s=60.0 * (seed + 1))
+        budgets += ["--budget", f"A@{seed}={run}"]
+    assert main(["aggregate", *results, *budgets, "--reps", str(REPS), "--table", "wide", "--out", str(tmp_path / "o")]) == 0
+    assert "| A | 2 | 0.875 [0.750, 1.000] | 1500 (1000–2000) | 1.5 min (1.0–2.0) |" in capsys.readouterr().out
+    assert (tmp_path / "o" / "aggregate_budget.csv").read_text().splitlines() == [
+        "method,seed,env_steps,wall_time_s", "A,0,1000,60.0", "A,1,2000,120.0"]
+    for argv, fragment in ((["--budget", "A0=x"], "--budget: expected METHOD@SEED=PATH"),
+                           (budgets[:2], "no budget for A seed 1"),
+                           ([*budgets, "--budget", f"A@1={tmp_path}"], "no training budget at")):
+        with pytest.raises(SystemExit) as exc:
+            main(["aggregate", *results, *argv, "--reps", str(REPS)])
+        assert exc.value.code == 2
+        err = capsys.readouterr().err
+        assert fragment in err and len(err.strip().splitlines()) == 1, err

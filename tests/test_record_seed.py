@@ -6,6 +6,7 @@ import pytest
 from example_scripts import load_example
 
 from sb3_crowdnav.evaluation.aggregate import read_seed_score
+from sb3_crowdnav.evaluation.budget import TrainingBudget, read_budget
 
 HEADER = "seed,outcome,steps,discounted_return\n"
 
@@ -23,10 +24,11 @@ def _generalisation(root, columns):
     return root
 
 
-def _run(root):
+def _run(root, **progress):
     root.mkdir(parents=True)
     (root / "config.json").write_text(json.dumps({"variant": "apg_robust", "seed": 1}))
     (root / "eval_curve.jsonl").write_text('{"episodes": 750, "success": 0.9}\n')
+    (root / "progress.json").write_text(json.dumps({"episodes": 3000, "timesteps": 148_030, **progress}))
     return root
 
 
@@ -38,10 +40,12 @@ def test_columns_of_generalisation_and_benchmark_outputs_are_recorded(tmp_path):
     into = tmp_path / "seeds"
     load_example("record_seed").main(["apg_robust", "1", "--run", str(_run(tmp_path / "run")), "--eval", str(gen),
                                       "--eval", f"{lead}:_lead_in", "--eval", f"pickers6={bench}",
-                                      "--into", str(into)])
+                                      "--wall-time", "68.2", "--into", str(into)])
     seed = into / "apg_robust" / "seed_1"
-    assert sorted(p.name for p in seed.iterdir()) == ["eth_lead_in", "eval_curve.jsonl", "orca10", "orca6",
-                                                       "pickers6", "train_config.json"]
+    assert sorted(p.name for p in seed.iterdir()) == ["budget.json", "eth_lead_in", "eval_curve.jsonl", "orca10",
+                                                       "orca6", "pickers6", "train_config.json"]
+    # the budget: the run's RL env steps, and the wall time measured outside the run (the run recorded none)
+    assert read_budget(seed / "budget.json", "APG_ROBUST", 1) == TrainingBudget("APG_ROBUST", 1, 148_030, 4092.0)
     assert read_seed_score(seed / "orca6", "APG_ROBUST", "orca6", 1).success == pytest.approx(0.5)
     assert read_seed_score(seed / "orca10", "APG_ROBUST", "orca10", 1).success == pytest.approx(1.0)
     assert read_seed_score(seed / "eth_lead_in", "APG_ROBUST", "eth_lead_in", 1).success == pytest.approx(0.0)
@@ -63,7 +67,16 @@ def test_a_recorded_column_is_kept_unless_replace(tmp_path, capsys):
     assert read_seed_score(into / "m" / "seed_0" / "orca6", "M", "orca6", 0).success == 0.0
 
 
-@pytest.mark.parametrize("case", ["no_cells", "two_policies", "twice", "two_csvs", "no_run_config", "bad_column"])
+def test_a_run_that_recorded_its_wall_time_is_recorded_alone(tmp_path, capsys):
+    into = tmp_path / "seeds"
+    run = _run(tmp_path / "run", wall_time_s=1727.4)
+    load_example("record_seed").main(["m", "2", "--run", str(run), "--into", str(into)])
+    assert "1,727.4" not in capsys.readouterr().out
+    assert read_budget(into / "m" / "seed_2" / "budget.json", "M", 2) == TrainingBudget("M", 2, 148_030, 1727.4)
+
+
+@pytest.mark.parametrize("case", ["no_cells", "two_policies", "twice", "two_csvs", "no_run_config", "bad_column",
+                                  "nothing", "wall_time_without_run", "wall_time_recorded", "no_progress"])
 def test_bad_sources_are_refused_before_anything_is_written(tmp_path, capsys, case):
     into = tmp_path / "seeds"
     gen = _generalisation(tmp_path / "gen", {"orca6": ["success"]})
@@ -82,6 +95,15 @@ def test_bad_sources_are_refused_before_anything_is_written(tmp_path, capsys, ca
         evals += ["--eval", f"pickers6={bench}"]
     elif case == "no_run_config":
         (tmp_path / "run").mkdir()
+        extra = ["--run", str(tmp_path / "run")]
+    elif case == "nothing":
+        evals = []
+    elif case == "wall_time_without_run":
+        extra = ["--wall-time", "30"]
+    elif case == "wall_time_recorded":  # the run's own clock is not overridden
+        extra = ["--run", str(_run(tmp_path / "run", wall_time_s=60.0)), "--wall-time", "30"]
+    elif case == "no_progress":
+        (_run(tmp_path / "run") / "progress.json").unlink()
         extra = ["--run", str(tmp_path / "run")]
     else:
         evals += ["--eval", f"a/b={gen}"]

@@ -1,6 +1,7 @@
 """``sb3-crowdnav sweep``: grid refusals, the cell states read from the folders, and a tiny real sweep on Ray."""
 
 import json
+import re
 import textwrap
 from pathlib import Path
 
@@ -163,6 +164,10 @@ def test_a_sweep_on_ray_resumes_killed_cells_and_skips_finished_ones(tmp_path, c
         assert log.count("$ sb3-crowdnav train") == 2 and "done: 2 RL episodes" in log
         table = (out / "aggregate.md").read_text()
         assert "| APG_RL | all | 2 | 4 |" in table and "| APG_RL | PPO | all |" in table
+        # every cell's training budget, read from its run: RL env steps and wall time (the resumed APG cells' sum
+        # over their segments, from the imitation on)
+        for method, seed in (("APG_RL", 0), ("APG_RL", 1), ("PPO", 0), ("PPO", 1)):
+            assert re.search(rf"\| {method} \| {seed} \| [1-9][\d,]* \| \d+\.\d \|", table), table
 
         assert main(argv) == 0
         assert "0 todo, 0 partial, 4 done" in capsys.readouterr().out

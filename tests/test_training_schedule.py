@@ -88,11 +88,18 @@ def test_sigterm_writes_a_checkpoint_and_the_run_resumes(tmp_path, monkeypatch, 
     saved = APGValue.load(out / progress["checkpoint"])
     assert progress["episodes"] == saved._episode_num >= 2
     assert progress["timesteps"] == saved.num_timesteps
+    assert 0 < progress["wall_time_s"] < 120  # imitation and RL up to the checkpoint
+    # the resumed segment adds its time to what the run had used (a large stand-in, to tell a sum from a restart)
+    (out / "progress.json").write_text(json.dumps({**progress, "wall_time_s": 1e6}))
     capsys.readouterr()
+    began = time.perf_counter()
     _run(monkeypatch, *common, "--rl-episodes", str(progress["episodes"] + 2))
+    segment = time.perf_counter() - began
     checkpoint = out / progress["checkpoint"]
     assert f"resuming from {checkpoint} at episode {progress['episodes']}," in capsys.readouterr().out
     assert APGValue.load(out / "final.zip")._episode_num == progress["episodes"] + 2
+    finished = json.loads((out / "progress.json").read_text())
+    assert finished["finished"] and 1e6 < finished["wall_time_s"] <= 1e6 + segment + 0.1
     assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL  # handlers restored after training
 
 
@@ -306,6 +313,8 @@ def test_warehouse_variant_trains_in_the_warehouse(tmp_path, monkeypatch):
          "--num-humans", "2", "--rl-episodes", "2", "--checkpoint-episodes", "2", "--eval-episodes", "1")
     config = json.loads((out / "config.json").read_text())
     assert config["variant"] == "apg_warehouse"
+    progress = json.loads((out / "progress.json").read_text())  # the budget a table of seeds states
+    assert progress["finished"] and progress["timesteps"] > 0 and progress["wall_time_s"] > 0
     model = APGValue.load(out / "final.zip")
     assert model.policy.world.has_static_world
     assert any("static_world" in n for n, _ in model.policy.named_parameters())  # and V sees them

@@ -11,6 +11,8 @@ from sb3_crowdnav.cli.common import UsageError, check_out, nonneg_int, positive_
 
 RESULT = re.compile(r"(?P<method>[^/@=]+)(?:/(?P<column>[^/@=]+))?@(?P<seed>\d+)=(?P<path>.+)")
 RESULT_GRAMMAR = "METHOD[/COLUMN]@SEED=PATH"
+BUDGET = re.compile(r"(?P<method>[^/@=]+)@(?P<seed>\d+)=(?P<path>.+)")
+BUDGET_GRAMMAR = "METHOD@SEED=PATH"
 DEFAULT_COLUMN = "test"
 TABLES = ("full", "wide")
 
@@ -53,6 +55,11 @@ def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
     p.add_argument("--label", action="append", default=[], metavar="COLUMN=TEXT",
                    help="the header of COLUMN in the wide table, e.g. 'orca10=ORCA, 10 people' (repeatable; a COLUMN "
                         "that no result has is refused)")
+    p.add_argument("--budget", action="append", default=[], metavar=BUDGET_GRAMMAR,
+                   help="the training budget of a method's seed, stated in every table: a 'sb3-crowdnav train' run "
+                        "folder (its progress.json: RL env steps and wall time), that progress.json, or a recorded "
+                        "seed's budget.json (examples/record_seed.py); repeat for every seed of every method, or give "
+                        "none")
     p.set_defaults(func=cmd_aggregate)
 
 
@@ -63,6 +70,14 @@ def parse_result(text: str) -> tuple[str, str, int, Path]:
         raise UsageError(f"expected {RESULT_GRAMMAR}, e.g. APG_RL@0=runs/apg_rl_0/eval, got {text!r}")
     return (match["method"].strip(), (match["column"] or DEFAULT_COLUMN).strip(), int(match["seed"]),
             Path(match["path"].strip()))
+
+
+def parse_budget(text: str) -> tuple[str, int, Path]:
+    """``METHOD@SEED=PATH`` -> (method, seed, path)."""
+    match = BUDGET.fullmatch(text.strip())
+    if match is None:
+        raise UsageError(f"--budget: expected {BUDGET_GRAMMAR}, e.g. APG_RL@0=runs/apg_rl_0, got {text!r}")
+    return match["method"].strip(), int(match["seed"]), Path(match["path"].strip())
 
 
 def parse_labels(texts: list[str], columns: set[str], table: str) -> dict[str, str]:
@@ -85,8 +100,10 @@ def parse_labels(texts: list[str], columns: set[str], table: str) -> dict[str, s
 
 def cmd_aggregate(args: argparse.Namespace) -> int:
     from sb3_crowdnav.evaluation.aggregate import aggregate, check_block, read_seed_score, write_block
+    from sb3_crowdnav.evaluation.budget import read_budget
 
     parsed = [parse_result(text) for text in args.results]
+    budget_sources = [parse_budget(text) for text in args.budget]
     labels = parse_labels(args.label, {column for _, column, _, _ in parsed}, args.table)
     if args.out is not None:
         check_out(args.out)
@@ -97,7 +114,9 @@ def cmd_aggregate(args: argparse.Namespace) -> int:
             raise UsageError(f"--markdown-into: {exc}") from None
     try:
         scores = [read_seed_score(path, method, column, seed) for method, column, seed, path in parsed]
-        result = aggregate(scores, reps=args.reps, confidence=args.confidence, random_seed=args.bootstrap_seed)
+        budgets = [read_budget(path, method, seed) for method, seed, path in budget_sources]
+        result = aggregate(scores, reps=args.reps, confidence=args.confidence, random_seed=args.bootstrap_seed,
+                           budgets=budgets)
     except (FileNotFoundError, ValueError, ImportError) as exc:
         raise UsageError(str(exc)) from None
     text = result.to_markdown() if args.table == "full" else result.wide_markdown_block(labels)

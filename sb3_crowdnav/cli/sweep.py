@@ -6,7 +6,8 @@ resumes the others from their folders, from their newest checkpoints (a ``--hype
 50,000 env steps unless its ``train`` options set ``checkpoint_freq``); a worker that dies is retried by Ray
 (``--retries``) and the retry resumes the same way. A cell that fails is reported and the others go on; the command
 exits with 1 at the end if any failed. Then the evaluations of the finished cells are aggregated with rliable
-(:mod:`sb3_crowdnav.evaluation.aggregate`) into ``OUT/aggregate.md`` and its CSVs.
+(:mod:`sb3_crowdnav.evaluation.aggregate`) into ``OUT/aggregate.md`` and its CSVs, which state each cell's training
+budget (RL env steps and wall time, from its run's ``progress.json``).
 """
 
 from __future__ import annotations
@@ -107,12 +108,14 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
 def _aggregate(done: list[Cell], grid: Grid, out: Path, reps: int) -> None:
     from sb3_crowdnav.evaluation.aggregate import aggregate, read_seed_score
+    from sb3_crowdnav.evaluation.budget import read_budget
 
     scores = [read_seed_score(cell.eval_folder(column), cell.label, column, cell.seed)
               for cell in done for column in grid.columns]
-    try:
-        result = aggregate(scores, reps=reps)
-    except (ImportError, ValueError) as exc:
+    try:  # every cell's run states its budget (RL env steps, wall time) in the tables
+        budgets = [read_budget(cell.train_folder, cell.label, cell.seed) for cell in done]
+        result = aggregate(scores, reps=reps, budgets=budgets)
+    except (FileNotFoundError, ImportError, ValueError) as exc:
         print(f"no aggregate table: {exc}", file=sys.stderr)
         return
     written = result.save(out / "aggregate")

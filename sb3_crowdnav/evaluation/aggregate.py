@@ -21,6 +21,10 @@ same columns; in a column every seed of every method played the same test episod
 a method with one seed gets its IQM and no interval, and no probability of improvement. rliable's bootstrap draws from
 NumPy's global generator: :func:`aggregate` seeds it for the call and gives the caller's state back, so a table is the
 same on every run.
+
+With the seeds' training budgets (:mod:`sb3_crowdnav.evaluation.budget`: RL env steps and wall time, one per method
+and seed), every table states them: the wide table in two columns (median over the seeds, and their range), the full
+one per seed.
 """
 
 from __future__ import annotations
@@ -34,6 +38,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from sb3_crowdnav.evaluation import budget as budgets_
+from sb3_crowdnav.evaluation.budget import TrainingBudget
 
 ALL_COLUMNS = "all"  # the column name of the rows over every column
 INSTALL_HINT = "aggregating over seeds needs rliable: pip install 'sb3_crowdnav[results]'"
@@ -180,13 +187,15 @@ class Improvement:
 
 @dataclass(frozen=True)
 class Aggregates:
-    """Per-seed scores, aggregated rows and probabilities of improvement, with Markdown and CSV writers."""
+    """Per-seed scores, aggregated rows and probabilities of improvement (and the seeds' training budgets, when
+    given), with Markdown and CSV writers."""
 
     scores: tuple[SeedScore, ...]
     rows: tuple[AggregateRow, ...]
     improvements: tuple[Improvement, ...]
     reps: int
     confidence: float
+    budgets: tuple[TrainingBudget, ...] = ()
 
     def per_seed_markdown(self) -> str:
         lines = ["| method | column | seed | episodes | success | return |", "|---|---|---|---|---|---|"]
@@ -204,17 +213,21 @@ class Aggregates:
 
     def wide_markdown(self, labels: dict[str, str] | None = None) -> str:
         """One row per method, one column per evaluation column (and ``all``): the success IQM with its interval, the
-        number of seeds beside the method (the README's form). ``labels`` renames columns in the header."""
+        number of seeds beside the method (the README's form), and with budgets the RL env steps and wall time
+        (median over the seeds, and their range). ``labels`` renames columns in the header."""
         labels = labels or {}
         columns = list(dict.fromkeys(r.column for r in self.rows))
         percent = f"{self.confidence * 100:g} %"
+        extra = ["RL env steps", "wall time"] if self.budgets else []
         lines = [f"| method (success IQM [{percent} CI]) | seeds | "
-                 + " | ".join(labels.get(c, c) for c in columns) + " |", "|---" * (len(columns) + 2) + "|"]
+                 + " | ".join([labels.get(c, c) for c in columns] + extra) + " |",
+                 "|---" * (len(columns) + 2 + len(extra)) + "|"]
         for method in dict.fromkeys(r.method for r in self.rows):
             rows = {r.column: r for r in self.rows if r.method == method}
             seeds = sorted({r.seeds for r in rows.values()})
             cells = [("–" if c not in rows else _estimate(rows[c].success_iqm, rows[c].success_ci, 3)
                       if rows[c].success_ci is not None else _num(rows[c].success_iqm, 3)) for c in columns]
+            cells += list(budgets_.summary(self.budgets, method)) if self.budgets else []
             lines.append(f"| {method} | {'/'.join(map(str, seeds))} | " + " | ".join(cells) + " |")
         return "\n".join(lines) + "\n"
 
@@ -244,10 +257,13 @@ class Aggregates:
             parts += ["Probability of improvement: P(a seed of X has a higher success than a seed of Y), ties counting "
                       "one half, averaged over the columns.", "", self.improvement_markdown()]
         parts += ["Per seed:", "", self.per_seed_markdown()]
+        if self.budgets:
+            parts += ["Training budgets (RL env steps; wall time of the run, imitation and validations included):", "",
+                      budgets_.per_seed_markdown(self.budgets)]
         return "\n".join(parts)
 
     def to_csv(self) -> dict[str, str]:
-        """CSV texts: ``per_seed``, ``aggregate`` and ``improvement``."""
+        """CSV texts: ``per_seed``, ``aggregate`` and ``improvement`` (and ``budget`` with budgets)."""
         per_seed = [{"method": s.method, "column": s.column, "seed": s.seed, "episodes": s.episodes,
                      "success": s.success, "return": s.discounted_return} for s in self.scores]
         rows = [{"method": r.method, "column": r.column, "seeds": r.seeds, "episodes": r.episodes,
@@ -256,20 +272,26 @@ class Aggregates:
         improvements = [{"method": i.method, "other": i.other, "column": i.column,
                          **_csv_estimate("probability", i.probability, i.ci), "resolved": i.resolved}
                         for i in self.improvements]
+        budget = [{"method": b.method, "seed": b.seed, "env_steps": b.env_steps,
+                   "wall_time_s": math.nan if b.wall_time_s is None else b.wall_time_s} for b in self.budgets]
         return {"per_seed": _csv(per_seed, ["method", "column", "seed", "episodes", "success", "return"]),
+                **({"budget": _csv(budget, ["method", "seed", "env_steps", "wall_time_s"])} if budget else {}),
                 "aggregate": _csv(rows, ["method", "column", "seeds", "episodes", "success_iqm", "success_iqm_ci_low",
                                          "success_iqm_ci_high", "return_iqm", "return_iqm_ci_low", "return_iqm_ci_high"]),
                 "improvement": _csv(improvements, ["method", "other", "column", "probability", "probability_ci_low",
                                                    "probability_ci_high", "resolved"])}
 
     def save(self, stem: str | Path) -> list[Path]:
-        """Write ``stem.md`` and ``stem_per_seed.csv``, ``stem.csv``, ``stem_improvement.csv``; return the paths."""
+        """Write ``stem.md`` and ``stem_per_seed.csv``, ``stem.csv``, ``stem_improvement.csv`` (and
+        ``stem_budget.csv`` with budgets); return the paths."""
         stem = Path(stem)
         stem.parent.mkdir(parents=True, exist_ok=True)
         texts = self.to_csv()
         paths = {stem.with_suffix(".md"): self.to_markdown(), stem.with_name(f"{stem.name}_per_seed.csv"): texts["per_seed"],
                  stem.with_suffix(".csv"): texts["aggregate"],
                  stem.with_name(f"{stem.name}_improvement.csv"): texts["improvement"]}
+        if "budget" in texts:
+            paths[stem.with_name(f"{stem.name}_budget.csv")] = texts["budget"]
         for path, text in paths.items():
             path.write_text(text)
         return list(paths)
@@ -300,9 +322,12 @@ def _csv(rows: list[dict[str, Any]], columns: list[str]) -> str:
     return buf.getvalue()
 
 
-def aggregate(scores: Sequence[SeedScore], reps: int = 2000, confidence: float = 0.95, random_seed: int = 0) -> Aggregates:
+def aggregate(scores: Sequence[SeedScore], reps: int = 2000, confidence: float = 0.95, random_seed: int = 0,
+              budgets: Sequence[TrainingBudget] = ()) -> Aggregates:
     """Check ``scores`` (:func:`check_scores`) and aggregate them with rliable (see the module docstring).
 
+    :param budgets: none, or one training budget per (method, seed) of ``scores``
+        (:func:`~sb3_crowdnav.evaluation.budget.check_budgets`), which the tables then state
     :param reps: bootstrap resamples per interval
     :param confidence: the intervals' coverage, in (0, 1)
     :param random_seed: the bootstrap's seed (the same tables on every run)
@@ -313,6 +338,8 @@ def aggregate(scores: Sequence[SeedScore], reps: int = 2000, confidence: float =
     check_range("confidence", confidence, 0.0, 1.0, low_open=True, high_open=True)
     check_int("random_seed", random_seed, 0)
     check_scores(scores)
+    if budgets:
+        budgets_.check_budgets(budgets, {(s.method, s.seed) for s in scores})
     _, metrics = _rliable()
     methods = list(dict.fromkeys(s.method for s in scores))
     columns = list(dict.fromkeys(s.column for s in scores))
@@ -343,7 +370,9 @@ def aggregate(scores: Sequence[SeedScore], reps: int = 2000, confidence: float =
             improvements.append(Improvement(method, other, columns[0] if len(columns) == 1 else ALL_COLUMNS,
                                             points["pair"], cis["pair"]))
     ordered = sorted(scores, key=lambda s: (methods.index(s.method), columns.index(s.column), s.seed))
-    return Aggregates(tuple(ordered), tuple(rows), tuple(improvements), reps, confidence)
+    order = {(s.method, s.seed): i for i, s in enumerate(ordered)}
+    return Aggregates(tuple(ordered), tuple(rows), tuple(improvements), reps, confidence,
+                      tuple(sorted(budgets, key=lambda b: order[(b.method, b.seed)])))
 
 
 def _split_block(path: Path, name: str) -> tuple[str, str, str, str]:

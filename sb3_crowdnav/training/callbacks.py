@@ -16,6 +16,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from sb3_crowdnav.evaluation import run_episodes, summarize
 from sb3_crowdnav.sim.validation import check_choice, check_positive
 from sb3_crowdnav.training.run_folder import (
+    RunClock,
     atomic_write,
     buffer_path,
     checkpoint_path,
@@ -96,7 +97,8 @@ class EpisodeCheckpoint(BaseCallback):
     and the best one so far as ``OUT/best.zip``: highest success, then shortest navigation time
     (``select_by="success"``), or highest mean discounted return under the variant's own reward
     (``select_by="return"``, which counts the comfort and angular penalties of APG_CRL/APG_CARL).
-    Validation episodes run with ``env_kwargs`` (the training reward and crowd).
+    Validation episodes run with ``env_kwargs`` (the training reward and crowd). With a ``clock``, ``progress.json``
+    also records the wall time the run has used (``wall_time_s``, over all its segments, validations included).
 
     SIGTERM and SIGINT stop training at the end of the current step (``stopped_by`` holds the signal);
     the caller then writes the checkpoint. A second signal acts as usual.
@@ -110,8 +112,9 @@ class EpisodeCheckpoint(BaseCallback):
 
     def __init__(self, out: Path, max_episodes: int, every: int, eval_episodes: int = 100,
                  select_by: str = "success", env_kwargs: dict[str, Any] | None = None,
-                 env_id: str = "CrowdNav-v0") -> None:
+                 env_id: str = "CrowdNav-v0", clock: RunClock | None = None) -> None:
         super().__init__()
+        self.clock = clock  # the run's wall time, written to progress.json with every checkpoint when given
         check_choice("select_by", select_by, SELECT_BY)
         self.out, self.max_episodes, self.every, self.eval_episodes = Path(out), max_episodes, every, eval_episodes
         self.select_by, self.env_kwargs, self.env_id = select_by, dict(env_kwargs or {}), env_id
@@ -151,6 +154,8 @@ class EpisodeCheckpoint(BaseCallback):
         progress = read_json(self.out / "progress.json") or {}
         progress.update(episodes=n, timesteps=model.num_timesteps, time=time.time(),
                         checkpoint=checkpoint_path(self.out, n).name)
+        if self.clock is not None:
+            progress.update(wall_time_s=round(self.clock.total(), 1))
         write_json(self.out / "progress.json", progress)
         kill_point("progress")
         remove_stale(self.out, keep=n)

@@ -341,7 +341,7 @@ def train_from_hyperparams(algo: str, hyperparams: Mapping[str, Any], out_dir: s
 
     from sb3_crowdnav.models import algorithms, load_model
     from sb3_crowdnav.training import zoo_run
-    from sb3_crowdnav.training.run_folder import RunLock, atomic_write
+    from sb3_crowdnav.training.run_folder import RunClock, RunLock, atomic_write
 
     algos = algorithms()
     if algo not in algos:
@@ -372,7 +372,7 @@ def train_from_hyperparams(algo: str, hyperparams: Mapping[str, Any], out_dir: s
             kwargs = algorithm_kwargs(algo, cfg, env)
             off_policy = issubclass(algos[algo], OffPolicyAlgorithm)
             resumed = zoo_run.latest_checkpoint(out, algo, off_policy) if progress else None
-            clock = zoo_run.RunClock(progress.get("wall_time_s", 0.0) if resumed is not None else 0.0, start)
+            clock = RunClock(progress.get("wall_time_s", 0.0) if resumed is not None else 0.0, start)
             validation = zoo_run.Validation(out, algo, eval_episodes, env_id, env_kwargs) if eval_episodes else None
             if resumed is None:
                 model = algos[algo](cfg["policy"], env, seed=seed, tensorboard_log=str(out / "tb"), verbose=verbose, **kwargs)

@@ -4,7 +4,8 @@ Layout of a run folder ``OUT``:
 
 - ``checkpoint_<N>.zip``: the model after N RL episodes (kept for every checkpoint);
 - ``replay_buffer_<N>.npz``: its replay buffer (plain arrays; only the newest is kept);
-- ``progress.json``: the newest checkpoint's counters, which checkpoints were validated, and ``finished``;
+- ``progress.json``: the newest checkpoint's counters (episodes, env steps, the wall time the run has used over all
+  its segments, :class:`RunClock`), which checkpoints were validated, and ``finished``;
 - ``eval_curve.jsonl``, ``best.json``, ``best.zip``: validation rows and the best checkpoint so far;
 - ``imitation.zip`` / ``imitation_replay_buffer.npz``; ``final.zip``; ``run.lock`` while a process writes.
 
@@ -22,12 +23,23 @@ import json
 import os
 import re
 import socket
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 CHECKPOINT = re.compile(r"checkpoint_(\d+)\.zip")
 LOCK = "run.lock"
+
+
+class RunClock:
+    """Wall time of a run over its segments: ``used`` seconds before this segment, plus this segment's so far."""
+
+    def __init__(self, used: float = 0.0, start: float | None = None) -> None:
+        self.used, self.start = float(used), time.perf_counter() if start is None else start
+
+    def total(self) -> float:
+        return self.used + time.perf_counter() - self.start
 
 
 class RunLockedError(RuntimeError):

@@ -14,7 +14,9 @@ The run folder (:mod:`sb3_crowdnav.training.run_folder` has the file protocol) h
 - ``imitation.zip`` / ``imitation_replay_buffer.npz``: the model after imitation (``from_imitation`` restarts a
   variant from it; a run killed after imitation resumes from it);
 - ``checkpoint_<N>.zip`` every ``checkpoint_episodes`` RL episodes (all kept) and ``replay_buffer_<N>.npz``
-  (the newest only), ``progress.json``;
+  (the newest only), ``progress.json`` (with ``wall_time_s``: the wall time the run has used, imitation and
+  validations included, summed over the segments of a resumed run; the time since the last checkpoint of a killed
+  segment is lost with its episodes, and a run started ``from_imitation`` counts from its RL);
 - ``eval_curve.jsonl``, ``best.json``, ``best.zip``: the greedy validation at each checkpoint and the best
   model so far (:class:`~sb3_crowdnav.training.callbacks.EpisodeCheckpoint`);
 - ``final.zip`` after the last episode; TensorBoard logs in ``tb/``; ``run.lock`` while a process writes.
@@ -66,6 +68,7 @@ from sb3_crowdnav.sim.validation import (
 from sb3_crowdnav.sim.warehouse.config import PAPER_WAREHOUSE
 from sb3_crowdnav.training.callbacks import SELECT_BY, EpisodeCheckpoint
 from sb3_crowdnav.training.run_folder import (
+    RunClock,
     RunLock,
     atomic_write,
     buffer_path,
@@ -379,6 +382,8 @@ def _train(out: Path, config: ScheduleConfig, from_imitation: str | Path | None,
             and (out / "final.zip").exists():
         log(f"{out} has finished its {latest[0]} RL episodes: nothing to do")
         return ScheduleResult(APGValue.load(out / "final.zip"), None, 0.0)
+    imitated = (out / "imitation.zip").exists() and (out / "imitation_replay_buffer.npz").exists()
+    clock = RunClock(progress.get("wall_time_s", 0.0) if latest is not None or imitated else 0.0)
     remove_stale(out, keep=latest[0] if latest else -1)
     _check_best(out, log)
     env_kwargs = config.training_env_kwargs
@@ -387,7 +392,6 @@ def _train(out: Path, config: ScheduleConfig, from_imitation: str | Path | None,
                        env_kwargs=env_kwargs)
     if config.stopping_check:  # refused here, before imitation, in a world the check cannot act in
         check_stopping_check(True, env.get_attr("world")[0])
-    imitated = (out / "imitation.zip").exists() and (out / "imitation_replay_buffer.npz").exists()
     if latest is not None:
         model, reset = _resume(out, *latest, config, env, log), False
     elif from_imitation is not None or imitated:  # a run killed after imitation resumes from it
@@ -395,13 +399,15 @@ def _train(out: Path, config: ScheduleConfig, from_imitation: str | Path | None,
         reset = from_imitation is not None
     else:
         model, reset = _new(config, env, out), False
+        write_json(out / "progress.json", {**progress, "wall_time_s": round(clock.total(), 1)})  # the imitation's
     model.policy.set_lookahead_dtype(config.lookahead_dtype)  # also for a resumed or from_imitation run
     if config.pedestrian_model is not None:
         model.policy.set_pedestrian_model(config.pedestrian_model)
     if config.stopping_check is not None:
         model.policy.set_stopping_check(config.stopping_check)
     callback = EpisodeCheckpoint(out, config.rl_episodes, config.checkpoint_episodes, config.eval_episodes,
-                                 select_by=config.select_by, env_kwargs=env_kwargs, env_id=config.spec.env_id)
+                                 select_by=config.select_by, env_kwargs=env_kwargs, env_id=config.spec.env_id,
+                                 clock=clock)
     n = model.episodes_done
     if latest is not None and progress.get("episodes") != n:  # killed after the checkpoint, before progress.json
         progress.update(episodes=n, timesteps=model.num_timesteps, checkpoint=checkpoint_path(out, n).name)
@@ -420,7 +426,8 @@ def _train(out: Path, config: ScheduleConfig, from_imitation: str | Path | None,
     else:
         atomic_write(out / "final.zip", model.save)
         kill_point("final")
-        write_json(out / "progress.json", {**(read_json(out / "progress.json") or {}), "finished": True})
+        write_json(out / "progress.json", {**(read_json(out / "progress.json") or {}), "finished": True,
+                                           "wall_time_s": round(clock.total(), 1)})
         log(f"done: {model.episodes_done} RL episodes, {model.num_timesteps} steps, {time.time() - start:.0f} s this run")
     return ScheduleResult(model, callback.stopped_by, time.time() - start)
 

@@ -22,13 +22,12 @@ beside its replay buffer, are collected again on resume from the same seeds (the
 from __future__ import annotations
 
 import re
-import time
 from pathlib import Path
 from typing import Any
 
 from stable_baselines3.common.callbacks import BaseCallback
 
-from sb3_crowdnav.training.run_folder import atomic_write, kill_point, read_json, write_json
+from sb3_crowdnav.training.run_folder import RunClock, atomic_write, kill_point, read_json, write_json
 
 PROGRESS = "progress.json"
 CHECKPOINTS = "checkpoints"
@@ -48,16 +47,6 @@ def latest_checkpoint(out: Path, algo: str, off_policy: bool) -> int | None:
     found = sorted((int(m.group(1)) for p in (out / CHECKPOINTS).glob("*.zip") if (m := pattern.fullmatch(p.name))),
                    reverse=True)
     return next((n for n in found if not off_policy or buffer_file(out, algo, n).is_file()), None)
-
-
-class RunClock:
-    """Wall time of a run over its segments: ``used`` seconds before this segment, plus this segment's so far."""
-
-    def __init__(self, used: float = 0.0, start: float | None = None) -> None:
-        self.used, self.start = float(used), time.perf_counter() if start is None else start
-
-    def total(self) -> float:
-        return self.used + time.perf_counter() - self.start
 
 
 def save_checkpoint(model: Any, out: Path, algo: str, clock: RunClock, identity: dict[str, Any],
@@ -179,5 +168,5 @@ def finish(out: Path, model: Any, clock: RunClock, identity: dict[str, Any]) -> 
                                 "wall_time_s": round(clock.total(), 1), "checkpoint": None, "finished": True})
 
 
-__all__ = ["RunClock", "RunMismatchError", "Validation", "ZooCheckpoint", "buffer_file", "checkpoint_file", "finish",
+__all__ = ["RunMismatchError", "Validation", "ZooCheckpoint", "buffer_file", "checkpoint_file", "finish",
            "latest_checkpoint", "read_progress", "resume_model", "save_checkpoint", "save_model"]
