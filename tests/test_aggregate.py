@@ -237,7 +237,9 @@ def test_cli_budgets(tmp_path, capsys):
         _budget(run / "progress.json", timesteps=1000 * (seed + 1), wall_time_s=60.0 * (seed + 1))
         budgets += ["--budget", f"A@{seed}={run}"]
     assert main(["aggregate", *results, *budgets, "--reps", str(REPS), "--table", "wide", "--out", str(tmp_path / "o")]) == 0
-    assert "| A | 2 | 0.875 [0.750, 1.000] | 1500 (1000–2000) | 1.5 min (1.0–2.0) |" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "| A | 2 | 0.875 [0.750, 1.000] | 1500 (1000–2000) | 1.5 min (1.0–2.0) |" in out
+    assert "the training budget of the seeds (RL env steps; wall time, imitation and validations included)" in out
     assert (tmp_path / "o" / "aggregate_budget.csv").read_text().splitlines() == [
         "method,seed,env_steps,wall_time_s", "A,0,1000,60.0", "A,1,2000,120.0"]
     for argv, fragment in ((["--budget", "A0=x"], "--budget: expected METHOD@SEED=PATH"),

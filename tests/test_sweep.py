@@ -59,6 +59,8 @@ def _refused(capsys, argv):
     (("episodes: 2", "episodes: 0"), "evaluate.episodes: expected an integer >= 1, got 0"),
     (("more: {num_humans: 4}", "more: {kinematics: legs}"), "methods.APG_RL in envs.few"),
     (("ppo.yml", "nothing.yml"), "methods.PPO.hyperparams: no file"),
+    (("variant: apg_rl", "variant: apg_rl, cpus: 0"), "methods.APG_RL.cpus: expected a positive integer"),
+    (("variant: apg_rl", "variant: apg_rl, cpus: true"), "methods.APG_RL.cpus: expected a positive integer"),
 ])
 def test_bad_grids_are_refused_before_any_work(tmp_path, capsys, change, fragment):
     path = _grid(tmp_path, GRID.replace(*change))
@@ -72,6 +74,48 @@ def test_cluster_and_local_cpus_are_not_both_given(tmp_path, capsys):
     err = _refused(capsys, ["sweep", str(_grid(tmp_path)), "--out", str(tmp_path / "o"), "--address", "auto",
                             "--num-cpus", "2"])
     assert "--num-cpus" in err
+
+
+@pytest.mark.parametrize("argv, grid_change, fragment", [
+    (["--num-cpus", "1"], ("variant: apg_rl", "variant: apg_rl, cpus: 2"),
+     "methods.APG_RL.cpus: each APG_RL cell reserves 2 CPUs, more than the local Ray instance's 1"),
+    (["--num-cpus", "2", "--cpus-per-cell", "3"], ("algo: ppo", "algo: ppo, cpus: 1"),
+     "--cpus-per-cell: each APG_RL cell reserves 3 CPUs, more than the local Ray instance's 2"),
+])
+def test_a_cell_larger_than_the_local_instance_is_refused(tmp_path, capsys, argv, grid_change, fragment):
+    path = _grid(tmp_path, GRID.replace(*grid_change))
+    assert fragment in _refused(capsys, ["sweep", str(path), "--out", str(tmp_path / "o"), *argv])
+    assert not (tmp_path / "o").exists()
+
+
+def test_each_cell_reserves_its_methods_cpus(tmp_path, monkeypatch, capsys):
+    """run_on_ray asks Ray for a method's ``cpus`` for each of its cells, --cpus-per-cell for the others (a stand-in
+    for Ray records the options of every task; the real Ray runs in the slow test below)."""
+    from types import ModuleType, SimpleNamespace
+
+    from sb3_crowdnav.cli.sweep import Report, run_on_ray
+
+    asked = []
+
+    class Task:
+        def options(self, **options):
+            asked.append(options)
+            return self
+
+        def remote(self, cell, grid, threads):
+            return cell.name
+
+    fake = ModuleType("ray")
+    fake.is_initialized = lambda: True  # a Ray started by the caller: used as it is
+    fake.remote = lambda function: Task()
+    fake.wait = lambda refs, num_returns: (refs[:1], refs[1:])
+    fake.get = lambda ref: Report(None, 1.0)
+    fake.exceptions = SimpleNamespace(RayError=RuntimeError)
+    monkeypatch.setitem(__import__("sys").modules, "ray", fake)
+    grid = load_grid(_grid(tmp_path, GRID.replace("algo: ppo", "algo: ppo, cpus: 1")))
+    assert run_on_ray(cells(grid, tmp_path / "out"), grid, cpus_per_cell=2, retries=3) == []
+    assert asked == [{"num_cpus": 2, "max_retries": 3}] * 2 + [{"num_cpus": 1, "max_retries": 3}] * 2
+    assert capsys.readouterr().out.count("done     ") == 4
 
 
 def test_dry_run_lists_the_cells(tmp_path, capsys):
@@ -146,6 +190,7 @@ def test_a_sweep_on_ray_resumes_killed_cells_and_skips_finished_ones(tmp_path, c
     imitation.zip, and a third run finds every cell done."""
     ray = pytest.importorskip("ray", reason="the cluster extra: pip install 'sb3_crowdnav[cluster]' (make slow)")
     monkeypatch.setenv("SB3_CROWDNAV_KILL_AT", "imitation:1")  # inherited by the Ray workers started below
+    monkeypatch.setenv("RAY_worker_niceness", "0")  # Ray's nice 15 starves the workers beside other work (15 min, not 3)
     ray.init(num_cpus=1, include_dashboard=False, log_to_driver=False, _node_ip_address="127.0.0.1")
     try:
         grid, out = str(_grid(tmp_path)), tmp_path / "out"

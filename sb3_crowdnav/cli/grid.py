@@ -5,7 +5,8 @@ A grid is a YAML mapping (paths in it are relative to the file)::
     seeds: [0, 1, 2]                      # training seeds (train --seed)
     methods:                              # a method: a paper variant, or a hyperparameter file and its algorithm
       APG_RL: {variant: apg_rl}
-      PPO: {hyperparams: ../zoo_hyperparams/ppo.yml, algo: ppo, env: CrowdNav-v0}
+      PPO: {hyperparams: ../zoo_hyperparams/ppo.yml, algo: ppo, env: CrowdNav-v0, cpus: 1}  # cpus: optional, the
+                                          # CPUs Ray reserves for each of its cells (default: sweep --cpus-per-cell)
     envs:                                 # optional: env keyword arguments of the training runs (default: one, {})
       orca6: {}
     train: {checkpoint_episodes: 500}     # optional: train options of every cell (a method's own 'train' adds to it)
@@ -32,7 +33,7 @@ from sb3_crowdnav.cli.common import Parser, UsageError
 from sb3_crowdnav.cli.train import HYPERPARAMS_FLAGS, SCHEDULE_FLAGS
 
 TOP_KEYS = ("seeds", "methods", "envs", "train", "evaluate")
-METHOD_KEYS = ("variant", "hyperparams", "algo", "env", "train", "model")
+METHOD_KEYS = ("variant", "hyperparams", "algo", "env", "train", "model", "cpus")
 EVALUATE_KEYS = ("episodes", "seed_offset", "columns", "allow_env_mismatch")
 # train options a grid may set (its own keys set the rest: variant, hyperparams, algo, env, seed, out, env kwargs)
 TRAIN_FLAGS = {**SCHEDULE_FLAGS, **{k: v for k, v in HYPERPARAMS_FLAGS.items() if k != "algo"},
@@ -101,6 +102,7 @@ class Method:
     env: str | None = None
     train: tuple[str, ...] = ()  # train flags (the grid's, then the method's own)
     model: str = "best"  # the model evaluated: best.zip or final.zip (a --hyperparams run: best.zip or ALGO.zip)
+    cpus: int | None = None  # the CPUs Ray reserves for each of its cells (None: sweep --cpus-per-cell)
 
 
 @dataclass(frozen=True)
@@ -123,6 +125,10 @@ def _method(where: str, name: str, entry: Any, common: list[str], base: Path) ->
     entry = _mapping(where, entry, METHOD_KEYS)
     train = common + train_options(f"{where}.train", _mapping(f"{where}.train", entry.get("train")))
     model = entry.get("model", "best")
+    cpus = entry.get("cpus")
+    if cpus is not None and (isinstance(cpus, bool) or not isinstance(cpus, int) or cpus < 1):
+        raise _refuse(f"{where}.cpus", f"expected a positive integer (the CPUs Ray reserves for each of the method's "
+                                       f"cells; default: sweep --cpus-per-cell), got {cpus!r}")
     if model not in MODELS:
         raise _refuse(f"{where}.model", f"expected one of {', '.join(MODELS)}, got {model!r}")
     if ("variant" in entry) == ("hyperparams" in entry):
@@ -133,7 +139,7 @@ def _method(where: str, name: str, entry: Any, common: list[str], base: Path) ->
         for key in ("algo", "env"):
             if key in entry:
                 raise _refuse(f"{where}.{key}", "is for 'hyperparams' methods (a variant has its own env)")
-        return Method(name, variant=entry["variant"], train=tuple(train), model=model)
+        return Method(name, variant=entry["variant"], train=tuple(train), model=model, cpus=cpus)
     if entry.get("algo") not in ALGOS:
         raise _refuse(f"{where}.algo", f"expected one of {', '.join(ALGOS)}, got {entry.get('algo')!r}")
     if "model" not in entry:  # a --hyperparams run keeps its best model only when it validates its checkpoints
@@ -148,7 +154,8 @@ def _method(where: str, name: str, entry: Any, common: list[str], base: Path) ->
     env = entry.get("env", "CrowdNav-v0")
     if not isinstance(env, str):
         raise _refuse(f"{where}.env", f"expected an env id, got {env!r}")
-    return Method(name, hyperparams=path.resolve(), algo=entry["algo"], env=env, train=tuple(train), model=model)
+    return Method(name, hyperparams=path.resolve(), algo=entry["algo"], env=env, train=tuple(train), model=model,
+                  cpus=cpus)
 
 
 def _int_list(where: str, value: Any) -> tuple[int, ...]:

@@ -46,7 +46,8 @@ def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
     p.add_argument("--address", metavar="ADDRESS", help="a running Ray cluster's address (ray.init(address=...))")
     p.add_argument("--num-cpus", type=positive_int, help="CPUs of the local Ray instance (default: the machine's)")
     p.add_argument("--cpus-per-cell", type=positive_int, default=1,
-                   help="CPUs Ray reserves for each cell (default: 1; give 2 to variant runs with overlap=process)")
+                   help="CPUs Ray reserves for each cell (default: 1; give 2 to variant runs with overlap=process); "
+                        "a method's 'cpus' in the grid overrides it for its cells")
     p.add_argument("--retries", type=int, choices=range(0, 11), default=1, metavar="N",
                    help="times Ray runs a cell again whose worker died (default: 1); the retry resumes the cell")
     p.add_argument("--reps", type=positive_int, default=2000, help="bootstrap resamples per interval (default: 2000)")
@@ -83,6 +84,13 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     grid = grids.load_grid(args.grid)
     all_cells = grids.cells(grid, args.out)
     check_grid(grid, all_cells)
+    if args.address is None:  # a cell that reserves more CPUs than the local instance has would never start
+        available = args.num_cpus or os.cpu_count() or 1
+        for method in grid.methods:
+            if (method.cpus or args.cpus_per_cell) > available:
+                source = f"methods.{method.name}.cpus" if method.cpus else "--cpus-per-cell"
+                raise UsageError(f"{source}: each {method.name} cell reserves {method.cpus or args.cpus_per_cell} CPUs, "
+                                 f"more than the local Ray instance's {available} (--num-cpus); it would never start")
     states = {cell.name: grids.cell_state(cell, grid) for cell in all_cells}
     for cell in all_cells:
         state, detail = states[cell.name]
@@ -199,8 +207,9 @@ def run_on_ray(todo: list[Cell], grid: Grid, address: str | None = None, num_cpu
         local = {"num_cpus": num_cpus, "_node_ip_address": "127.0.0.1"} if address is None else {}
         ray.init(address=address, include_dashboard=False, log_to_driver=False, **local)
     try:
-        task = ray.remote(run_cell).options(num_cpus=cpus_per_cell, max_retries=retries)
-        pending = {task.remote(cell, grid, threads): cell for cell in todo}
+        task = ray.remote(run_cell)
+        pending = {task.options(num_cpus=cell.method.cpus or cpus_per_cell, max_retries=retries).remote(cell, grid, threads):
+                   cell for cell in todo}
         failed = []
         while pending:
             ready, _ = ray.wait(list(pending), num_returns=1)

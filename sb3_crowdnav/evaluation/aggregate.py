@@ -235,9 +235,11 @@ class Aggregates:
         """The wide table with a line that says how it was computed (``--table wide``)."""
         pooled = any(r.column == ALL_COLUMNS for r in self.rows)
         note = f"; '{(labels or {}).get(ALL_COLUMNS, ALL_COLUMNS)}' pools the columns" if pooled else ""
+        budget = ("; the training budget of the seeds (RL env steps; wall time, imitation and validations included): "
+                  "median (range)") if self.budgets else ""
         return (f"Success: interquartile mean (IQM) over training seeds with stratified bootstrap "
                 f"{self.confidence * 100:g} % confidence intervals ({self.reps} resamples), computed with rliable"
-                f"{note}.\n\n{self.wide_markdown(labels)}")
+                f"{note}{budget}.\n\n{self.wide_markdown(labels)}")
 
     def improvement_markdown(self) -> str:
         percent = f"{self.confidence * 100:g} %"
