@@ -2,6 +2,9 @@
 
 import json
 import math
+import signal
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -250,3 +253,14 @@ def test_cli_budgets(tmp_path, capsys):
         assert exc.value.code == 2
         err = capsys.readouterr().err
         assert fragment in err and len(err.strip().splitlines()) == 1, err
+
+
+@pytest.mark.slow  # a subprocess of the command line (fault injection: make slow)
+def test_a_closed_stdout_ends_the_command_quietly(tmp_path):
+    """As `sb3-crowdnav aggregate ... | head`: the reader goes away before the command writes; no error line."""
+    a = _episodes_csv(tmp_path / "a", ["success"] * 3)
+    proc = subprocess.Popen([sys.executable, "-m", "sb3_crowdnav.cli", "aggregate", f"A@0={a}", "--reps", "10"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc.stdout.close()
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode == 128 + signal.SIGPIPE and err == b"", err

@@ -14,6 +14,10 @@ Bad arguments exit with status 2 and a one-line message.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import os
+import signal
+import sys
 
 from sb3_crowdnav.cli import aggregate, evaluate, export, sweep, train
 from sb3_crowdnav.cli.common import DEFAULT_ENV_ID, Parser, UsageError, common_options, env_options
@@ -55,6 +59,10 @@ def main(argv: list[str] | None = None) -> int:
         parser.exit(2, f"sb3-crowdnav {args.command}: error: {exc}\n")
     except KeyboardInterrupt:
         parser.exit(130, "interrupted\n")
+    except BrokenPipeError:  # whoever read the output went away (e.g. `| head`): stop quietly, as other tools do
+        with contextlib.suppress(OSError, ValueError):  # and no second error when Python flushes stdout at exit
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 128 + signal.SIGPIPE
     except Exception as exc:  # one line, not a traceback (unless --debug)
         if args.debug:
             raise
