@@ -87,10 +87,11 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     if args.address is None:  # a cell that reserves more CPUs than the local instance has would never start
         available = args.num_cpus or os.cpu_count() or 1
         for method in grid.methods:
-            if (method.cpus or args.cpus_per_cell) > available:
+            needed = method.cpus or args.cpus_per_cell
+            if needed > available:
                 source = f"methods.{method.name}.cpus" if method.cpus else "--cpus-per-cell"
-                raise UsageError(f"{source}: each {method.name} cell reserves {method.cpus or args.cpus_per_cell} CPUs, "
-                                 f"more than the local Ray instance's {available} (--num-cpus); it would never start")
+                raise UsageError(f"{source}: each {method.name} cell reserves {needed} CPUs, more than the local Ray "
+                                 f"instance's {available} (--num-cpus); it would never start")
     states = {cell.name: grids.cell_state(cell, grid) for cell in all_cells}
     for cell in all_cells:
         state, detail = states[cell.name]

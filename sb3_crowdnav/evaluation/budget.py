@@ -87,15 +87,14 @@ def summary(budgets: Sequence[TrainingBudget], method: str) -> tuple[str, str]:
     a seed did not record one."""
     own = [b for b in budgets if b.method == method]
     steps = [b.env_steps for b in own]
-    cells = [_steps(float(np.median(steps))) + (f" ({_steps(min(steps))}–{_steps(max(steps))})"
-                                               if min(steps) != max(steps) else "")]
-    walls = [b.wall_time_s / 60 for b in own if b.wall_time_s is not None]
-    if len(walls) < len(own):
-        cells.append("–")
-    else:
-        spread = f" ({min(walls):.1f}–{max(walls):.1f})" if len(walls) > 1 and min(walls) != max(walls) else ""
-        cells.append(f"{float(np.median(walls)):.1f} min{spread}")
-    return cells[0], cells[1]
+    steps_cell = _steps(float(np.median(steps)))
+    if min(steps) != max(steps):
+        steps_cell += f" ({_steps(min(steps))}–{_steps(max(steps))})"
+    if any(b.wall_time_s is None for b in own):
+        return steps_cell, "–"
+    walls = [b.wall_time_s / 60 for b in own]
+    spread = f" ({min(walls):.1f}–{max(walls):.1f})" if min(walls) != max(walls) else ""
+    return steps_cell, f"{float(np.median(walls)):.1f} min{spread}"
 
 
 def per_seed_markdown(budgets: Sequence[TrainingBudget]) -> str:
