@@ -57,6 +57,7 @@ SHARES = {  # the rows of the shares table: key of FailureSummary.shares -> what
     "behind": "the person behind the robot (bearing above 135°)",
     "seen": "seen in the observation the robot acted on",
     "seen_warned": "seen for at least the warning ({warning:g} s)",
+    "sees_robot": "the person sees the robot (avoids it in their crowd model)",
     "avoidable": "avoidable in the colliding step (some action)",
     "avoidable_with_warning": "avoidable with {warning:g} s of warning (a held or turn-then-straight plan)",
 }
@@ -100,7 +101,7 @@ def section(label: str, summary: FailureSummary, rules: FailureRules, figure: st
                   "| of the collisions with people | count | share [95 % interval] |", "|---|---|---|"]
         lines += [f"| {text.format(warning=rules.warning)} | {s[key].count} / {s[key].total} | {share_text(s[key])} |"
                   for key, text in SHARES.items()]
-        lines.append("")
+        lines += ["", f"The robot's speed in the colliding step: {summary.robot_speed:.2f} m/s (median).", ""]
     if summary.obstacle_collisions:
         lines += [f"Collisions with racks or walls: {summary.obstacle_collisions}, mean clearance "
                   f"{summary.obstacle_clearance:.3f} m; avoidable in the step {share_text(s['obstacle_avoidable'])}, "

@@ -8,8 +8,9 @@ One row per folder (``NAME=DIR``: a column name and a folder ``failure_analysis.
 ``DIR/failures.json``: the episodes, the collisions with people and with racks, and of the collisions with people the
 shares already touching as the step began (no one closing: a recorded person appearing on the robot), where the
 person closed faster than the robot, came from behind, was seen in the observation the robot acted
-on, and could have been avoided by some action in the colliding step or with 1 s of warning; then the timeouts, those
-with nobody in view, and the mean distance left (the rules: :mod:`sb3_crowdnav.evaluation.failures`). ``--figures``
+on, saw the robot (was one who avoids it) and could have been avoided by some action in the colliding step or with 1 s
+of warning, and the robot's median speed in the colliding step; then the timeouts, those with nobody in view, and the
+mean distance left (the rules: :mod:`sb3_crowdnav.evaluation.failures`). ``--figures``
 copies each folder's ``collisions_*.png`` (the last seconds of one collision per most frequent class) to
 ``FIGURES/<name>/`` and links them under the table. Bad input exits with status 2 and one line, before anything is
 written.
@@ -30,7 +31,8 @@ from sb3_crowdnav.evaluation.aggregate import check_block, write_block
 
 COLUMNS = ("crowd", "policy", "episodes", "collisions (people / racks)", "already touching", "person closing faster",
            "from behind",
-           "seen", "avoidable in the step", "avoidable with 1 s", "timeouts", "nobody in view", "distance left [m]")
+           "seen", "sees the robot", "avoidable in the step", "avoidable with 1 s", "robot speed [m/s]", "timeouts",
+           "nobody in view", "distance left [m]")
 
 
 def parse_folder(spec: str) -> tuple[str, Path]:
@@ -56,12 +58,13 @@ def rows(name: str, folder: Path) -> list[list[str]]:
     for label, entry in data["policies"].items():
         s = entry["summary"]
         shares = s["shares"]
-        left = s.get("distance_left")
+        left, speed = s.get("distance_left"), s.get("robot_speed")  # (None: no collision, or written before it)
         touching = sum(s["table"]["none"].values())  # nobody closing: the discs overlapped as the step began
         touching = f"{touching} / {s['collisions']}" if s["collisions"] else "–"
         out.append([name, label, str(s["episodes"]), f"{s['collisions']} / {s['obstacle_collisions']}", touching,
                     share(shares, "person_faster"), share(shares, "behind"), share(shares, "seen"),
-                    share(shares, "avoidable"), share(shares, "avoidable_with_warning"), str(s["timeouts"]),
+                    share(shares, "sees_robot"), share(shares, "avoidable"), share(shares, "avoidable_with_warning"),
+                    "–" if speed is None else f"{speed:.2f}", str(s["timeouts"]),
                     share(shares, "nobody_in_view"), "–" if left is None else f"{left:.2f}"])
     return out
 

@@ -3,6 +3,7 @@ against the env's own motion and collision, timeouts, the summary and the script
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -155,6 +156,34 @@ def test_a_replayed_person_appearing_on_the_robot_closes_on_no_one_and_was_not_s
     c = analyse_collision(EpisodeLog(traj, arrived, arrived, arrived, np.full(3, STRAIGHT)))
     assert (c.closer, c.side, c.seen, c.seen_for) == ("none", "front", False, 0.0)
     assert c.gap < 0 and not c.avoidable  # already touching: no action helps in the step
+    assert not c.sees_robot  # a log that says nothing of who sees the robot: nobody
+    sees = analyse_collision(EpisodeLog(traj, arrived, arrived, arrived, np.full(3, STRAIGHT), sees_robot=np.ones(1, bool)))
+    assert sees.sees_robot and sees == dataclasses.replace(c, sees_robot=True)  # the person hit's own, nothing else
+
+
+@pytest.mark.parametrize("env_id", ["CrowdNav-v0", "CrowdNavWarehouse-v0"])
+def test_the_log_says_which_people_see_the_robot_and_a_collision_which_one_it_was(env_id):
+    """Half the people see the robot: the log holds the simulator's draw of the episode (both kinds occur), the
+    analysis of a collision the draw of the person it names; everyone or nobody with True or False."""
+    kinds, analysed = set(), 0
+    for visible in (0.5, True, False):
+        env = EpisodeRecorder(gym.make(env_id, robot_visible=visible, num_humans=8))
+        policy = make_policy("random:3", env)
+        for seed in range(6):
+            record = run_episode(env, policy, seed, keep_trajectory=True)
+            log = env.log(record.trajectory)
+            drawn = env.unwrapped.sim.pickers.sees_robot if env_id != "CrowdNav-v0" else env.unwrapped.sim.people.sees_robot
+            np.testing.assert_array_equal(log.sees_robot, drawn)
+            if visible is not True and visible is not False:
+                kinds.update(log.sees_robot.tolist())
+            else:
+                assert log.sees_robot.all() == visible and log.sees_robot.any() == visible
+            if record.outcome == "collision" and record.collision_with == "human":
+                c = analyse_collision(log)
+                assert c.sees_robot == bool(log.sees_robot[c.person])
+                analysed += 1
+    assert kinds == {True, False}
+    assert analysed >= 5 or env_id == "CrowdNavWarehouse-v0"  # (random actions meet the racks before the pickers)
 
 
 def test_the_rules_reproduce_every_step_of_the_env_and_its_collision():
@@ -219,9 +248,10 @@ def _collision(closer: str, side: str, **kwargs) -> FailureRecord:
 
 
 def test_the_summary_counts_the_classes_and_gives_wilson_intervals():
-    records = [_collision("person", "behind"), _collision("person", "behind", seen=False, seen_for=0.0),
+    records = [_collision("person", "behind", robot_speed=0.0, sees_robot=True),
+               _collision("person", "behind", seen=False, seen_for=0.0, robot_speed=0.2),
                _collision("robot", "front", avoidable=False, robot_closing=1.0, person_closing=0.0),
-               _collision("none", "side", gap=-0.2),
+               _collision("none", "side", gap=-0.2, robot_speed=0.5),
                FailureRecord(1, "collision", 9, collision=CollisionAnalysis(
                    "obstacle", 8, 2.0, 0.5, False, True, (1.0, 1.0), -0.04)),
                FailureRecord(2, "timeout", 100, timeout=TimeoutAnalysis(25.0, True, 3.0, False)),
@@ -234,11 +264,13 @@ def test_the_summary_counts_the_classes_and_gives_wilson_intervals():
     # the person closes faster in three, but one of them was already overlapping (a replay's arrival): not counted
     assert (s.shares["person_faster"].count, s.shares["person_faster"].total) == (2, 4)
     assert (s.shares["seen"].count, s.shares["seen_warned"].count, s.shares["avoidable"].count) == (3, 3, 3)
+    assert (s.shares["sees_robot"].count, s.shares["sees_robot"].total) == (1, 4)
+    assert s.robot_speed == pytest.approx(0.35)  # the median of the four collisions with people (not the rack's 0.5)
     assert (s.shares["obstacle_avoidable"].count, s.shares["obstacle_avoidable_with_warning"].count) == (0, 1)
     assert s.shares["nobody_in_view"].value == 0.5
     assert (s.shares["collision"].low, s.shares["collision"].high) == wilson_interval(5, 11)
     assert s.obstacle_clearance == pytest.approx(-0.04) and s.distance_left == pytest.approx(4.0)
-    assert math.isnan(summarize_failures([]).shares["seen"].value)
+    assert math.isnan(summarize_failures([]).shares["seen"].value) and math.isnan(summarize_failures([]).robot_speed)
 
 
 @pytest.mark.slow
@@ -288,7 +320,9 @@ def test_the_summary_puts_analysis_folders_into_one_table_block_with_their_figur
         row = next(line for line in text.splitlines() if line.startswith(f"| tight time | {label} |"))
         cells = [c.strip() for c in row.strip("|").split("|")]
         assert cells[2:4] == [str(s["episodes"]), f"{s['collisions']} / {s['obstacle_collisions']}"]
-        assert cells[10] == str(s["timeouts"])
+        assert cells[12] == str(s["timeouts"])
+        assert cells[8] == (f"{s['shares']['sees_robot']['count']} / {s['collisions']}" if s["collisions"] else "–")
+        assert cells[11] == (f"{s['robot_speed']:.2f}" if s["collisions"] else "–")
         assert cells[4] == (f"{sum(s['table']['none'].values())} / {s['collisions']}" if s["collisions"] else "–")
     figures = sorted((tmp_path / "figs" / "tight_time").glob("*.png"))
     assert [p.name for p in figures] == sorted(p.name for p in folder.glob("collisions_*.png"))

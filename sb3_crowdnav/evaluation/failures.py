@@ -14,6 +14,8 @@ Wilson 95 % intervals. The rules (parameters: :class:`FailureRules`):
   ``both_tolerance`` ``"robot"``, else ``"both"``; ``"none"`` when not closing or overlapping at the start (a replay).
 * **Side**: the person's bearing from the robot's heading at the start of the step [deg, left positive]:
   ``"front"`` below ``front_angle`` (45°), ``"behind"`` above ``behind_angle`` (135°), else ``"side"``.
+* **Sees the robot**: the person is one who sees the robot (``robot_visible``: the robot is one of the agents their
+  crowd model avoids), drawn for the episode; a recording's people never do.
 * **Seen**: the person's slot is set in the ``humans_mask`` the policy acted on (and no new person took it in the
   step); ``seen_for`` [s]: how long they had then been observed without a break.
 * **Avoidable**: an action of the table, applied at the start of the step by the env's motion rule and limits
@@ -36,15 +38,15 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-import gymnasium as gym
 import numpy as np
 
+from sb3_crowdnav.evaluation.episode_log import EpisodeLog, EpisodeRecorder
 from sb3_crowdnav.evaluation.metrics import wilson_interval
 from sb3_crowdnav.evaluation.policy_spec import PolicySpec, is_spec
 from sb3_crowdnav.evaluation.records import Trajectory
 from sb3_crowdnav.evaluation.runner import DEFAULT_ENV_ID, TEST_SEED_OFFSET, eval_seeds, make_env, make_policy, run_episode
 from sb3_crowdnav.sim.actions import action_table, apply_action, wrap_angle
-from sb3_crowdnav.sim.geometry import SEGMENT_DIM, swept_clearance
+from sb3_crowdnav.sim.geometry import swept_clearance
 from sb3_crowdnav.sim.observation import Human, Robot
 from sb3_crowdnav.sim.proximity import min_time_to_collision
 from sb3_crowdnav.sim.rewards import closest_approach
@@ -82,54 +84,6 @@ class FailureRules:
             check_positive(name, getattr(self, name), " [s]")
 
 
-@dataclass(frozen=True, eq=False)
-class EpisodeLog:
-    """What the analysis reads of an episode beside its :class:`Trajectory`, per state (the reset's first) and slot.
-
-    :param seen: (steps + 1, n) bool, set in that observation's ``humans_mask``
-    :param present: (steps + 1, n) bool, the simulator's presence mask
-    :param arrivals: (steps + 1, n) bool, a new person took the slot at that state (a replay's people who come and go)
-    :param actions: (steps,) the actions taken
-    :param segments: (S, 4) the edges of the racks and walls (none on the open floor)
-    """
-
-    trajectory: Trajectory
-    seen: np.ndarray
-    present: np.ndarray
-    arrivals: np.ndarray
-    actions: np.ndarray
-    segments: np.ndarray = field(default_factory=lambda: np.zeros((0, SEGMENT_DIM)))
-
-
-class EpisodeRecorder(gym.Wrapper):
-    """An env wrapper that keeps the :class:`EpisodeLog` of the current episode (:meth:`log`); the episode is the
-    wrapped env's, unchanged."""
-
-    def reset(self, **kwargs: Any):
-        obs, info = self.env.reset(**kwargs)
-        self._rows, self._actions = [], []
-        self._keep(obs)
-        return obs, info
-
-    def step(self, action):
-        result = self.env.step(action)
-        self._actions.append(int(action))
-        self._keep(result[0])
-        return result
-
-    def _keep(self, obs: Mapping[str, np.ndarray]) -> None:
-        sim = self.env.unwrapped.sim
-        n = sim.num_humans
-        arrivals = np.array(sim.crowd.arrivals[:n], dtype=bool) if sim.recorded else np.zeros(n, dtype=bool)
-        self._rows.append((np.asarray(obs["humans_mask"])[:n] > 0.5, sim.mask[:n].copy(), arrivals))
-
-    def log(self, trajectory: Trajectory) -> EpisodeLog:
-        """The log of the episode just played, with its ``trajectory`` (the runner's, ``keep_trajectory=True``)."""
-        seen, present, arrivals = (np.stack(column) for column in zip(*self._rows, strict=True))
-        segments = np.reshape(getattr(self.env.unwrapped.sim, "segments", np.zeros((0, SEGMENT_DIM))), (-1, SEGMENT_DIM))
-        return EpisodeLog(trajectory, seen, present, arrivals, np.array(self._actions, dtype=np.int64), segments)
-
-
 @dataclass(frozen=True)
 class CollisionAnalysis:
     """One collision at its colliding step (module docstring); person fields are empty ("", -1, nan) for an obstacle."""
@@ -151,6 +105,7 @@ class CollisionAnalysis:
     gap: float = math.nan  # [m] surface distance at the start of the step
     seen: bool = False
     seen_for: float = 0.0  # [s]
+    sees_robot: bool = False  # the person sees the robot
 
 
 @dataclass(frozen=True)
@@ -288,7 +243,7 @@ def analyse_collision(log: EpisodeLog, rules: FailureRules = FailureRules(), hit
         hit, contact=(float(contact[0]), float(contact[1])), clearance=math.nan, person=j,
         closer=closer_of(robot_closing, person_closing, rules.both_tolerance) if gap >= 0 else "none", gap=gap,
         robot_closing=robot_closing, person_closing=person_closing, bearing=bearing, side=side_of(bearing, rules), seen=seen,
-        seen_for=_seen_for(log, k, j) * dt if seen else 0.0, **common)
+        seen_for=_seen_for(log, k, j) * dt if seen else 0.0, sees_robot=bool(log.sees_robot[j]), **common)
 
 
 def analyse_timeout(log: EpisodeLog, rules: FailureRules = FailureRules()) -> TimeoutAnalysis:
@@ -401,7 +356,7 @@ class FailureSummary:
 
     ``table[closer][side]`` counts the collisions with people; ``shares`` holds, each with its Wilson 95 % interval:
     ``collision`` and ``timeout`` of the episodes; ``person_faster`` (closing faster than the robot, not overlapping),
-    ``person``, ``behind``, ``seen``, ``seen_warned`` (seen for at least ``warning``), ``avoidable`` and
+    ``person``, ``behind``, ``seen``, ``seen_warned`` (seen for at least ``warning``), ``sees_robot``, ``avoidable`` and
     ``avoidable_with_warning`` of the collisions with people; ``obstacle_avoidable`` and
     ``obstacle_avoidable_with_warning`` of those with racks and walls; ``nobody_in_view`` of the timeouts.
     """
@@ -414,6 +369,7 @@ class FailureSummary:
     shares: dict[str, Share]
     obstacle_clearance: float  # [m] mean over the obstacle collisions (nan: none)
     distance_left: float  # [m] mean over the timeouts (nan: none)
+    robot_speed: float = math.nan  # [m/s] median over the collisions with people of the robot's in the colliding step
 
 
 def summarize_failures(records: Sequence[FailureRecord], rules: FailureRules = FailureRules()) -> FailureSummary:
@@ -431,6 +387,7 @@ def summarize_failures(records: Sequence[FailureRecord], rules: FailureRules = F
         "behind": Share.of(sum(c.side == "behind" for c in people), n_people),
         "seen": Share.of(sum(c.seen for c in people), n_people),
         "seen_warned": Share.of(sum(c.seen_for >= rules.warning - 1e-9 for c in people), n_people),
+        "sees_robot": Share.of(sum(c.sees_robot for c in people), n_people),
         "avoidable": Share.of(sum(c.avoidable for c in people), n_people),
         "avoidable_with_warning": Share.of(sum(c.avoidable_with_warning for c in people), n_people),
         "obstacle_avoidable": Share.of(sum(c.avoidable for c in racks), m),
@@ -440,11 +397,12 @@ def summarize_failures(records: Sequence[FailureRecord], rules: FailureRules = F
     table = {closer: {side: cells[(closer, side)] for side in SIDES} for closer in CLOSERS}
     clearance = float(np.mean([c.clearance for c in racks])) if racks else math.nan
     left = float(np.mean([t.distance_left for t in timeouts])) if timeouts else math.nan
-    return FailureSummary(n, n_people, m, len(timeouts), table, shares, clearance, left)
+    speed = float(np.median([c.robot_speed for c in people])) if people else math.nan
+    return FailureSummary(n, n_people, m, len(timeouts), table, shares, clearance, left, speed)
 
 
 __all__ = [
-    "CLOSERS", "SIDES", "CollisionAnalysis", "EpisodeLog", "EpisodeRecorder", "FailureRecord", "FailureRules",
+    "CLOSERS", "SIDES", "CollisionAnalysis", "FailureRecord", "FailureRules",
     "FailureSummary", "Share", "TimeoutAnalysis", "analyse_collision", "analyse_episode", "analyse_episodes",
     "analyse_timeout", "can_avoid", "closer_of", "collision_clip", "side_of", "summarize_failures",
 ]

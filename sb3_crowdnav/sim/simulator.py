@@ -83,6 +83,14 @@ class CrowdSimulator:
             self.sensor.step(x, y, row, self.mask)
 
     # ------------------------------------------------------------------ reset
+    @property
+    def sees_robot(self) -> np.ndarray:
+        """(n,) bool: the present episode's people who see the robot (it is one of the agents their crowd model avoids;
+        ``robot_visible``); a recording's people never do."""
+        if self.recorded or self.people is None:
+            return np.zeros(self.num_humans, dtype=bool)
+        return self.people.sees_robot[: self.num_humans].copy()
+
     def reset(self, rng: np.random.Generator) -> None:
         """Start a new episode drawn from ``rng``."""
         cfg = self.scene

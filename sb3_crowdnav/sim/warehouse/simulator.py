@@ -265,6 +265,11 @@ class WarehouseSimulator(CrowdSimulator):
         return terms
 
     @property
+    def sees_robot(self) -> np.ndarray:
+        """(n,) bool: the pickers who see the robot (a share of ``robot_visible``, drawn per episode)."""
+        return self.pickers.sees_robot.copy() if self.pickers is not None else np.zeros(0, dtype=bool)
+
+    @property
     def standing(self) -> np.ndarray:
         """(num_humans,) bool: pickers standing at a pick face."""
         return self.pickers.standing if self.pickers is not None else np.zeros(0, dtype=bool)
