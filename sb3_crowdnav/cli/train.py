@@ -264,7 +264,7 @@ def _train_hyperparams(args: argparse.Namespace, checked: dict[str, Any]) -> int
     hp, cfg, env_kwargs = checked["hp"], checked["cfg"], checked["env_kwargs"]
     imitation_episodes, imitation_epochs = checked["imitation_episodes"], checked["imitation_epochs"]
     from sb3_crowdnav.training.run_folder import RunLockedError, read_json
-    from sb3_crowdnav.training.zoo_run import PROGRESS, RunMismatchError
+    from sb3_crowdnav.training.zoo_run import PROGRESS, RunMismatchError, TrainingInterrupted
 
     common.check_out(args.out)
     try:
@@ -279,6 +279,9 @@ def _train_hyperparams(args: argparse.Namespace, checked: dict[str, Any]) -> int
         raise UsageError(str(exc)) from None
     except RunMismatchError as exc:
         raise UsageError(f"--out: {exc}") from None
+    except TrainingInterrupted as exc:
+        print(str(exc), flush=True)
+        return 128 + exc.signum
     config = {"algo": args.algo, "env": args.env, "hyperparams": hp, "env_kwargs": env_kwargs, "seed": args.seed,
               "timesteps": model.num_timesteps, "timesteps_asked": args.timesteps or cfg["n_timesteps"],
               "wall_time_budget_s": None if args.wall_time is None else 60 * args.wall_time,

@@ -332,6 +332,8 @@ def train_from_hyperparams(algo: str, hyperparams: Mapping[str, Any], out_dir: s
     in the folder is refused). ``wall_time`` [s] stops training at the first env step after that much wall time in all
     (imitation and every resumed segment included; :class:`~sb3_crowdnav.training.callbacks.WallTimeBudget`), whatever
     the timesteps reached: the model's ``num_timesteps`` says how many, ``out_dir/progress.json`` the wall time used.
+    With ``checkpoint_freq``, SIGTERM or SIGINT during training writes a checkpoint of the current step and raises
+    :class:`~sb3_crowdnav.training.zoo_run.TrainingInterrupted` (the same call again resumes).
     ``eval_episodes`` > 0 (with ``checkpoint_freq``) validates every checkpoint and the final model on that many
     validation episodes and keeps the best as ``out_dir/best.zip`` (:class:`~sb3_crowdnav.training.zoo_run.Validation`).
     """
@@ -387,8 +389,10 @@ def train_from_hyperparams(algo: str, hyperparams: Mapping[str, Any], out_dir: s
                 if verbose:
                     print(f"resuming from {zoo_run.checkpoint_file(out, algo, resumed)} ({clock.used:.0f} s used)")
             callbacks: list[Any] = []
-            if checkpoint_freq:
-                callbacks.append(zoo_run.ZooCheckpoint(out, algo, checkpoint_freq, clock, identity, validation))
+            checkpoints = zoo_run.ZooCheckpoint(out, algo, checkpoint_freq, clock, identity, validation) \
+                if checkpoint_freq else None
+            if checkpoints is not None:
+                callbacks.append(checkpoints)
             left = None if wall_time is None else wall_time - clock.used
             if left is not None:
                 from sb3_crowdnav.training.callbacks import WallTimeBudget
@@ -397,6 +401,10 @@ def train_from_hyperparams(algo: str, hyperparams: Mapping[str, Any], out_dir: s
             if int(n_timesteps) > model.num_timesteps and (left is None or left > 0):
                 model.learn(total_timesteps=int(n_timesteps) - (model.num_timesteps if resumed is not None else 0),
                             progress_bar=progress_bar, callback=callbacks or None, reset_num_timesteps=resumed is None)
+            if checkpoints is not None and checkpoints.stopped_by is not None:  # validated when the run resumes
+                zoo_run.save_checkpoint(model, out, algo, clock, identity)
+                steps = int(model.num_timesteps)
+                raise zoo_run.TrainingInterrupted(checkpoints.stopped_by, steps, zoo_run.checkpoint_file(out, algo, steps))
             atomic_write(model_path, lambda tmp: zoo_run.save_model(model, tmp))
             if validation is not None:
                 validation(int(model.num_timesteps), model_path)

@@ -14,7 +14,15 @@ A run's folder holds, beside the final ``<algo>.zip``:
 Running the same command again resumes from the newest checkpoint: SB3's ``learn(reset_num_timesteps=False)`` for
 the timesteps left, the replay buffer reloaded, the learning-rate and exploration schedules where they were, and a
 wall-time budget counting the time already used. A finished run is not trained again. The envs restart from new
-episodes, so a resumed run is a valid run, not the same run to the bit as one never stopped. A different command in
+episodes, so a resumed run is a valid run, not the same run to the bit as one never stopped: the replay buffer's last
+transition of each env is marked truncated (SB3's ``timeouts``), so that an n-step return never runs from the
+interrupted episode into the first transitions of the resumed one.
+
+SIGTERM or SIGINT during ``learn`` stops the run at the end of the current env step and writes a checkpoint of that
+step first, then :class:`TrainingInterrupted` is raised (the CLI exits with 128 + the signal); a second signal acts
+as usual. A stopped off-policy run keeps every transition but the one of that step and skips the gradient steps of
+the rollout it cut short; a stopped on-policy run (PPO) loses its rollout so far, whose steps are counted. Its
+checkpoint is validated when the run resumes. A different command in
 the same folder (another algorithm, env, seed, hyperparameters or budget) is refused. DQfD's demonstrations, which sit
 beside its replay buffer, are collected again on resume from the same seeds (the ORCA robot's episodes are the same).
 """
@@ -22,9 +30,11 @@ beside its replay buffer, are collected again on resume from the same seeds (the
 from __future__ import annotations
 
 import re
+import signal
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_crowdnav.training.run_folder import RunClock, atomic_write, kill_point, read_json, write_json
@@ -103,10 +113,23 @@ def save_model(model: Any, path: Path) -> None:
     write_spaces(path, model.observation_space, model.action_space, model.get_env())
 
 
+class TrainingInterrupted(Exception):
+    """A signal stopped a checkpointed run; its checkpoint of ``steps`` env steps is written (the same call again
+    resumes from it)."""
+
+    def __init__(self, signum: int, steps: int, checkpoint: Path) -> None:
+        super().__init__(f"stopped by signal {signum} after {steps} steps; checkpoint {checkpoint} written, run the same "
+                         "command again to resume")
+        self.signum, self.steps, self.checkpoint = signum, steps, checkpoint
+
+
 class ZooCheckpoint(BaseCallback):
     """Save a checkpoint (:func:`save_checkpoint`) every ``every`` env steps, counted over all envs, at the start of
     the first rollout past each multiple: there every transition collected is stored and every gradient step of
-    the previous rollout taken (PPO's rollout buffer is empty, an off-policy replay buffer complete)."""
+    the previous rollout taken (PPO's rollout buffer is empty, an off-policy replay buffer complete).
+
+    While ``learn`` runs, SIGTERM and SIGINT stop training at the end of the current env step (``stopped_by`` holds
+    the signal; the caller writes the checkpoint); a second signal acts as usual."""
 
     def __init__(self, out: Path, algo: str, every: int, clock: RunClock, identity: dict[str, Any],
                  validation: Validation | None = None) -> None:
@@ -114,9 +137,24 @@ class ZooCheckpoint(BaseCallback):
         self.out, self.algo, self.every, self.clock, self.identity = Path(out), algo, int(every), clock, identity
         self.validation = validation
         self._next = 0
+        self.stopped_by: int | None = None
+        self._previous_handlers: dict[int, Any] = {}
+
+    def _stop(self, signum: int, _frame: Any) -> None:
+        self.stopped_by = signum
+        self._restore_handlers()  # a second signal acts as usual
+
+    def _restore_handlers(self) -> None:
+        for signum, handler in self._previous_handlers.items():
+            signal.signal(signum, handler)
+        self._previous_handlers = {}
 
     def _on_training_start(self) -> None:
         self._next = (self.model.num_timesteps // self.every + 1) * self.every
+        self._previous_handlers = {s: signal.signal(s, self._stop) for s in (signal.SIGTERM, signal.SIGINT)}
+
+    def _on_training_end(self) -> None:
+        self._restore_handlers()
 
     def _on_rollout_start(self) -> None:
         if self.model.num_timesteps >= self._next:
@@ -124,7 +162,18 @@ class ZooCheckpoint(BaseCallback):
             self._next = (self.model.num_timesteps // self.every + 1) * self.every
 
     def _on_step(self) -> bool:
-        return True
+        return self.stopped_by is None
+
+
+def truncate_last(buffer: Any) -> None:
+    """Mark the newest transition of each env in ``buffer`` (an SB3 replay buffer) truncated where it is not terminal:
+    the run resumes with new episodes, so the next transition stored is not its successor (SB3's n-step sampling
+    stops at a truncation and bootstraps from that transition's next observation; a one-step target reads
+    ``dones * (1 - timeouts)``, unchanged)."""
+    if buffer.pos == 0 and not buffer.full:
+        return
+    last = (buffer.pos - 1) % buffer.buffer_size
+    buffer.timeouts[last] = np.logical_or(buffer.timeouts[last], np.logical_not(buffer.dones[last]))
 
 
 def resume_model(out: Path, algo: str, steps: int, env: Any, seed: int, verbose: int, imitation_episodes: int) -> Any:
@@ -139,6 +188,7 @@ def resume_model(out: Path, algo: str, steps: int, env: Any, seed: int, verbose:
         from sb3_crowdnav.apg_value.buffers import load_buffer
 
         load_buffer(model.replay_buffer, buffer_file(out, algo, steps))
+        truncate_last(model.replay_buffer)
     if algo == "dqfd":  # the demonstrations beside the buffer: the same ORCA episodes again
         from sb3_crowdnav import imitation
 
@@ -168,5 +218,5 @@ def finish(out: Path, model: Any, clock: RunClock, identity: dict[str, Any]) -> 
                                 "wall_time_s": round(clock.total(), 1), "checkpoint": None, "finished": True})
 
 
-__all__ = ["RunMismatchError", "Validation", "ZooCheckpoint", "buffer_file", "checkpoint_file", "finish",
-           "latest_checkpoint", "read_progress", "resume_model", "save_checkpoint", "save_model"]
+__all__ = ["RunMismatchError", "TrainingInterrupted", "Validation", "ZooCheckpoint", "buffer_file", "checkpoint_file",
+           "finish", "latest_checkpoint", "read_progress", "resume_model", "save_checkpoint", "save_model", "truncate_last"]

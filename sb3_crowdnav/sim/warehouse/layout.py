@@ -31,6 +31,7 @@ import numpy as np
 import shapely
 from shapely.geometry import LineString, Polygon, box
 
+from sb3_crowdnav.sim.draws import uniform
 from sb3_crowdnav.sim.geometry import polygon_segments
 from sb3_crowdnav.sim.validation import check_instance, check_int, check_number
 from sb3_crowdnav.sim.warehouse.boxes import rack_boxes
@@ -278,7 +279,7 @@ def generate_layout(rng: np.random.Generator, ranges: LayoutRanges | None = None
     rows = int(rng.integers(r.rows[0], r.rows[1] + 1))
     segments = int(rng.integers(r.segments[0], r.segments[1] + 1))
     bounds = np.array([r.rack_length, r.rack_depth, r.aisle_width, r.cross_aisle_width])  # (4, 2) low, high [m]
-    length, depth, aisle, cross = rng.uniform(bounds[:, 0], bounds[:, 1]).tolist()
+    length, depth, aisle, cross = uniform(rng, bounds[:, 0], bounds[:, 1]).tolist()
     return layout_from_sizes(rows, segments, length, depth, aisle, cross)
 
 

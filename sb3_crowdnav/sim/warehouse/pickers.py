@@ -37,6 +37,7 @@ from shapely.ops import nearest_points
 
 from sb3_crowdnav.sim.config import SceneConfig
 from sb3_crowdnav.sim.crowd import CrowdModel, RobotAgent, Walls, make_crowd
+from sb3_crowdnav.sim.draws import uniform
 from sb3_crowdnav.sim.population import People, draw_sees_robot, draw_speeds
 from sb3_crowdnav.sim.warehouse import kernels
 from sb3_crowdnav.sim.warehouse.boxes import in_free_space
@@ -138,7 +139,7 @@ class PickerCrowd:
         standing = rng.random(n) < 0.5
         for i in range(n):
             if standing[i]:
-                self.dwell[i] = rng.uniform(*dwell_time) * rng.random()
+                self.dwell[i] = uniform(rng, *dwell_time) * rng.random()
             else:
                 self._next_job(i)
         # who sees the robot: drawn after the jobs (so that a share leaves the draws above as they were), one
@@ -230,7 +231,7 @@ class PickerCrowd:
             if event == 1:
                 self._next_job(i)
             else:
-                self.dwell[i] = max(self.rng.uniform(*self.dwell_time), dt)
+                self.dwell[i] = max(uniform(self.rng, *self.dwell_time), dt)
         return state[:, :2], state[:, 2:]
 
     def _pressed(self, positions: np.ndarray) -> np.ndarray:

@@ -10,6 +10,7 @@ import shapely
 from shapely.geometry import LineString
 
 from sb3_crowdnav.sim.config import RewardConfig, SceneConfig
+from sb3_crowdnav.sim.draws import uniform
 from sb3_crowdnav.sim.geometry import SEGMENT_DIM
 from sb3_crowdnav.sim.observation import HUMAN_DIM, ROBOT_DIM, Human, Robot
 from sb3_crowdnav.sim.rewards import RewardTerms, with_obstacle_collision, with_route_progress
@@ -153,7 +154,7 @@ class WarehouseSimulator(CrowdSimulator):
         w, h, far = self.layout.width / 2, self.layout.height / 2, self.config.min_route_distance
         start, tries = None, 0
         for _ in range(MAX_TRIES * MAX_TRIES // STATION_BATCH):
-            points = rng.uniform((-w, -h), (w, h), (STATION_BATCH, 2))
+            points = uniform(rng, (-w, -h), (w, h), (STATION_BATCH, 2))
             for (x, y), free in zip(points.tolist(), self.robot_map.free_points(points), strict=True):
                 if not free:
                     continue
