@@ -119,3 +119,16 @@ def test_the_cli_exits_with_128_plus_the_signal_and_says_how_to_resume(tmp_path,
     monkeypatch.undo()
     assert main(argv) == 0
     assert json.loads((tmp_path / "run" / "config.json").read_text())["timesteps"] >= 64
+
+
+def test_a_stopped_ppo_run_keeps_its_last_update_and_resumes(tmp_path, monkeypatch):
+    hp = {"policy": "ApgPolicy", "policy_kwargs": "dict(net_arch=[16])", "n_steps": 16, "batch_size": 16, "n_epochs": 1}
+    out = tmp_path / "run"
+    _signal_at(monkeypatch, 40, signal.SIGTERM)  # in the third rollout (16 steps each)
+    with pytest.raises(zoo_run.TrainingInterrupted) as stopped:
+        train_from_hyperparams("ppo", hp, out, timesteps=80, checkpoint_freq=32, env_overrides=ENV)
+    assert stopped.value.steps == 40 and stopped.value.checkpoint.is_file()
+    assert not list((out / "checkpoints").glob("*.npz"))  # on-policy: no replay buffer
+    monkeypatch.undo()
+    model = train_from_hyperparams("ppo", hp, out, timesteps=80, checkpoint_freq=32, env_overrides=ENV)[0]
+    assert 80 <= model.num_timesteps < 80 + 16 and json.loads((out / "progress.json").read_text())["finished"]
