@@ -43,8 +43,10 @@ from stable_baselines3.common.policies import BasePolicy
 
 from sb3_crowdnav.nn.buffers import DictNStepMixin
 from sb3_crowdnav.nn.policies import APG_POLICIES
+from sb3_crowdnav.training import zoo_safety
 from sb3_crowdnav.training.callbacks import VALIDATION_SEED_OFFSET
 from sb3_crowdnav.training.hyperparams import IMITATION_DEFAULTS, check_imitation, imitate
+from sb3_crowdnav.training.zoo_safety import SafeLoadMixin, SafeStoreDict
 
 COMMANDS = ("train", "enjoy")
 
@@ -108,21 +110,21 @@ class ImitationMixin:
         return super().learn(*args, **kwargs)
 
 
-class ZooPPO(ImitationMixin, PPO):
+class ZooPPO(SafeLoadMixin, ImitationMixin, PPO):
     """SB3's PPO for which ``"ApgPolicy"`` names :class:`~sb3_crowdnav.nn.ApgActorCriticPolicy`, imitating first with
     ``imitation_episodes`` (:class:`ImitationMixin`)."""
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {**PPO.policy_aliases, "ApgPolicy": APG_POLICIES["ppo"]}
 
 
-class ZooA2C(ImitationMixin, A2C):
+class ZooA2C(SafeLoadMixin, ImitationMixin, A2C):
     """SB3's A2C for which ``"ApgPolicy"`` names :class:`~sb3_crowdnav.nn.ApgActorCriticPolicy`, imitating first with
     ``imitation_episodes`` (:class:`ImitationMixin`)."""
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {**A2C.policy_aliases, "ApgPolicy": APG_POLICIES["a2c"]}
 
 
-class ZooDQN(ImitationMixin, DictNStepMixin, DQN):
+class ZooDQN(SafeLoadMixin, ImitationMixin, DictNStepMixin, DQN):
     """SB3's DQN for which ``"ApgPolicy"`` names :class:`~sb3_crowdnav.nn.ApgDQNPolicy`, ``n_steps > 1`` builds an
     :class:`~sb3_crowdnav.nn.NStepDictReplayBuffer` (:class:`~sb3_crowdnav.nn.DictNStepMixin`), and
     ``imitation_episodes`` imitates first (:class:`ImitationMixin`)."""
@@ -130,21 +132,21 @@ class ZooDQN(ImitationMixin, DictNStepMixin, DQN):
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {**DQN.policy_aliases, "ApgPolicy": APG_POLICIES["dqn"]}
 
 
-class ZooQRDQN(DictNStepMixin, QRDQN):
+class ZooQRDQN(SafeLoadMixin, DictNStepMixin, QRDQN):
     """sb3-contrib's QRDQN for which ``"ApgPolicy"`` names :class:`~sb3_crowdnav.nn.ApgQRDQNPolicy` and ``n_steps > 1``
     builds an :class:`~sb3_crowdnav.nn.NStepDictReplayBuffer` (:class:`~sb3_crowdnav.nn.DictNStepMixin`)."""
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {**QRDQN.policy_aliases, "ApgPolicy": APG_POLICIES["qrdqn"]}
 
 
-class ZooRecurrentPPO(RecurrentPPO):
+class ZooRecurrentPPO(SafeLoadMixin, RecurrentPPO):
     """sb3-contrib's RecurrentPPO for which ``"ApgPolicy"`` names :class:`~sb3_crowdnav.nn.ApgRecurrentPolicy`."""
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {**RecurrentPPO.policy_aliases,
                                                               "ApgPolicy": APG_POLICIES["recurrentppo"]}
 
 
-class ZooMaskablePPO(MaskablePPO):
+class ZooMaskablePPO(SafeLoadMixin, MaskablePPO):
     """sb3-contrib's MaskablePPO for which ``"ApgPolicy"`` names :class:`~sb3_crowdnav.nn.ApgMaskablePolicy`."""
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {**MaskablePPO.policy_aliases,
@@ -173,6 +175,9 @@ def register() -> None:
     hyperparams_opt.HYPERPARAMS_CONVERTER["apg_value"] = lambda params: params
     hyperparams_opt.HYPERPARAMS_SAMPLER["dqn"] = sample_dqn_params  # rl-zoo3's converter passes n_steps through
     hyperparams_opt.HYPERPARAMS_SAMPLER["qrdqn"] = sample_qrdqn_params
+    for algo, like in (("recurrentppo", "ppo_lstm"), ("maskableppo", "ppo")):  # rl-zoo3 samples them as these
+        hyperparams_opt.HYPERPARAMS_SAMPLER[algo] = hyperparams_opt.HYPERPARAMS_SAMPLER[like]
+        hyperparams_opt.HYPERPARAMS_CONVERTER[algo] = hyperparams_opt.HYPERPARAMS_CONVERTER[like]
 
 
 @functools.cache
@@ -184,6 +189,25 @@ def experiment_manager() -> type:
     class ZooExperimentManager(ExperimentManager):
         """rl-zoo3's experiment manager with its eval envs seeded at :data:`VALIDATION_SEED_OFFSET` (training envs as
         rl-zoo3 seeds them: ``--seed``)."""
+
+        def read_hyperparameters(self) -> tuple[dict[str, Any], dict[str, Any]]:
+            zoo_safety.check_config(self.config)  # a YAML file only, its strings parsed and its classes checked (zoo_safety)
+            hyperparams, saved = super().read_hyperparameters()
+            return zoo_safety.checked_hyperparams(hyperparams), saved
+
+        def objective(self, trial: Any) -> float:
+            """A trial's sampled ``policy_kwargs`` (rl-zoo3's: ``net_arch``, ``activation_fn``) over the file's, not
+            instead of them (RecurrentPPO keeps the file's ``lstm_hidden_size``, QR-DQN its ``n_quantiles``)."""
+            from rl_zoo3 import hyperparams_opt
+
+            own = dict(self._hyperparams.get("policy_kwargs") or {})
+            samplers = hyperparams_opt.HYPERPARAMS_SAMPLER  # the table rl-zoo3's objective reads
+            sampler = samplers[self.algo]
+            samplers[self.algo] = functools.partial(_over_policy_kwargs, sampler, own)
+            try:
+                return super().objective(trial)
+            finally:
+                samplers[self.algo] = sampler
 
         def create_envs(self, n_envs: int, eval_env: bool = False, no_log: bool = False) -> Any:
             if not eval_env:
@@ -197,6 +221,13 @@ def experiment_manager() -> type:
     return ZooExperimentManager
 
 
+def _over_policy_kwargs(sampler: Any, own: dict[str, Any], *args: Any) -> dict[str, Any]:
+    params = sampler(*args)
+    if isinstance(params.get("policy_kwargs"), dict):
+        params = {**params, "policy_kwargs": {**own, **params["policy_kwargs"]}}
+    return params
+
+
 def main(argv: list[str] | None = None) -> None:
     argv = list(sys.argv[1:] if argv is None else argv)
     if not argv or argv[0] not in COMMANDS:
@@ -207,15 +238,24 @@ def main(argv: list[str] | None = None) -> None:
         rest += ["--gym-packages", "sb3_crowdnav"]
     register()
     sys.argv = [f"rl_zoo3.{command}", *rest]
-    if command == "train":
-        from rl_zoo3 import train as zoo_train
+    from rl_zoo3 import utils
 
-        zoo_train.ExperimentManager = experiment_manager()  # the name rl_zoo3.train.train() builds its manager from
-        zoo_train.train()
-    else:
-        from rl_zoo3.enjoy import enjoy
+    utils.yaml = zoo_safety.safe_yaml_module()  # saved runs read as plain data (zoo_safety)
+    try:
+        if command == "train":
+            from rl_zoo3 import train as zoo_train
 
-        enjoy()
+            zoo_train.ExperimentManager = experiment_manager()  # the name rl_zoo3.train.train() builds its manager from
+            zoo_train.StoreDict = SafeStoreDict  # key:value options parsed, not eval'd
+            zoo_train.train()
+        else:
+            from rl_zoo3 import enjoy as zoo_enjoy
+
+            zoo_enjoy.StoreDict, zoo_enjoy.yaml = SafeStoreDict, zoo_safety.safe_yaml_module()
+            zoo_enjoy.enjoy()
+    except zoo_safety.RefusedInput as exc:  # an input it would not run: one line, exit 2
+        print(f"sb3-crowdnav-zoo {command}: error: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
 
 
 if __name__ == "__main__":
