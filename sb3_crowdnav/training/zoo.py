@@ -1,4 +1,5 @@
-"""rl-zoo3 integration: ``sb3-crowdnav-zoo train|enjoy ...`` = ``python -m rl_zoo3.train|enjoy ...`` with APGValue added.
+"""rl-zoo3 integration: ``sb3-crowdnav-zoo train|enjoy ...`` = ``python -m rl_zoo3.train|enjoy ...`` with APGValue added
+(and ``sb3-crowdnav-zoo tuned``, :mod:`sb3_crowdnav.training.tuned`: a study's best trial as a hyperparameter file).
 
 rl-zoo3's documented way of adding an algorithm is to add it to ``rl_zoo3.utils.ALGOS`` (and,
 for Optuna tuning, a sampler to ``rl_zoo3.hyperparams_opt.HYPERPARAMS_SAMPLER``); this module
@@ -48,7 +49,7 @@ from sb3_crowdnav.training.callbacks import VALIDATION_SEED_OFFSET
 from sb3_crowdnav.training.hyperparams import IMITATION_DEFAULTS, check_imitation, imitate
 from sb3_crowdnav.training.zoo_safety import SafeLoadMixin, SafeStoreDict
 
-COMMANDS = ("train", "enjoy")
+COMMANDS = ("train", "enjoy", "tuned")
 
 
 def sample_apg_value_params(trial, n_actions: int, n_envs: int, additional_args: dict) -> dict[str, Any]:
@@ -234,6 +235,10 @@ def main(argv: list[str] | None = None) -> None:
         print(f"usage: sb3-crowdnav-zoo {{{','.join(COMMANDS)}}} [rl-zoo3 arguments]\n\n{__doc__}", file=sys.stderr)
         raise SystemExit(2)
     command, rest = argv[0], argv[1:]
+    if command == "tuned":  # the package's own: a study's best trial as a hyperparameter file
+        from sb3_crowdnav.training.tuned import main as tuned_main
+
+        return tuned_main(rest)
     if "--gym-packages" not in rest:
         rest += ["--gym-packages", "sb3_crowdnav"]
     register()

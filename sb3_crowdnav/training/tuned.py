@@ -1,0 +1,136 @@
+"""``sb3-crowdnav-zoo tuned``: the hyperparameter file an Optuna study of ``sb3-crowdnav-zoo train -optimize`` chose.
+
+    sb3-crowdnav-zoo tuned --algo qrdqn --env CrowdNav-v0 -conf zoo_hyperparams/qrdqn.yml \\
+        --storage sqlite:///tune.db --study-name qrdqn --out zoo_hyperparams/qrdqn.yml
+
+It takes the study's best trial, turns its sampled values into hyperparameters with rl-zoo3's converter (as
+``rl_zoo3.train --trial-id`` does), puts them over the file the study started from (``policy_kwargs`` over its
+``policy_kwargs``, as the trials ran them) and writes the result, headed by comments that state what the choice
+cost: the study's command, its trials (complete, pruned, failed), the env steps of a trial, the evaluations that
+scored it and the best trial's score. The values come from the study's database and are written as plain YAML
+(``policy_kwargs`` as the ``dict(...)`` string the package's files use, read back by ``safe_eval``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import shlex
+import sys
+import textwrap
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+FLAGS = {"n_timesteps": ("-n", "--n-timesteps"), "n_evaluations": ("--n-evaluations",),
+         "eval_episodes": ("--eval-episodes",), "n_trials": ("--n-trials",), "max_total_trials": ("--max-total-trials",)}
+
+
+def _literal(value: Any) -> str:
+    """``value`` (plain data, ``torch.nn`` classes) as the Python-looking text of a hyperparameter file."""
+    if isinstance(value, dict):
+        return "dict(" + ", ".join(f"{k}={_literal(v)}" for k, v in value.items()) + ")"
+    if isinstance(value, (list, tuple)):
+        items = ", ".join(_literal(v) for v in value)
+        return f"[{items}]" if isinstance(value, list) else f"({items}{',' if len(value) == 1 else ''})"
+    if isinstance(value, type):
+        import torch.nn as nn
+
+        if getattr(nn, value.__name__, None) is value:
+            return f"nn.{value.__name__}"
+        raise ValueError(f"cannot write the class {value.__module__}.{value.__qualname__} into a hyperparameter file")
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return repr(value)
+    raise ValueError(f"cannot write {type(value).__name__} {value!r} into a hyperparameter file")
+
+
+def study_budget(study: Any) -> dict[str, Any]:
+    """The trials of ``study`` by state and the settings its recorded command gave (None where not given)."""
+    from optuna.trial import TrialState
+
+    states = {name: len(study.get_trials(deepcopy=False, states=(state,)))
+              for name, state in (("complete", TrialState.COMPLETE), ("pruned", TrialState.PRUNED),
+                                  ("failed", TrialState.FAIL))}
+    command = study.user_attrs.get("command")
+    try:
+        words = shlex.split(command) if isinstance(command, str) else []
+    except ValueError:  # (unbalanced quotes in a recorded command: its flags are not read)
+        words = []
+    given = {key: next((words[i + 1] for i, w in enumerate(words[:-1]) if w in flags), None)
+             for key, flags in FLAGS.items()}
+    return {**states, **given, "command": command}
+
+
+def tuned_hyperparams(algo: str, base: dict[str, Any], storage: str, study_name: str) -> tuple[dict[str, Any], Any]:
+    """``base`` (a file's entry, as read) with the best trial's hyperparameters over it; and the study."""
+    import optuna
+    from rl_zoo3 import hyperparams_opt
+
+    from sb3_crowdnav.training.hyperparams import policy_kwargs_names, safe_eval
+    from sb3_crowdnav.training.zoo import register
+
+    register()
+    if algo not in hyperparams_opt.HYPERPARAMS_CONVERTER:
+        raise ValueError(f"--algo: rl-zoo3 has no converter for {algo!r}; "
+                         f"known: {sorted(hyperparams_opt.HYPERPARAMS_CONVERTER)}")
+    try:
+        study = optuna.load_study(study_name=study_name, storage=storage)
+    except KeyError:
+        raise ValueError(f"--study-name: no study {study_name!r} in {storage}") from None
+    if not study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.COMPLETE,)):
+        raise ValueError(f"--study-name: study {study_name!r} has no complete trial yet")
+    best = hyperparams_opt.HYPERPARAMS_CONVERTER[algo](dict(study.best_trial.params))
+    entry = dict(base)
+    if "policy_kwargs" in best:
+        own = entry.get("policy_kwargs") or {}
+        own = safe_eval(own, policy_kwargs_names()) if isinstance(own, str) else dict(own)
+        entry["policy_kwargs"] = _literal({**own, **best.pop("policy_kwargs")})
+    for key, value in best.items():
+        entry[key] = value if value is None or isinstance(value, (bool, int, float, str)) else _literal(value)
+    return entry, study
+
+
+def header(algo: str, env_id: str, conf: str, study_name: str, study: Any, argv: list[str]) -> str:
+    budget = study_budget(study)
+    per_trial = f"{budget['n_timesteps']} env steps" if budget["n_timesteps"] else "env steps not recorded"
+    episodes = budget["eval_episodes"] or "rl-zoo3's default number of"
+    scored = (f"scored on {episodes} validation episodes (seeds 2,000,000 + i) after each of "
+              f"{budget['n_evaluations'] or 'its'} evaluations")
+    lines = [
+        f"{algo} on {env_id}, tuned with Optuna through rl-zoo3 (sb3-crowdnav-zoo train -optimize) from {conf}:",
+        f"the best of {budget['complete']} complete trials of study {study_name!r} ({budget['pruned']} pruned, "
+        f"{budget['failed']} failed), each trial {per_trial}, {scored};",
+        f"best trial #{study.best_trial.number}, mean episode reward {study.best_trial.value:.4f}.",
+        f"The study's command: {budget['command'] or 'not recorded'}",
+        f"Written {datetime.date.today().isoformat()} by: sb3-crowdnav-zoo tuned {shlex.join(argv)}",
+    ]
+    return "".join(f"# {part}\n" for line in lines
+                   for part in textwrap.wrap(line, 116, break_long_words=False, break_on_hyphens=False))
+
+
+def main(argv: list[str] | None = None) -> None:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = argparse.ArgumentParser(prog="sb3-crowdnav-zoo tuned", description=__doc__.splitlines()[0])
+    parser.add_argument("--algo", required=True)
+    parser.add_argument("--env", required=True, help="the env id: the file's top-level key")
+    parser.add_argument("-conf", "--conf-file", dest="conf", required=True, help="the YAML file the study started from")
+    parser.add_argument("--storage", required=True, help="the study's Optuna storage, e.g. sqlite:///tune.db")
+    parser.add_argument("--study-name", required=True)
+    parser.add_argument("--out", required=True, help="the tuned YAML file to write (may be -conf itself)")
+    args = parser.parse_args(argv)
+    from sb3_crowdnav.training.hyperparams import load_hyperparams
+
+    try:
+        base = load_hyperparams(args.conf, args.env)
+        entry, study = tuned_hyperparams(args.algo, base, args.storage, args.study_name)
+    except (ValueError, FileNotFoundError) as exc:
+        parser.exit(2, f"sb3-crowdnav-zoo tuned: error: {' '.join(str(exc).split())}\n")
+    text = header(args.algo, args.env, args.conf, args.study_name, study, argv)
+    text += yaml.safe_dump({args.env: entry}, sort_keys=False, width=120)
+    Path(args.out).write_text(text)
+    print(f"wrote {args.out}: trial #{study.best_trial.number} of study {args.study_name!r} "
+          f"(mean episode reward {study.best_trial.value:.4f})")
+
+
+__all__ = ["header", "main", "study_budget", "tuned_hyperparams"]

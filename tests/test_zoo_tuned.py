@@ -1,0 +1,88 @@
+"""sb3-crowdnav-zoo tuned: a study's best trial written over the file it started from, with the study's budget."""
+
+from __future__ import annotations
+
+import pytest
+
+optuna = pytest.importorskip("optuna")
+
+from sb3_crowdnav.training.hyperparams import load_hyperparams, policy_kwargs_names, prepare, safe_eval  # noqa: E402
+from sb3_crowdnav.training.zoo import main as zoo_main  # noqa: E402
+from sb3_crowdnav.training.zoo import register, sample_dqn_params  # noqa: E402
+
+BASE = ("# a base file\nCrowdNav-v0:\n  policy: 'ApgPolicy'\n  imitation_episodes: 30\n  n_timesteps: 1000\n"
+        "  policy_kwargs: \"dict(features_extractor_kwargs=dict(attention_dim=32))\"\n  gamma: 0.5\n")
+COMMAND = ("python -m sb3_crowdnav.training.zoo train --algo dqn --env CrowdNav-v0 -conf base.yml -optimize "
+           "--n-trials 6 --n-timesteps 40000 --n-evaluations 2 --eval-episodes 50")
+
+
+def _study(tmp_path, trials: int):
+    register()
+    storage = f"sqlite:///{tmp_path / 'tune.db'}"
+    study = optuna.create_study(storage=storage, study_name="dqn", direction="maximize",
+                                sampler=optuna.samplers.RandomSampler(seed=0))
+    study.set_user_attr("command", COMMAND)
+
+    def objective(trial):  # a score from the sampled values, as a trial's mean reward would be
+        params = sample_dqn_params(trial, 81, 1, {"using_her_replay_buffer": False, "her_kwargs": {}})
+        if trial.number == 1:
+            raise optuna.TrialPruned()
+        return -abs(params["learning_rate"] - 1e-4) + 0.01 * params["n_steps"]
+
+    study.optimize(objective, n_trials=trials)
+    return storage, study
+
+
+def test_the_best_trial_is_written_over_the_base_file_with_its_budget(tmp_path, capsys):
+    from rl_zoo3 import hyperparams_opt
+
+    storage, study = _study(tmp_path, 6)
+    (tmp_path / "base.yml").write_text(BASE)
+    out = tmp_path / "tuned.yml"
+    zoo_main(["tuned", "--algo", "dqn", "--env", "CrowdNav-v0", "-conf", str(tmp_path / "base.yml"),
+              "--storage", storage, "--study-name", "dqn", "--out", str(out)])
+    assert f"trial #{study.best_trial.number}" in capsys.readouterr().out
+    text = out.read_text()
+    assert "the best of 5 complete trials of study 'dqn' (1 pruned, 0 failed)" in text
+    assert "each trial 40000 env steps, scored on 50 validation episodes" in text and "each of 2 evaluations" in text
+    assert f"best trial #{study.best_trial.number}, mean episode reward {study.best_trial.value:.4f}" in text
+    assert COMMAND in text
+    hp = load_hyperparams(out)
+    best = hyperparams_opt.HYPERPARAMS_CONVERTER["dqn"](dict(study.best_trial.params))
+    for key in ("learning_rate", "batch_size", "n_steps", "gamma", "exploration_fraction", "target_update_interval"):
+        assert hp[key] == best[key], key  # the trial's values, the base's gamma replaced
+    assert hp["imitation_episodes"] == 30 and hp["n_timesteps"] == 1000  # the base's other keys kept
+    policy_kwargs = safe_eval(hp["policy_kwargs"], policy_kwargs_names())
+    assert policy_kwargs["net_arch"] == best["policy_kwargs"]["net_arch"]
+    assert policy_kwargs["features_extractor_kwargs"] == {"attention_dim": 32}  # over the base's, as trials ran
+    prepare("dqn", hp)  # a file sb3-crowdnav train --hyperparams takes
+
+
+@pytest.mark.parametrize("change, fragment", [
+    (["--study-name", "nope"], "no study 'nope'"),
+    (["--algo", "nope"], "rl-zoo3 has no converter for 'nope'"),
+    (["-conf", "missing.yml"], "no hyperparameter file"),
+])
+def test_bad_input_exits_2_with_one_line(tmp_path, capsys, change, fragment):
+    storage, _ = _study(tmp_path, 1)
+    (tmp_path / "base.yml").write_text(BASE)
+    argv = {"--algo": "dqn", "--env": "CrowdNav-v0", "-conf": str(tmp_path / "base.yml"), "--storage": storage,
+            "--study-name": "dqn", "--out": str(tmp_path / "t.yml")}
+    argv.update(dict(zip(change[::2], change[1::2], strict=True)))
+    with pytest.raises(SystemExit) as exc:
+        zoo_main(["tuned", *[x for pair in argv.items() for x in pair]])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and fragment in err[0]
+    assert not (tmp_path / "t.yml").exists()
+
+
+def test_a_study_without_a_complete_trial_is_refused(tmp_path, capsys):
+    register()
+    storage = f"sqlite:///{tmp_path / 'tune.db'}"
+    optuna.create_study(storage=storage, study_name="empty", direction="maximize")
+    (tmp_path / "base.yml").write_text(BASE)
+    with pytest.raises(SystemExit) as exc:
+        zoo_main(["tuned", "--algo", "dqn", "--env", "CrowdNav-v0", "-conf", str(tmp_path / "base.yml"),
+                  "--storage", storage, "--study-name", "empty", "--out", str(tmp_path / "t.yml")])
+    assert exc.value.code == 2 and "has no complete trial yet" in capsys.readouterr().err
