@@ -42,7 +42,7 @@ def test_the_best_trial_is_written_over_the_base_file_with_its_budget(tmp_path, 
     zoo_main(["tuned", "--algo", "dqn", "--env", "CrowdNav-v0", "-conf", str(tmp_path / "base.yml"),
               "--storage", storage, "--study-name", "dqn", "--out", str(out)])
     assert f"trial #{study.best_trial.number}" in capsys.readouterr().out
-    text = out.read_text()
+    text = " ".join(line[2:] for line in out.read_text().splitlines() if line.startswith("# "))  # (wrapped)
     assert "the best of 5 complete trials of study 'dqn' (1 pruned, 0 failed)" in text
     assert "each trial 40000 env steps, scored on 50 validation episodes" in text and "each of 2 evaluations" in text
     assert f"best trial #{study.best_trial.number}, mean episode reward {study.best_trial.value:.4f}" in text
