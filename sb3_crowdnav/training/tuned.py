@@ -63,14 +63,14 @@ def study_budget(study: Any) -> dict[str, Any]:
 
 
 def tuned_hyperparams(algo: str, base: dict[str, Any], storage: str, study_name: str) -> tuple[dict[str, Any], Any]:
-    """``base`` (a file's entry, as read) with the best trial's hyperparameters over it; and the study."""
+    """``base`` (a file's entry, as read) with the best trial's hyperparameters over it; and the study. The converter
+    is rl-zoo3's for ``algo``, as :func:`sb3_crowdnav.training.zoo.register` leaves the table (``sb3-crowdnav-zoo``
+    registers first; a script calls it before)."""
     import optuna
     from rl_zoo3 import hyperparams_opt
 
     from sb3_crowdnav.training.hyperparams import policy_kwargs_names, safe_eval
-    from sb3_crowdnav.training.zoo import register
 
-    register()
     if algo not in hyperparams_opt.HYPERPARAMS_CONVERTER:
         raise ValueError(f"--algo: rl-zoo3 has no converter for {algo!r}; "
                          f"known: {sorted(hyperparams_opt.HYPERPARAMS_CONVERTER)}")

@@ -238,6 +238,7 @@ def main(argv: list[str] | None = None) -> None:
     if command == "tuned":  # the package's own: a study's best trial as a hyperparameter file
         from sb3_crowdnav.training.tuned import main as tuned_main
 
+        register()  # (the converters of the package's algorithms)
         return tuned_main(rest)
     if "--gym-packages" not in rest:
         rest += ["--gym-packages", "sb3_crowdnav"]
