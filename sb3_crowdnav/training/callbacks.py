@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import shutil
-import signal
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -17,6 +16,7 @@ from sb3_crowdnav.evaluation import run_episodes, summarize
 from sb3_crowdnav.sim.validation import check_choice, check_positive
 from sb3_crowdnav.training.run_folder import (
     RunClock,
+    SignalStop,
     atomic_write,
     buffer_path,
     checkpoint_path,
@@ -120,8 +120,7 @@ class EpisodeCheckpoint(BaseCallback):
         self.select_by, self.env_kwargs, self.env_id = select_by, dict(env_kwargs or {}), env_id
         self._last = -1
         self.validate_first = False  # validate the resumed checkpoint before training on (a kill skipped it)
-        self.stopped_by: int | None = None  # the signal that stopped training early, if any
-        self._previous_handlers: dict[int, Any] = {}
+        self.signals = SignalStop()  # stopped_by: the signal that stopped training early, if any
 
     def validate(self) -> None:
         """Validate the checkpoint of the current episode count (once: a row an interrupted attempt left is reused),
@@ -160,24 +159,20 @@ class EpisodeCheckpoint(BaseCallback):
         kill_point("progress")
         remove_stale(self.out, keep=n)
 
-    def _stop(self, signum: int, _frame: Any) -> None:
-        self.stopped_by = signum
-        self._restore_handlers()  # a second signal acts as usual
-
-    def _restore_handlers(self) -> None:
-        for signum, handler in self._previous_handlers.items():
-            signal.signal(signum, handler)
-        self._previous_handlers = {}
+    @property
+    def stopped_by(self) -> int | None:
+        """The signal that stopped training early (SIGTERM or SIGINT), or None."""
+        return self.signals.stopped_by
 
     def _on_training_start(self) -> None:
         self._last = self.model.episodes_done  # a resumed run does not checkpoint and validate its first episode count again
-        self._previous_handlers = {s: signal.signal(s, self._stop) for s in (signal.SIGTERM, signal.SIGINT)}
+        self.signals.install()
         if self.validate_first and self.eval_episodes:
             self.validate_first = False
             self.validate()
 
     def _on_training_end(self) -> None:
-        self._restore_handlers()
+        self.signals.restore()
 
     def _on_step(self) -> bool:
         if self.stopped_by is not None:

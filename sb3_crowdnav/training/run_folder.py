@@ -22,6 +22,7 @@ import hashlib
 import json
 import os
 import re
+import signal
 import socket
 import time
 from collections.abc import Callable
@@ -156,9 +157,29 @@ def kill_point(name: str) -> None:
         return
     count = _KILL_COUNTS[name] = _KILL_COUNTS.get(name, 0) + 1
     if count == int(spec.rpartition(":")[2]):
-        import signal
-
         os.kill(os.getpid(), signal.SIGKILL)
 
 
 _KILL_COUNTS: dict[str, int] = {}
+
+
+class SignalStop:
+    """SIGTERM and SIGINT recorded while installed instead of acted on: a training loop asks :attr:`stopped_by` (the
+    signal, or None) after each step, stops and writes its checkpoint; after the first signal the previous handlers
+    are back, so a second one acts as usual."""
+
+    def __init__(self) -> None:
+        self.stopped_by: int | None = None
+        self._previous: dict[int, Any] = {}
+
+    def install(self) -> None:
+        self._previous = {s: signal.signal(s, self._stop) for s in (signal.SIGTERM, signal.SIGINT)}
+
+    def restore(self) -> None:
+        for signum, handler in self._previous.items():
+            signal.signal(signum, handler)
+        self._previous = {}
+
+    def _stop(self, signum: int, _frame: Any) -> None:
+        self.stopped_by = signum
+        self.restore()

@@ -30,14 +30,13 @@ beside its replay buffer, are collected again on resume from the same seeds (the
 from __future__ import annotations
 
 import re
-import signal
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
-from sb3_crowdnav.training.run_folder import RunClock, atomic_write, kill_point, read_json, write_json
+from sb3_crowdnav.training.run_folder import RunClock, SignalStop, atomic_write, kill_point, read_json, write_json
 
 PROGRESS = "progress.json"
 CHECKPOINTS = "checkpoints"
@@ -137,24 +136,19 @@ class ZooCheckpoint(BaseCallback):
         self.out, self.algo, self.every, self.clock, self.identity = Path(out), algo, int(every), clock, identity
         self.validation = validation
         self._next = 0
-        self.stopped_by: int | None = None
-        self._previous_handlers: dict[int, Any] = {}
+        self.signals = SignalStop()
 
-    def _stop(self, signum: int, _frame: Any) -> None:
-        self.stopped_by = signum
-        self._restore_handlers()  # a second signal acts as usual
-
-    def _restore_handlers(self) -> None:
-        for signum, handler in self._previous_handlers.items():
-            signal.signal(signum, handler)
-        self._previous_handlers = {}
+    @property
+    def stopped_by(self) -> int | None:
+        """The signal that stopped training early (SIGTERM or SIGINT), or None."""
+        return self.signals.stopped_by
 
     def _on_training_start(self) -> None:
         self._next = (self.model.num_timesteps // self.every + 1) * self.every
-        self._previous_handlers = {s: signal.signal(s, self._stop) for s in (signal.SIGTERM, signal.SIGINT)}
+        self.signals.install()
 
     def _on_training_end(self) -> None:
-        self._restore_handlers()
+        self.signals.restore()
 
     def _on_rollout_start(self) -> None:
         if self.model.num_timesteps >= self._next:
