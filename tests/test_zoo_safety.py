@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import io
 from collections import OrderedDict
+from pathlib import Path
 
 import pytest
 import yaml
@@ -139,3 +140,11 @@ def test_every_zoo_algorithm_can_be_tuned_and_keeps_the_files_policy_kwargs():
     merged = _over_policy_kwargs(lambda *a: {"gamma": 0.9, "policy_kwargs": {"net_arch": [8]}},
                                  {"lstm_hidden_size": 128, "net_arch": [64]}, None)
     assert merged == {"gamma": 0.9, "policy_kwargs": {"lstm_hidden_size": 128, "net_arch": [8]}}
+
+
+@pytest.mark.parametrize("path", sorted((Path(__file__).parent.parent / "zoo_hyperparams").glob("*.yml")),
+                         ids=lambda p: p.name)
+def test_every_shipped_hyperparameter_file_passes(path):
+    for env_id, entry in yaml.safe_load(path.read_text()).items():
+        checked = zoo_safety.checked_hyperparams(dict(entry))
+        assert not isinstance(checked.get("policy_kwargs"), str), (path.name, env_id)
