@@ -148,3 +148,25 @@ def test_every_shipped_hyperparameter_file_passes(path):
     for env_id, entry in yaml.safe_load(path.read_text()).items():
         checked = zoo_safety.checked_hyperparams(dict(entry))
         assert not isinstance(checked.get("policy_kwargs"), str), (path.name, env_id)
+
+
+def test_the_zoos_replay_buffers_are_plain_arrays_and_a_pickle_is_refused(tmp_path):
+    import gymnasium as gym
+    import numpy as np
+
+    from tests.test_security import _Payload
+
+    register()
+    env = gym.make("CrowdNav-v0", human_policy="linear", num_humans=2)
+    model = ZOO_ALGOS["dqn"]("ApgPolicy", env, buffer_size=64, learning_starts=8, batch_size=8)
+    model.learn(16)
+    model.save_replay_buffer(tmp_path / "replay_buffer.pkl")  # rl-zoo3's name, plain arrays inside
+    again = ZOO_ALGOS["dqn"]("ApgPolicy", env, buffer_size=64)
+    again.load_replay_buffer(tmp_path / "replay_buffer.pkl")
+    assert again.replay_buffer.pos == model.replay_buffer.pos == 16
+    assert np.array_equal(again.replay_buffer.rewards, model.replay_buffer.rewards)
+    marker = tmp_path / "marker"
+    (tmp_path / "hostile.pkl").write_bytes(__import__("pickle").dumps(_Payload(marker)))
+    with pytest.raises(zoo_safety.RefusedInput, match="pickled replay buffer"):
+        again.load_replay_buffer(tmp_path / "hostile.pkl")
+    assert not marker.exists()

@@ -24,7 +24,8 @@ input:
   ``OrderedDict`` that rl-zoo3 writes), and then checked as a hyperparameter file is.
 - **Models load as** :func:`~sb3_crowdnav.models.load_model` **loads them**: the zoo's algorithms take nothing from a
   file's pickles (:class:`SafeLoadMixin`; ``trusted=True`` for SB3's own load), and their ``save`` writes the plain
-  spaces member that lets a model load without its env.
+  spaces member that lets a model load without its env. Their replay buffers are saved as plain arrays and a pickled
+  one is refused (rl-zoo3 reloads ``replay_buffer.pkl`` beside a ``--trained-agent``).
 """
 
 from __future__ import annotations
@@ -181,6 +182,26 @@ class SafeLoadMixin:
 
             custom_objects = {**safe_custom_objects(resolve_model_path(path), env), **(custom_objects or {})}
         return super().load(path, env=env, device=device, custom_objects=custom_objects, **kwargs)
+
+    def save_replay_buffer(self, path: Any) -> None:
+        """The replay buffer as plain arrays (:func:`~sb3_crowdnav.apg_value.buffers.save_buffer`), whatever the
+        file's name (rl-zoo3's ``--save-replay-buffer`` writes ``replay_buffer.pkl``)."""
+        from sb3_crowdnav.apg_value.buffers import save_buffer
+
+        save_buffer(self.replay_buffer, path)
+
+    def load_replay_buffer(self, path: Any, truncate_last_traj: bool = True, trusted: bool = False) -> None:
+        """A buffer of plain arrays (what :meth:`save_replay_buffer` writes); a pickled one (SB3's) only with
+        ``trusted=True``."""
+        if trusted:
+            return super().load_replay_buffer(path, truncate_last_traj)
+        from sb3_crowdnav.apg_value.buffers import is_npz, load_buffer
+
+        if not is_npz(path):
+            raise RefusedInput(f"{path}: a pickled replay buffer is not loaded (unpickling can run code); only a buffer "
+                               "of plain arrays, as the zoo's algorithms save it")
+        load_buffer(self.replay_buffer, path)
+        return None
 
     def save(self, path: Any, *args: Any, **kwargs: Any) -> None:
         from sb3_crowdnav.serialization import write_spaces
