@@ -88,9 +88,13 @@ def test_the_files_own_wrappers_callbacks_and_buffers_pass():
     assert hp["replay_buffer_class"] is NStepDictReplayBuffer
     assert hp["env_wrapper"] == "sb3_crowdnav.apg_value.action_masks.WallActionMasker"  # checked, left to rl-zoo3
     for key, name in (("env_wrapper", "collections.OrderedDict"), ("vec_env_wrapper", "gymnasium.Wrapper"),
-                      ("callback", "sb3_crowdnav.apg_value.action_masks.WallActionMasker"), ("env_wrapper", "nowhere.X")):
+                      ("callback", "sb3_crowdnav.apg_value.action_masks.WallActionMasker"), ("env_wrapper", "nowhere.X"),
+                      ("env_wrapper", "antigravity.Wrapper")):
         with pytest.raises(zoo_safety.RefusedInput, match=key):
             zoo_safety.checked_hyperparams({key: name})
+    import sys
+
+    assert "antigravity" not in sys.modules  # refused before any import (importing it opens a web browser)
 
 
 def test_saved_runs_are_read_as_plain_data(tmp_path):

@@ -19,7 +19,9 @@ input:
   package's buffer modules.
 - **Wrappers and callbacks must be what they are named as**: each name of ``env_wrapper`` must resolve to a
   ``gymnasium.Wrapper`` class, of ``vec_env_wrapper`` to a ``VecEnvWrapper`` class, of ``callback`` to a
-  ``BaseCallback`` class, before rl-zoo3 instantiates it; anything else is refused.
+  ``BaseCallback`` class, before rl-zoo3 instantiates it; anything else is refused. The name's module must belong to
+  :data:`TRUSTED_PACKAGES` or be imported already (``--gym-packages`` imports a user's own): a file cannot make the
+  zoo import a module.
 - **Saved runs are read with a loader that builds plain data only** (:func:`load_yaml`: YAML's safe types and the
   ``OrderedDict`` that rl-zoo3 writes), and then checked as a hyperparameter file is.
 - **Models load as** :func:`~sb3_crowdnav.models.load_model` **loads them**: the zoo's algorithms take nothing from a
@@ -32,6 +34,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import sys
 import types
 from collections import OrderedDict
 from pathlib import Path
@@ -44,6 +47,8 @@ CLASS_KEYS = {"env_wrapper": ("gymnasium", "Wrapper"), "vec_env_wrapper": ("stab
                                                                            "VecEnvWrapper"),
               "callback": ("stable_baselines3.common.callbacks", "BaseCallback")}
 BUFFER_MODULES = ("stable_baselines3.common.buffers", "sb3_crowdnav.nn.buffers")
+# the packages whose modules a file may name (importing one runs its code): this package and its dependencies
+TRUSTED_PACKAGES = ("sb3_crowdnav", "stable_baselines3", "sb3_contrib", "rl_zoo3", "gymnasium")
 
 
 class RefusedInput(ValueError):
@@ -64,6 +69,9 @@ def _class_named(key: str, name: Any) -> None:
     if not isinstance(name, str) or "." not in name:
         raise RefusedInput(f"{key}: {name!r} must be a dotted name 'module.Class' of a {base_name} subclass")
     module, _, attribute = name.rpartition(".")
+    if module not in sys.modules and module.split(".")[0] not in TRUSTED_PACKAGES:  # importing runs the module's code
+        raise RefusedInput(f"{key}: {name!r} is in a module that is not imported; a class of "
+                           f"{', '.join(TRUSTED_PACKAGES)} or of a package imported first (--gym-packages PACKAGE)")
     try:
         found = getattr(importlib.import_module(module), attribute)
     except (ImportError, AttributeError) as exc:
