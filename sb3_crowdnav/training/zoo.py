@@ -196,9 +196,10 @@ def experiment_manager() -> type:
             hyperparams, saved = super().read_hyperparameters()
             return zoo_safety.checked_hyperparams(hyperparams), saved
 
-        def objective(self, trial: Any) -> float:
-            """A trial's sampled ``policy_kwargs`` (rl-zoo3's: ``net_arch``, ``activation_fn``) over the file's, not
-            instead of them (RecurrentPPO keeps the file's ``lstm_hidden_size``, QR-DQN its ``n_quantiles``)."""
+        def hyperparameters_optimization(self) -> None:
+            """Every trial's sampled ``policy_kwargs`` (rl-zoo3's: ``net_arch``, ``activation_fn``) over the file's,
+            not instead of them (RecurrentPPO keeps the file's ``lstm_hidden_size``, QR-DQN its ``n_quantiles``): the
+            sampler rl-zoo3's objective reads is wrapped for the whole study (its trials may run in threads)."""
             from rl_zoo3 import hyperparams_opt
 
             own = dict(self._hyperparams.get("policy_kwargs") or {})
@@ -206,7 +207,7 @@ def experiment_manager() -> type:
             sampler = samplers[self.algo]
             samplers[self.algo] = functools.partial(_over_policy_kwargs, sampler, own)
             try:
-                return super().objective(trial)
+                super().hyperparameters_optimization()
             finally:
                 samplers[self.algo] = sampler
 
