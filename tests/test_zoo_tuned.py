@@ -62,6 +62,7 @@ def test_the_best_trial_is_written_over_the_base_file_with_its_budget(tmp_path, 
     (["--study-name", "nope"], "no study 'nope'"),
     (["--algo", "nope"], "rl-zoo3 has no converter for 'nope'"),
     (["-conf", "missing.yml"], "no hyperparameter file"),
+    (["--out", "/nonexistent/dir/t.yml"], "its folder does not exist"),
 ])
 def test_bad_input_exits_2_with_one_line(tmp_path, capsys, change, fragment):
     storage, _ = _study(tmp_path, 1)

@@ -119,6 +119,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--study-name", required=True)
     parser.add_argument("--out", required=True, help="the tuned YAML file to write (may be -conf itself)")
     args = parser.parse_args(argv)
+    if not Path(args.out).resolve().parent.is_dir():  # refused before the study is read
+        parser.exit(2, f"sb3-crowdnav-zoo tuned: error: --out {args.out!r}: its folder does not exist\n")
     from sb3_crowdnav.training.hyperparams import load_hyperparams
 
     try:
