@@ -174,3 +174,28 @@ def test_the_zoos_replay_buffers_are_plain_arrays_and_a_pickle_is_refused(tmp_pa
     with pytest.raises(zoo_safety.RefusedInput, match="pickled replay buffer"):
         again.load_replay_buffer(tmp_path / "hostile.pkl")
     assert not marker.exists()
+
+
+def test_trusted_restores_sb3s_own_loads(tmp_path):
+    """trusted=True (files you made yourself) loads as SB3 does: the refusals above are what the default adds."""
+    import pickle
+
+    import gymnasium as gym
+    from stable_baselines3.common.save_util import save_to_pkl
+
+    from tests.test_security import _hostile_copy
+
+    path, marker = _hostile_copy(tmp_path, "unknown_entry", name="ppo_apg")
+    ZOO_ALGOS["ppo"].load(path, trusted=True)
+    assert marker.read_text() == "pwned"
+    register()
+    env = gym.make("CrowdNav-v0", human_policy="linear", num_humans=2)
+    model = ZOO_ALGOS["dqn"]("ApgPolicy", env, buffer_size=64, learning_starts=8, batch_size=8)
+    model.learn(16)
+    save_to_pkl(tmp_path / "sb3_buffer.pkl", model.replay_buffer)  # SB3's own format, a pickle
+    assert pickle.loads((tmp_path / "sb3_buffer.pkl").read_bytes()).pos == 16
+    again = ZOO_ALGOS["dqn"]("ApgPolicy", env, buffer_size=64)
+    with pytest.raises(zoo_safety.RefusedInput):
+        again.load_replay_buffer(tmp_path / "sb3_buffer.pkl")
+    again.load_replay_buffer(tmp_path / "sb3_buffer.pkl", trusted=True)
+    assert again.replay_buffer.pos == 16
