@@ -30,7 +30,7 @@ NON_DEFAULT = {
     "orca_neighbor_dist": 2.0, "orca_max_neighbors": 1, "orca_time_horizon": 1.0, "orca_time_horizon_obst": 0.5,
     "crowd": "linear", "crowd_kwargs": {"safety_space": 0.2}, "human_speed": "measured", "stop_probability": 0.5,
     "stop_duration": (0.5, 1.0), "actions": ("with_stop", "paper"), "max_acceleration": 0.5, "max_turn_rate": 0.8,
-    "people_sensor_range": 3.0, "people_sensor_noise": 0.1, "people_sensor_latency": 1,
+    "people_sensor_range": 3.0, "people_sensor_noise": 0.1, "people_sensor_latency": 1, "observed": "nearest",
     # RewardConfig and the env's own
     "reward": ("comfort", "crowdnav"), "gamma": 0.5, "render_mode": "rgb_array",
     "success_reward": 2.0, "collision_penalty": -1.0, "discomfort_dist": 0.5, "discomfort_factor": 2.0,
@@ -50,7 +50,7 @@ REFUSED = {
     "CrowdNavComfort-v0": OPEN_FLOOR_REFUSED | {"square_width", "discomfort_factor", "angular_penalty"},
     "CrowdNavComfortAngular-v0": OPEN_FLOOR_REFUSED | {"square_width", "discomfort_factor"},
     "CrowdNavWarehouse-v0": {"circle_radius", "square_width", "start_noise", "human_policy", "scenario",
-                             "social_penalty", "angular_penalty", "crowd",
+                             "social_penalty", "angular_penalty", "crowd", "observed",
                              "stop_probability", "stop_duration"},
 }
 

@@ -230,7 +230,7 @@ class CrowdEnvBase(gym.Env):
         if self._renderer is None:
             self._renderer = CrowdRenderer(self.scene, human=self.render_mode == "human")
         sim = self.sim
-        unseen = None if sim.sensor is None else ~sim.observed()[1][: sim.num_humans]  # who the robot does not see
+        unseen = None if sim.sensor is None else ~sim.seen_people  # who the robot does not see
         frame = self._renderer.draw(self.trajectory, sim.human_goals, sim.robot[Robot.GOAL], sim.time, unseen=unseen,
                                     **self._render_extras())
         return None if self.render_mode == "human" else frame  # Gymnasium: "human" draws on screen, returns None

@@ -137,6 +137,11 @@ class CrowdNavEnv(CrowdEnvBase):
       window). The people, rewards and collisions stay those of the true state; the noise is drawn from a child of
       the episode's generator, so no other draw moves.
 
+    * ``observed``: who fills the observation's ``max_humans`` slots, ``"all"`` (default: everyone has a slot of
+      their own; ``num_humans`` <= ``max_humans``) or ``"nearest"``: the ``max_humans`` people nearest to the robot
+      among those the sensor sees, each keeping their slot while among them, so that more people than slots may walk
+      (``num_humans`` up to what the scenario can place); rewards and collisions count with everyone.
+
     Random draws come from the env's ``np_random`` at reset, after the scenario's and only for a setting away from
     its default (speeds, visibility, stops in this order), so the default episodes are the paper env's.
 

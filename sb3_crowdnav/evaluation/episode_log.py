@@ -59,7 +59,7 @@ class EpisodeRecorder(gym.Wrapper):
         sim = self.env.unwrapped.sim
         n = sim.num_humans
         arrivals = np.array(sim.crowd.arrivals[:n], dtype=bool) if sim.recorded else np.zeros(n, dtype=bool)
-        self._rows.append((np.asarray(obs["humans_mask"])[:n] > 0.5, sim.mask[:n].copy(), arrivals))
+        self._rows.append((sim.seen_people, sim.mask[:n].copy(), arrivals))  # (the people in obs["humans_mask"])
 
     def log(self, trajectory: Trajectory) -> EpisodeLog:
         """The log of the episode just played, with its ``trajectory`` (the runner's, ``keep_trajectory=True``)."""

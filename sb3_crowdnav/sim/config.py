@@ -45,11 +45,13 @@ MAX_PROGRESS_REWARD = 10.0
 KINEMATICS = ("unicycle", "holonomic")
 HUMAN_POLICIES = ("orca", "linear")  # the values of the old name of ``crowd``
 HUMAN_SPEEDS = ("fixed", "measured")
+OBSERVED = ("all", "nearest")  # who fills the observation's max_humans slots (:mod:`sb3_crowdnav.sim.sensing`)
 # human_speed="measured": each person's preferred speed ~ Normal(mean, sd) clipped to [low, high] [m/s]; the desired
 # speeds of Helbing, Molnár, Farkas & Bolay (2001), "Self-organizing pedestrian movement", Environment and Planning B
 # 28: 1.34 ± 0.26 m/s (after Henderson 1971 and Weidmann 1993's 1.34 m/s free walking speed)
 MEASURED_SPEED = (1.34, 0.26, 0.5, 2.0)
 MAX_STOP_DURATION = 3600.0  # [s]
+MAX_PEOPLE = 100  # the most people a scene simulates (max_humans's bound too)
 # the people sensor's bounds (:mod:`sb3_crowdnav.sim.sensing`): range [m], position noise σ [m], latency [steps]
 MAX_SENSOR_RANGE, MAX_SENSOR_NOISE, MAX_SENSOR_LATENCY = 1000.0, 5.0, 20
 REWARDS = ("crowdnav", "comfort", "comfort_angular")
@@ -82,8 +84,13 @@ def check_robot_limits(actions: str, max_acceleration: Any, max_turn_rate: Any, 
 class SceneConfig:
     """Geometry, agents and dynamics of a crowd scene (defaults: the paper's Table 1).
 
-    :param num_humans: number of pedestrians, an int or an inclusive ``(min, max)`` range drawn per episode
+    :param num_humans: number of pedestrians, an int or an inclusive ``(min, max)`` range drawn per episode; at most
+        ``max_humans`` unless ``observed="nearest"``
     :param max_humans: observation capacity (padded slots are masked)
+    :param observed: who fills the observation's ``max_humans`` slots: ``"all"`` (the default: every person has a
+        slot of their own, so ``num_humans`` <= ``max_humans``) or ``"nearest"`` (the ``max_humans`` people nearest to
+        the robot among those the sensor sees, each keeping their slot while among them, as a tracker's N nearest
+        tracks; more people than slots may then walk, and collisions count with everyone; :mod:`sb3_crowdnav.sim.sensing`)
     :param time_step: Δt [s]
     :param time_limit: episode time limit [s]; reaching it truncates the episode
     :param robot_radius: [m]
@@ -129,6 +136,7 @@ class SceneConfig:
     # (declared in an order of our own; pass them by keyword)
     num_humans: int | tuple[int, int] = 6
     max_humans: int = 10
+    observed: Literal["all", "nearest"] = "all"
     time_step: float = 0.25
     time_limit: float = 25.0
     history_length: int = 5
@@ -162,13 +170,16 @@ class SceneConfig:
 
     def __post_init__(self) -> None:
         check_int("max_humans", self.max_humans, 1)
+        check_choice("observed", self.observed, OBSERVED)
         lo, hi = self.humans_range
         for name, v in (("num_humans", lo), ("num_humans", hi)):
             check_int(name, v, 0)
         if lo > hi:
             raise ValueError(f"num_humans range must satisfy min <= max, got {self.num_humans!r}")
-        if hi > self.max_humans:
-            raise ValueError(f"num_humans must be <= max_humans ({self.max_humans}), got {self.num_humans!r}")
+        if hi > self.max_humans and self.observed == "all":
+            raise ValueError(f"num_humans must be <= max_humans ({self.max_humans}) unless observed='nearest' (the "
+                             f"robot then observes the max_humans nearest), got {self.num_humans!r}")
+        check_at_most("num_humans", hi, MAX_PEOPLE, "")
         for name in ("time_step", "time_limit", "robot_radius", "human_radius", "robot_v_pref", "human_v_pref",
                      "circle_radius", "square_width", "orca_neighbor_dist", "orca_time_horizon",
                      "orca_time_horizon_obst"):
@@ -184,6 +195,9 @@ class SceneConfig:
         if self.robot_visible in (0.0, 1.0):  # all or no one: the bool (nothing drawn)
             object.__setattr__(self, "robot_visible", bool(self.robot_visible))
         check_choice("scenario", self.scenario, SCENARIOS)
+        if self.observed == "nearest" and self.scenario == "warehouse":
+            raise ValueError("observed='nearest' is the open floor's: in the warehouse every picker has a slot of "
+                             "their own (num_humans <= max_humans)")
         check_choice("kinematics", self.kinematics, KINEMATICS)
         check_robot_limits(self.actions, self.max_acceleration, self.max_turn_rate, self.kinematics)
         for name in ("max_acceleration", "max_turn_rate"):
@@ -239,6 +253,8 @@ class SceneConfig:
         """``crowd="replay"``: the recording decides who walks, how fast and how many; its most people present at
         once must fit ``max_humans`` unless only the nearest are tracked."""
         population = (("num_humans", 6, "the recording decides how many people walk"),
+                      ("observed", "all", "a recording's tracker chooses whom the robot observes: give "
+                                          "crowd_kwargs['tracked']='nearest'"),
                       ("robot_visible", False, "recorded people cannot see the robot"),
                       ("human_speed", "fixed", "the recording decides how fast people walk"),
                       ("stop_probability", 0.0, "the recording decides who stops"))
@@ -283,6 +299,12 @@ class SceneConfig:
             raise ValueError(f"num_humans: {n} pedestrians of radius {self.human_radius} m cannot be placed reliably on "
                              f"{where} beside a robot of radius {self.robot_radius} m (at most {capacity}); lower "
                              "num_humans or the radii, or enlarge the scene")
+
+    @property
+    def crowd_capacity(self) -> int:
+        """The slots of the crowd's true state: ``max_humans``, or with ``observed="nearest"`` the largest crowd when it
+        is larger (the observation keeps ``max_humans``)."""
+        return max(self.max_humans, self.humans_range[1]) if self.observed == "nearest" else self.max_humans
 
     @property
     def humans_range(self) -> tuple[int, int]:

@@ -35,6 +35,7 @@ from sb3_crowdnav.sim.config import SceneConfig
 from sb3_crowdnav.sim.crowd_settings import ReplayCrowdSettings
 from sb3_crowdnav.sim.population import People
 from sb3_crowdnav.sim.scenarios import MIN_GAP, Scenario
+from sb3_crowdnav.sim.sensing import assign_slots
 
 CELL = 1.0  # [m] side of the cells in which the placement rule counts the people
 MAX_TRIES = 100
@@ -155,16 +156,9 @@ class ReplayCrowdModel:
         n = len(self.slot_person)
         here = np.flatnonzero(present)
         order = np.argsort(np.linalg.norm(pos[here] - np.asarray(robot), axis=-1), kind="stable")
-        chosen = here[order[:n]].tolist()
-        keep = set(chosen)
-        slots = [p if p in keep else -1 for p in self.slot_person.tolist()]
-        held = set(slots)
+        slots, entered = assign_slots(self.slot_person.tolist(), here[order[:n]].tolist())
         arrivals = np.zeros(n, dtype=bool)
-        for person in chosen:
-            if person not in held:
-                s = slots.index(-1)
-                slots[s] = person
-                arrivals[s] = True
+        arrivals[entered] = True
         self.slot_person = np.array(slots)
         taken = self.slot_person >= 0
         who = np.where(taken, self.slot_person, 0)

@@ -20,6 +20,14 @@ seen or not). The rules, each a scene setting:
   t - L, from where the robot was then; before L steps have passed, as sensed at the reset. The robot's own state
   is never late.
 
+**Who fills the slots** (``observed``): with ``"all"`` (the default) person i is in slot i. With ``"nearest"`` the
+observation's ``max_humans`` slots hold the people nearest to the robot's centre among those seen (by their observed
+position, ties in the crowd's order), as a tracker reports its N nearest tracks: a person still among them keeps
+their slot, one who enters takes the lowest free slot (nearest first) and starts a new history there, one who
+drops out leaves their slot padded. The simulator then moves more people than the observation holds
+(``num_humans`` > ``max_humans``). Replay's ``tracked="nearest"`` fills its slots by the same rule
+(:func:`assign_slots`), measuring from the robot at the start of the step; the sensor measures from where it senses.
+
 **History is built from what was seen.** Each slot keeps the last T observed states of its person. A person not seen
 in the frame delivered now has their slot padded over the whole window (zeros, mask 0), and a person seen again
 starts a new history (their observed state repeated over the window, as at a reset): a history never bridges a gap,
@@ -67,9 +75,25 @@ def _deliver(history, mask, states, seen):  # pragma: no cover  (compiled)
 
 def sensing_on(scene: Any, occlusion: bool = False) -> bool:
     """Whether ``scene`` (a :class:`~sb3_crowdnav.sim.config.SceneConfig`) with ``occlusion`` needs a sensor: some
-    setting hides or alters what the robot sees of the people."""
+    setting hides or alters what the robot sees of the people, or chooses whom it observes."""
     return bool(occlusion or scene.people_sensor_range is not None or scene.people_sensor_noise > 0
-                or scene.people_sensor_latency > 0)
+                or scene.people_sensor_latency > 0 or scene.observed == "nearest")
+
+
+def assign_slots(slots: list[int], chosen: list[int]) -> tuple[list[int], list[int]]:
+    """The slots (person or -1 each) after ``chosen`` (people, nearest first) are to be observed: a chosen person in a
+    slot keeps it, the other slots are emptied, and each chosen newcomer takes the lowest free slot, in ``chosen``'s
+    order. Returns the new slots and the slots newcomers took. ``len(chosen)`` must not exceed the slots."""
+    keep = set(chosen)
+    new = [p if p in keep else -1 for p in slots]
+    held = set(new)
+    entered = []
+    for person in chosen:
+        if person not in held:
+            s = new.index(-1)
+            new[s] = person
+            entered.append(s)
+    return new, entered
 
 
 class PeopleSensor:
@@ -84,35 +108,62 @@ class PeopleSensor:
         self.noise = float(scene.people_sensor_noise)
         self.latency = int(scene.people_sensor_latency)
         self.occluder = occluder
+        self.nearest = scene.observed == "nearest"
         self.history = np.zeros((scene.history_length, scene.max_humans, HUMAN_DIM))
         self.mask = np.zeros(scene.max_humans, dtype=bool)
-        self._frames: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=self.latency + 1)
+        # the person in each slot of the history delivered last, -1: none (the identity without ``nearest``)
+        self.people = np.arange(scene.max_humans)
+        self._slots = [-1] * scene.max_humans  # the slots as sensed last (ahead of ``people`` by the latency)
+        # (states, seen, slots entered by newcomers, the person in each slot) of the frames not delivered yet
+        self._frames: deque[tuple[np.ndarray, np.ndarray, list[int], np.ndarray]] = deque(maxlen=self.latency + 1)
         self._rng: np.random.Generator | None = None
 
     def reset(self, rng: np.random.Generator, x: float, y: float, row: np.ndarray, present: np.ndarray) -> None:
-        """Start an episode: sense the people (``row`` (max_humans, 5), the true newest states; ``present``
-        (max_humans,) bool) from the robot's centre (x, y); the observed history is that frame repeated."""
+        """Start an episode: sense the people (``row`` (N, 5), the true newest states; ``present`` (N,) bool; N is
+        ``max_humans``, or more with ``observed="nearest"``) from the robot's centre (x, y); the observed history is
+        that frame repeated."""
         self._rng = rng.spawn(1)[0] if self.noise > 0 else None
         self._frames.clear()
-        states, seen = self._sense(x, y, row, present)
-        self._frames.append((states, seen))
+        self._slots = [-1] * len(self.mask)
+        states, seen, _, people = frame = self._sense(x, y, row, present)
+        self._frames.append(frame)
         self.history[:] = states[None]
         self.mask = seen.copy()
+        self.people = people
 
     def step(self, x: float, y: float, row: np.ndarray, present: np.ndarray) -> None:
         """Sense after a step (as :meth:`reset`) and deliver the frame of ``latency`` steps ago into the history."""
         self._frames.append(self._sense(x, y, row, present))
-        _deliver(self.history, self.mask, *self._frames[0])
+        states, seen, entered, self.people = self._frames[0]
+        self.mask[entered] = False  # a newcomer in a slot starts a new history, as one seen again does
+        _deliver(self.history, self.mask, states, seen)
 
-    def _sense(self, x: float, y: float, row: np.ndarray, present: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """One frame: the observed states (max_humans, 5; zero where not seen) and who is seen (max_humans,)."""
+    def seen_people(self, n: int) -> np.ndarray:
+        """(n,) bool: which of the crowd's first ``n`` people are in the observation delivered last."""
+        if not self.nearest:
+            return self.mask[:n].copy()
+        out = np.zeros(n, dtype=bool)
+        out[self.people[self.mask]] = True
+        return out
+
+    def _sense(self, x: float, y: float, row: np.ndarray, present: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray, list[int], np.ndarray]:
+        """One frame: the observed states (max_humans, 5; zero where not seen), who is seen (max_humans,), the slots
+        newcomers took and the person in each slot."""
         if self.occluder is not None:
             states, seen = self.occluder.frame(x, y, row, present, self.range)
         else:
             states, seen = open_frame(x, y, row, present, self.range)
         if self._rng is not None and seen.any():
             states[seen, Human.POS] += self._rng.normal(0.0, self.noise, (int(seen.sum()), 2))
-        return states, seen
+        if not self.nearest:
+            return states, seen, [], self.people
+        here = np.flatnonzero(seen)
+        order = np.argsort(np.hypot(states[here, 0] - x, states[here, 1] - y), kind="stable")
+        self._slots, entered = assign_slots(self._slots, here[order[: len(self.mask)]].tolist())
+        people = np.array(self._slots)
+        taken = people >= 0
+        return np.where(taken[:, None], states[np.where(taken, people, 0)], 0.0), taken, entered, people
 
 
 def open_frame(x: float, y: float, row: np.ndarray, present: np.ndarray,
@@ -124,4 +175,4 @@ def open_frame(x: float, y: float, row: np.ndarray, present: np.ndarray,
     return np.where(seen[:, None], row, 0.0), seen
 
 
-__all__ = ["Occluder", "PeopleSensor", "open_frame", "sensing_on"]
+__all__ = ["Occluder", "PeopleSensor", "assign_slots", "open_frame", "sensing_on"]

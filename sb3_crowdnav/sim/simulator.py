@@ -19,7 +19,8 @@ class CrowdSimulator:
     """State of one episode and its dynamics.
 
     The state is kept in observation form: ``robot`` (9,) and the pedestrian history
-    ``history`` (T, max_humans, 5), oldest first, padded slots all zero with ``mask`` 0.
+    ``history`` (T, N, 5), oldest first, padded slots all zero with ``mask`` 0, where N is the scene's
+    ``crowd_capacity`` (``max_humans``, or more people than the observation holds with ``observed="nearest"``).
     Both arrays are updated in place by :meth:`step` (copy them to keep a snapshot), and the
     walking directions of the comfort reward are tracked incrementally from the steps, so the
     state is meant to be changed through :meth:`reset` and :meth:`step` only.
@@ -52,8 +53,8 @@ class CrowdSimulator:
         self._limits = step_limits(scene.max_acceleration, scene.max_turn_rate, scene.time_step)  # per step
         self._speed_list, self._direction_list = self.speeds.tolist(), self.directions.tolist()
         self.robot = np.zeros(ROBOT_DIM)
-        self.history = np.zeros((scene.history_length, scene.max_humans, HUMAN_DIM))
-        self.mask = np.zeros(scene.max_humans, dtype=bool)
+        self.history = np.zeros((scene.history_length, scene.crowd_capacity, HUMAN_DIM))
+        self.mask = np.zeros(scene.crowd_capacity, dtype=bool)
         self.human_goals = np.zeros((0, 2))
         self.crowd: CrowdModel = make_crowd(scene)
         self.recorded = isinstance(self.crowd, RecordedCrowd)  # its own episodes, people who come and go
@@ -73,6 +74,13 @@ class CrowdSimulator:
         if self.sensor is None:
             return self.history, self.mask
         return self.sensor.history, self.sensor.mask
+
+    @property
+    def seen_people(self) -> np.ndarray:
+        """(num_humans,) bool: the people in the observation (its ``humans_mask``), whichever slots they hold."""
+        if self.sensor is None:
+            return self.mask[: self.num_humans].copy()
+        return self.sensor.seen_people(self.num_humans)
 
     def _sense_people(self, rng: np.random.Generator | None = None) -> None:
         """Let the sensor see the people after a reset (with its ``rng``) or a step."""
@@ -108,10 +116,10 @@ class CrowdSimulator:
         self.robot[Robot.GOAL] = sc.robot_goal
         self.robot[Robot.V_PREF] = cfg.robot_v_pref
         self.robot[Robot.HEADING] = sc.robot_heading
-        current = np.zeros((cfg.max_humans, HUMAN_DIM))
+        current = np.zeros((cfg.crowd_capacity, HUMAN_DIM))
         current[:n, Human.POS] = sc.human_starts
         current[:n, Human.RADIUS] = cfg.human_radius
-        self.mask = np.zeros(cfg.max_humans, dtype=bool)
+        self.mask = np.zeros(cfg.crowd_capacity, dtype=bool)
         self.mask[:n] = True
         if self.recorded:
             self.mask[:n] = self.crowd.present
