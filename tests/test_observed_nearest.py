@@ -152,6 +152,7 @@ def test_a_model_trained_with_ten_slots_acts_among_more_people():
     ({"num_humans": (2, 12)}, "unless observed='nearest'"),
     ({"observed": "closest"}, r"observed must be one of \('all', 'nearest'\)"),
     ({"observed": "nearest", "num_humans": 17}, "cannot be placed reliably"),
+    ({"observed": "nearest", "num_humans": 120, "circle_radius": 100.0}, "num_humans must be <= 100"),
 ])
 def test_infeasible_settings_are_refused_at_construction(kwargs, match):
     with pytest.raises(ValueError, match=match):

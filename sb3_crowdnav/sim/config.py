@@ -179,7 +179,8 @@ class SceneConfig:
         if hi > self.max_humans and self.observed == "all":
             raise ValueError(f"num_humans must be <= max_humans ({self.max_humans}) unless observed='nearest' (the "
                              f"robot then observes the max_humans nearest), got {self.num_humans!r}")
-        check_at_most("num_humans", hi, MAX_PEOPLE, "")
+        if self.observed == "nearest":  # (else max_humans, checked below, bounds it)
+            check_at_most("num_humans", hi, MAX_PEOPLE, "")
         for name in ("time_step", "time_limit", "robot_radius", "human_radius", "robot_v_pref", "human_v_pref",
                      "circle_radius", "square_width", "orca_neighbor_dist", "orca_time_horizon",
                      "orca_time_horizon_obst"):
