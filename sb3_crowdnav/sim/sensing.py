@@ -135,13 +135,12 @@ class PeopleSensor:
         """Sense after a step (as :meth:`reset`) and deliver the frame of ``latency`` steps ago into the history."""
         self._frames.append(self._sense(x, y, row, present))
         states, seen, entered, self.people = self._frames[0]
-        self.mask[entered] = False  # a newcomer in a slot starts a new history, as one seen again does
+        if entered:  # a newcomer in a slot starts a new history, as one seen again does
+            self.mask[entered] = False
         _deliver(self.history, self.mask, states, seen)
 
     def seen_people(self, n: int) -> np.ndarray:
         """(n,) bool: which of the crowd's first ``n`` people are in the observation delivered last."""
-        if not self.nearest:
-            return self.mask[:n].copy()
         out = np.zeros(n, dtype=bool)
         out[self.people[self.mask]] = True
         return out
