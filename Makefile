@@ -23,8 +23,9 @@ demo: $(STAMP)
 	$(BIN)/python examples/demo.py
 
 test: $(STAMP)
-	# pytest exits 5 when it collects nothing: that fails make, as it should
-	$(BIN)/python -m pytest -q
+	# pytest exits 5 when it collects nothing (with pytest-xdist too): that fails make, as it should; one worker per
+	# core (the tests are independent: each writes under its own tmp_path)
+	$(BIN)/python -m pytest -q -n auto
 
 docs: $(STAMP)
 	$(BIN)/pip install -q -e ".[docs]"
