@@ -4,12 +4,11 @@ import os
 
 os.environ.setdefault("MPLBACKEND", "Agg")
 
+import pytest
 import torch
 
 torch.set_num_threads(1)
 
-
-import pytest
 
 
 @pytest.fixture(autouse=True, scope="session")

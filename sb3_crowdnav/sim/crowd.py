@@ -121,6 +121,7 @@ class OrcaCrowdModel:
         self.seeing = people.sees_robot.copy()
         seeing, blind = np.flatnonzero(self.seeing).tolist(), np.flatnonzero(~self.seeing).tolist()
         self.sides = [side for side in (blind, seeing) if side]  # the people of each simulator, in order
+        self._order = np.argsort(blind + seeing)  # the rows of both sides, blind then seeing, back in the people's order
         obstacles = walls.rvo_polygons() if walls is not None else None
         # each simulator computes its side's people, the other side's passive in it (OrcaCrowd)
         self.crowds = [OrcaCrowd(self.scene, people.starts, radii, people.v_prefs, robot_agent if side is seeing else None,
@@ -137,8 +138,7 @@ class OrcaCrowdModel:
         (blind, seeing), (blind_sim, seeing_sim) = self.sides, self.crowds
         blind_rows, seeing_rows = blind_sim.rows(blind), seeing_sim.rows(seeing)
         blind_sim.put(seeing, seeing_rows), seeing_sim.put(blind, blind_rows)  # the other side's new states
-        state = np.empty((len(self.seeing), 4))
-        state[blind], state[seeing] = blind_rows, seeing_rows
+        state = np.array(blind_rows + seeing_rows)[self._order]
         return state[:, :2], state[:, 2:]
 
     def move_person(self, i: int, position: np.ndarray) -> None:

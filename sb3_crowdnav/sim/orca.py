@@ -94,8 +94,7 @@ class OrcaCrowd:
         sim = self.sim
         set_pref = sim.set_agent_pref_velocity
         for i in self.active:
-            vx, vy = pref_velocities[i]
-            set_pref(i, (vx, vy))
+            set_pref(i, pref_velocities[i])  # (a pair: pyrvo takes a tuple or a list of two floats)
         if self.robot_id is not None and robot_state is not None:
             (px, py), (vx, vy) = robot_state
             sim.set_agent_position(self.robot_id, (float(px), float(py)))

@@ -214,7 +214,7 @@ class PickerCrowd:
             (w, h), radius = self._hall, self.scene.human_radius - 1e-6
             after = kernels.picker_after_step(state, self._room, self._grown, self._layout.boxes, w, h, radius, *progress)
             pressed = after.pressed.tolist()
-            events = [v for pair in zip(after.which.tolist(), after.what.tolist(), strict=True) for v in pair]
+            events = zip(after.which.tolist(), after.what.tolist(), strict=True)
         else:
             pressed, events = self._pressed_indices(state), None
         if self._place is None:
@@ -226,8 +226,8 @@ class PickerCrowd:
                 state[i, :2] = p
         if events is None or pressed:
             which, what = kernels.picker_progress(state, *progress)
-            events = [v for pair in zip(which.tolist(), what.tolist(), strict=True) for v in pair]
-        for i, event in zip(events[::2], events[1::2], strict=True):
+            events = zip(which.tolist(), what.tolist(), strict=True)
+        for i, event in events:  # (picker, 1: its dwell is over, 2: it reached its slot), in the pickers' order
             if event == 1:
                 self._next_job(i)
             else:
