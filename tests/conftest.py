@@ -10,7 +10,6 @@ import torch
 torch.set_num_threads(1)
 
 
-
 @pytest.fixture(autouse=True, scope="session")
 def _sb3_log_folder(tmp_path_factory):
     """SB3 makes a folder for every logger it configures without one (``SB3-<date>`` under the system's temporary
