@@ -14,10 +14,6 @@ torch.set_num_threads(1)
 def _sb3_log_folder(tmp_path_factory):
     """SB3 makes a folder for every logger it configures without one (``SB3-<date>`` under the system's temporary
     folder, unless ``SB3_LOGDIR`` names one): the session's go to one folder of pytest's, which pytest cleans up."""
-    previous = os.environ.get("SB3_LOGDIR")
-    os.environ["SB3_LOGDIR"] = str(tmp_path_factory.mktemp("sb3_logs"))
-    yield
-    if previous is None:
-        os.environ.pop("SB3_LOGDIR", None)
-    else:
-        os.environ["SB3_LOGDIR"] = previous
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("SB3_LOGDIR", str(tmp_path_factory.mktemp("sb3_logs")))
+        yield
