@@ -222,3 +222,56 @@ def test_cautious_pedestrian_model_charges_the_worse_of_moving_on_and_standing_s
         model.policy.set_pedestrian_model("psychic")
     with pytest.raises(ValueError, match="pedestrian_model must be one of"):
         APGValue("ApgPolicy", "CrowdNav-v0", imitation_episodes=0, policy_kwargs={"pedestrian_model": "still"})
+
+
+def _observations(env_id: str, n: int, seed: int) -> list[dict[str, np.ndarray]]:
+    env = gym.make(env_id)
+    rng = np.random.default_rng(seed)
+    obs, _ = env.reset(seed=seed)
+    out = []
+    for _ in range(n):
+        out.append(obs)
+        obs, _, terminated, truncated, _ = env.step(int(rng.integers(env.action_space.n)))
+        if terminated or truncated:
+            obs, _ = env.reset()
+    return out
+
+
+def test_the_lookahead_evaluates_each_distinct_state_once_under_the_robots_limits():
+    from sb3_crowdnav.apg_value import APGValue
+
+    policy = APGValue("ApgPolicy", WAREHOUSE, imitation_episodes=0, seed=0).policy
+    n_actions = policy.world.n_actions
+    obs = _observations(WAREHOUSE, 24, seed=3)
+    batch = {k: np.stack([o[k] for o in obs]) for k in obs[0]}
+    q, prop = policy.lookahead(batch)
+    tensors, inverse = policy.lookahead_inputs(prop)
+    every, none = policy.lookahead_inputs(prop, distinct=False)
+    assert none is None and len(every["robot"]) == 24 * n_actions
+    # 1 m/s², 1.5 rad/s: the 81 commands reach far fewer states, and every row of the full set is among them
+    assert len(tensors["robot"]) < 24 * n_actions / 3
+    for key, rows in every.items():
+        th.testing.assert_close(tensors[key][th.as_tensor(inverse)], rows, rtol=0, atol=0)
+    # no row is shared between two observations, and the values are those of every row
+    owner = np.repeat(np.arange(24), n_actions)
+    assert all(len(set(owner[inverse == r])) == 1 for r in range(len(tensors["robot"])))
+    with th.inference_mode():
+        v_every = policy.value_net(every).reshape(24, n_actions).numpy()
+    q_every = prop.reward + prop.discount[:, None] * np.where(prop.terminal, 0.0, v_every)
+    np.testing.assert_allclose(q, q_every, rtol=0, atol=1e-5)
+    # one observation at a time, the same values
+    np.testing.assert_allclose(policy.lookahead({k: v[5:6] for k, v in batch.items()})[0], q[5:6], rtol=0, atol=1e-5)
+
+
+def test_the_open_floor_lookahead_evaluates_every_action():
+    # the paper's robot has no limits: every command reaches its own state, and no row is merged
+    from sb3_crowdnav import pretrained
+
+    policy = pretrained("apg_rl").policy
+    batch = {k: np.stack([o[k] for o in _observations(OPEN_FLOOR, 4, seed=1)]) for k in ("robot", "humans",
+                                                                                          "humans_mask")}
+    prop = policy.propagation(batch["robot"], batch["humans"], batch["humans_mask"])
+    tensors, inverse = policy.lookahead_inputs(prop)
+    assert inverse is None and len(tensors["robot"]) == 4 * 80
+    distinct, _ = policy.lookahead_inputs(prop, distinct=True)
+    assert len(distinct["robot"]) == 4 * 80

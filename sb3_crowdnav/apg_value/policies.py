@@ -65,8 +65,9 @@ class ValueLookaheadPolicy(BasePolicy):
     """State-value policy acting by one-step lookahead (paper Eq. 1).
 
     For every observation in the batch and every one of the world's actions (80, or 81 with a stop) the
-    :class:`PropagationModel` gives the next observation and R(s, a); V is evaluated on all
-    B x n_actions propagated states in **one** forward pass, and the action maximising
+    :class:`PropagationModel` gives the next observation and R(s, a); V is evaluated on the
+    B x n_actions propagated states in **one** forward pass (each distinct state once under the robot's limits:
+    :meth:`lookahead_inputs`), and the action maximising
     ``R + γ^(Δt·v_pref) · V(s')`` (zero future value for terminal successors) is taken.
 
     :param observation_space: the env's Dict observation space
@@ -272,20 +273,46 @@ class ValueLookaheadPolicy(BasePolicy):
         static = {k: observation[k] for k in STATIC_KEYS if k in observation}
         prop = self.propagation(observation["robot"], observation["humans"], observation["humans_mask"], static)
         b, n_actions = prop.reward.shape
-        robot = prop.robot.reshape(b * n_actions, -1).astype(np.float32)
-        humans = np.repeat(prop.humans.astype(np.float32), n_actions, axis=0)  # the same under every action
-        mask = np.repeat(prop.humans_mask, n_actions, axis=0)
-        tensors = self._as_tensors(robot, humans, mask)
-        for key, value in prop.static.items():  # the warehouse: segments the same under every action, waypoints not
-            flat = value.reshape(b * n_actions, -1) if value.ndim == 3 else np.repeat(value, n_actions, axis=0)
-            tensors[key] = th.as_tensor(flat, dtype=th.float32, device=self.device)
+        tensors, inverse = self.lookahead_inputs(prop)
         with th.inference_mode():  # a little cheaper than no_grad; the values leave as numpy
-            v = net(tensors).reshape(b, n_actions).cpu().numpy()
+            v = net(tensors).reshape(-1).cpu().numpy()
+        v = (v if inverse is None else v[inverse]).reshape(b, n_actions)
         ceiling = self.value_ceiling(np.asarray(observation["robot"], dtype=np.float64)[:, Robot.V_PREF])
         if ceiling is not None:
             v = np.minimum(v, ceiling[:, None])
         q = prop.reward + prop.discount[:, None] * np.where(prop.terminal, 0.0, v)
         return q, prop
+
+    def lookahead_inputs(self, prop: Propagated,
+                         distinct: bool | None = None) -> tuple[dict[str, th.Tensor], np.ndarray | None]:
+        """The propagated states of :meth:`lookahead` that V is evaluated on, as tensors, and where each
+        (observation, action) pair's state is among them.
+
+        :param prop: the propagation of B observations under the world's n_actions actions
+        :param distinct: evaluate every distinct state once. Under the robot's limits, commands beyond reach are clipped
+            to the same reachable motion (the warehouse robot's 81 actions reach about 9 distinct states a step), and
+            their rows are equal to the bit. Default: on in a world with ``max_acceleration`` or ``max_turn_rate``, off
+            otherwise (every action reaches its own state)
+        :return: the tensors (rows in order of the observations) and the row of each of the B x n_actions pairs,
+            flattened (None when the rows are the B x n_actions states in order)
+        """
+        b, n_actions = prop.reward.shape
+        if distinct is None:
+            distinct = self.world.max_acceleration is not None or self.world.max_turn_rate is not None
+        robot = prop.robot.reshape(b * n_actions, -1).astype(np.float32)
+        # the warehouse: segments the same under every action (B, S*4), waypoints not (B, A, K*2)
+        per_action = {k: v.reshape(b * n_actions, -1).astype(np.float32) for k, v in prop.static.items() if v.ndim == 3}
+        rows, inverse = np.arange(b * n_actions), None
+        if distinct:  # equal float32 rows are equal inputs to V; the observation's index keeps observations apart
+            key = np.concatenate([(rows // n_actions)[:, None].astype(np.float32), robot, *per_action.values()], axis=1)
+            _, rows, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+            inverse = inverse.reshape(-1)
+        owner = rows // n_actions  # humans, their mask and the segments are the same under every action
+        tensors = self._as_tensors(robot[rows], prop.humans.astype(np.float32)[owner], prop.humans_mask[owner])
+        for key, value in prop.static.items():
+            flat = per_action[key][rows] if key in per_action else value[owner]
+            tensors[key] = th.as_tensor(flat, dtype=th.float32, device=self.device)
+        return tensors, inverse
 
     def action_values(self, observation: dict[str, np.ndarray], net: nn.Module | None = None) -> np.ndarray:
         """Lookahead value of each action, (B, n_actions) (Fig. 11's action-value map); ``net`` as in lookahead."""

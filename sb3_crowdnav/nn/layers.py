@@ -36,14 +36,21 @@ def _probe_onednn() -> bool:
         return False
 
 
-_ONEDNN = {"available": _probe_onednn(), "enabled": True, "training": True}
+def _avx512() -> bool:
+    """Whether torch runs its AVX-512 kernels on this CPU."""
+    return th.backends.cpu.get_cpu_capability().startswith("AVX512")
+
+
+_ONEDNN = {"available": _probe_onednn(), "enabled": _avx512(), "training": True}
 
 
 def set_onednn_inference(enabled: bool) -> bool:
     """Switch the oneDNN fast path of :func:`linear` (no-grad CPU float32 only); returns whether it is in use.
 
-    On AVX-512 AMD CPUs, MKL (behind ``nn.Linear``) runs its AVX2 kernels and oneDNN is about
-    twice as fast on these layer sizes; the results agree to float32 rounding.
+    On by default where torch runs AVX-512 kernels: on AVX-512 AMD CPUs, MKL (behind ``nn.Linear``) runs its AVX2
+    kernels and oneDNN is about twice as fast on these layer sizes. Off by default on other CPUs, where both run AVX2
+    kernels and the fused kernel's cost per call makes it the slower of the two on a lookahead's batches
+    (``benchmarks/README.md``). The results agree to float32 rounding.
     """
     _ONEDNN["enabled"] = bool(enabled)
     return _ONEDNN["enabled"] and _ONEDNN["available"]
