@@ -41,7 +41,7 @@ def _avx512() -> bool:
     return th.backends.cpu.get_cpu_capability().startswith("AVX512")
 
 
-_ONEDNN = {"available": _probe_onednn(), "enabled": _avx512(), "training": True}
+_ONEDNN = {"available": _probe_onednn(), "enabled": _avx512(), "training": _avx512()}
 
 
 def set_onednn_inference(enabled: bool) -> bool:
@@ -61,7 +61,9 @@ def set_onednn_training(enabled: bool) -> bool:
 
     The forward pass and both matrix products of the backward pass (input and weight gradients)
     then run on oneDNN's kernels instead of MKL's, about twice as fast on AVX-512 AMD CPUs
-    (``benchmarks/training_speed.py``); gradients agree with ``nn.Linear``'s to float32 rounding.
+    (``benchmarks/training_speed.py``); gradients agree with ``nn.Linear``'s to float32 rounding. On by default where
+    torch runs AVX-512 kernels, off elsewhere (on an AVX2 CPU MKL's gradient step was the faster by 6-7 %,
+    ``benchmarks/README.md``), as :func:`set_onednn_inference`.
     """
     _ONEDNN["training"] = bool(enabled)
     return _ONEDNN["training"] and _ONEDNN["available"]
