@@ -224,26 +224,14 @@ def test_cautious_pedestrian_model_charges_the_worse_of_moving_on_and_standing_s
         APGValue("ApgPolicy", "CrowdNav-v0", imitation_episodes=0, policy_kwargs={"pedestrian_model": "still"})
 
 
-def _observations(env_id: str, n: int, seed: int) -> list[dict[str, np.ndarray]]:
-    env = gym.make(env_id)
-    rng = np.random.default_rng(seed)
-    obs, _ = env.reset(seed=seed)
-    out = []
-    for _ in range(n):
-        out.append(obs)
-        obs, _, terminated, truncated, _ = env.step(int(rng.integers(env.action_space.n)))
-        if terminated or truncated:
-            obs, _ = env.reset()
-    return out
-
-
 def test_the_lookahead_evaluates_each_distinct_state_once_under_the_robots_limits():
+    from test_pretrained_actions import observations
+
     from sb3_crowdnav.apg_value import APGValue
 
     policy = APGValue("ApgPolicy", WAREHOUSE, imitation_episodes=0, seed=0).policy
     n_actions = policy.world.n_actions
-    obs = _observations(WAREHOUSE, 24, seed=3)
-    batch = {k: np.stack([o[k] for o in obs]) for k in obs[0]}
+    batch = observations(WAREHOUSE, 24, seed=3)
     q, prop = policy.lookahead(batch)
     tensors, inverse = policy.lookahead_inputs(prop)
     every, none = policy.lookahead_inputs(prop, distinct=False)
@@ -265,11 +253,12 @@ def test_the_lookahead_evaluates_each_distinct_state_once_under_the_robots_limit
 
 def test_the_open_floor_lookahead_evaluates_every_action():
     # the paper's robot has no limits: every command reaches its own state, and no row is merged
+    from test_pretrained_actions import observations
+
     from sb3_crowdnav import pretrained
 
     policy = pretrained("apg_rl").policy
-    batch = {k: np.stack([o[k] for o in _observations(OPEN_FLOOR, 4, seed=1)]) for k in ("robot", "humans",
-                                                                                          "humans_mask")}
+    batch = observations(OPEN_FLOOR, 4, seed=1)
     prop = policy.propagation(batch["robot"], batch["humans"], batch["humans_mask"])
     tensors, inverse = policy.lookahead_inputs(prop)
     assert inverse is None and len(tensors["robot"]) == 4 * 80
