@@ -10,9 +10,9 @@ hold; the output does not depend on the order of the pedestrian slots (up to exa
 observation without any pedestrian gives a finite output; a row's output does not depend on the other rows of the batch.
 
 Speed: slots are sorted and compacted to the largest number of present pedestrians in the batch, every operation is
-batched (the only Python loop is inside ``nn.LSTM``), and without gradients the MLPs run fused oneDNN linear+ReLU
-kernels (:func:`sb3_crowdnav.nn.layers.linear`). In an exported graph a few steps take forms that ONNX Runtime runs
-faster, with the same results (:func:`~sb3_crowdnav.nn.transforms.nearest_pedestrian`).
+batched (the only Python loop is inside ``nn.LSTM``), and on AVX-512 CPUs the MLPs run oneDNN's kernels (fused
+linear+ReLU without gradients; :func:`sb3_crowdnav.nn.layers.linear`). In an exported graph a few steps take forms
+that ONNX Runtime runs faster, with the same results (:func:`~sb3_crowdnav.nn.transforms.nearest_pedestrian`).
 """
 
 from __future__ import annotations

@@ -157,7 +157,8 @@ def bfloat16_supported() -> bool:
 
 
 def linear(x: th.Tensor, layer: nn.Linear, relu: bool = False) -> th.Tensor:
-    """``layer(x)`` followed by an optional ReLU, fused in one oneDNN kernel on CPU.
+    """``layer(x)`` followed by an optional ReLU, fused in one oneDNN kernel on CPUs where it is the faster (AVX-512:
+    :func:`set_onednn_inference`, :func:`set_onednn_training`), ``nn.Linear`` and an in-place ReLU elsewhere.
 
     Without gradients the fused kernel runs as it is; a bfloat16 ``x`` (inference only) is
     multiplied by bfloat16 copies of the float32 weights (oneDNN accumulates in float32 and
@@ -185,9 +186,9 @@ def linear(x: th.Tensor, layer: nn.Linear, relu: bool = False) -> th.Tensor:
 class MLP(nn.Module):
     """Linear layers of sizes ``arch`` with ReLU between them (and after the last one if ``last_activation``).
 
-    An empty ``arch`` is the identity. Inference (no gradient, CPU float32) takes the fused
-    oneDNN path of :func:`linear`; training runs plain ``nn.Linear`` with in-place ReLUs (on these
-    sizes a fresh activation tensor costs as much as the ReLU itself).
+    An empty ``arch`` is the identity. Every layer goes through :func:`linear`: oneDNN's kernels where they are the
+    faster (AVX-512 CPUs), plain ``nn.Linear`` with in-place ReLUs elsewhere (on these sizes a fresh activation
+    tensor costs as much as the ReLU itself).
 
     :param input_dim: size of the input features
     :param arch: sizes of the layers
