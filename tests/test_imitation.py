@@ -60,7 +60,8 @@ def test_behaviour_cloning_makes_ppo_imitate(demos):
         return model.policy.get_distribution(obs).distribution.probs.argmax(dim=1)
 
     before = _agreement(greedy, demos)
-    losses = pretrain_actor_critic(model, demos, epochs=30, learning_rate=3e-3, batch_size=64)
+    # 60 epochs: over seeds 0-4 the agreement is 0.55-0.80 on either matrix library (30: 0.46-0.65, too close to 0.5)
+    losses = pretrain_actor_critic(model, demos, epochs=60, learning_rate=3e-3, batch_size=64)
     after = _agreement(greedy, demos)
     assert losses[-1] < losses[0]
     assert after > max(0.5, before + 0.3), (before, after)
