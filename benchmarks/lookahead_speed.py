@@ -83,7 +83,7 @@ def main() -> None:
     print(f"single env decision: {one:.2f} ms (target < 3 ms; reference code ~92 ms)")
     print(f"16 envs batched: {sixteen:.2f} ms per call = {sixteen / 16:.3f} ms per env (target < 0.5 ms)")
     print(f"  of which propagation + reward model for 16 x {policy.world.n_actions} states: {t_prop:.2f} ms")
-    if policy.world.max_acceleration is not None or policy.world.max_turn_rate is not None:
+    if policy.world.has_limits:
         every, distinct, counts = value_times(policy, singles)
         print(f"single env, V alone: every (observation, action) row {every:.2f} ms, the distinct states {distinct:.2f} "
               f"ms (ratio {distinct / every:.2f}; {np.mean(counts):.1f} distinct states of {policy.world.n_actions} "

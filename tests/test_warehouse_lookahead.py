@@ -264,3 +264,5 @@ def test_the_open_floor_lookahead_evaluates_every_action():
     assert inverse is None and len(tensors["robot"]) == 4 * 80
     distinct, _ = policy.lookahead_inputs(prop, distinct=True)
     assert len(distinct["robot"]) == 4 * 80
+    with pytest.raises(TypeError, match="distinct"):
+        policy.lookahead_inputs(prop, distinct=1)

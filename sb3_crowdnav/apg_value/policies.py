@@ -290,15 +290,16 @@ class ValueLookaheadPolicy(BasePolicy):
 
         :param prop: the propagation of B observations under the world's n_actions actions
         :param distinct: evaluate every distinct state once. Under the robot's limits, commands beyond reach are clipped
-            to the same reachable motion (the warehouse robot's 81 actions reach about 9 distinct states a step), and
+            to the same reachable motion (the warehouse robot's 81 actions reach about 11 distinct states a step), and
             their rows are equal to the bit. Default: on in a world with ``max_acceleration`` or ``max_turn_rate``, off
             otherwise (every action reaches its own state)
         :return: the tensors (rows in order of the observations) and the row of each of the B x n_actions pairs,
             flattened (None when the rows are the B x n_actions states in order)
         """
+        if distinct is not None and not isinstance(distinct, bool):
+            raise TypeError(f"distinct must be a bool or None, got {distinct!r}")
         b, n_actions = prop.reward.shape
-        if distinct is None:
-            distinct = self.world.max_acceleration is not None or self.world.max_turn_rate is not None
+        distinct = self.world.has_limits if distinct is None else distinct
         robot = prop.robot.reshape(b * n_actions, -1).astype(np.float32)
         # the warehouse: segments the same under every action (B, S*4), waypoints not (B, A, K*2)
         per_action = {k: v.reshape(b * n_actions, -1).astype(np.float32) for k, v in prop.static.items() if v.ndim == 3}

@@ -126,6 +126,11 @@ class World:
         return self.waypoint_radius is not None
 
     @property
+    def has_limits(self) -> bool:
+        """Whether the robot's acceleration or turn rate is limited (commands beyond reach are clipped)."""
+        return self.max_acceleration is not None or self.max_turn_rate is not None
+
+    @property
     def has_value_ceiling(self) -> bool:
         """Whether the lookahead caps V at the largest return a state can have
         (:meth:`~sb3_crowdnav.apg_value.ValueLookaheadPolicy.value_ceiling`): in a world of static obstacles, and
