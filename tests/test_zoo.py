@@ -163,6 +163,11 @@ def test_imitation_settings_come_from_the_file_or_the_caller_once():
     assert prepare("apg_value", {"imitation_episodes": 7})["kwargs"]["imitation_episodes"] == 7
     with pytest.raises(ValueError, match="imitation_episodes"):
         prepare("qrdqn", {"imitation_episodes": 7})
+    # MaskablePPO clones the ORCA robot as PPO does; RecurrentPPO (an LSTM policy) and QR-DQN take no imitation
+    assert imitation_settings("maskableppo", prepare("maskableppo", {"imitation_episodes": 7}))["imitation_episodes"] == 7
+    for algo in ("recurrentppo", "qrdqn"):
+        with pytest.raises(ValueError, match=f"imitation_episodes is for .*; {algo} takes no imitation"):
+            imitation_settings(algo, prepare(algo, {}), imitation_episodes=7)
 
 
 def _dqn(imitation_episodes: int, **kwargs):
@@ -190,19 +195,27 @@ def test_the_zoo_dqn_imitates_once_before_its_first_learn(tmp_path):
     assert loaded.imitated and loaded.imitation_episodes == 3
 
 
-def test_the_zoo_ppo_imitates_the_orca_robot():
-    """Behaviour cloning before PPO's first update: the policy moves towards the demonstrated actions."""
+@pytest.mark.parametrize("algo", ["ppo", "maskableppo"])
+def test_the_zoo_ppo_imitates_the_orca_robot(algo):
+    """Behaviour cloning before PPO's (and MaskablePPO's, in the warehouse behind its wall masks) first update: the
+    policy moves towards the demonstrated actions."""
     import torch as th
     from stable_baselines3.common.env_util import make_vec_env
 
+    from sb3_crowdnav.apg_value.action_masks import WallActionMasker
     from sb3_crowdnav.imitation import collect_demonstrations
 
-    def ppo(episodes):
-        env = make_vec_env("CrowdNav-v0", n_envs=1, seed=0, env_kwargs={"num_humans": 2})
-        return ZOO_ALGOS["ppo"]("ApgPolicy", env, seed=0, n_steps=64, batch_size=32, imitation_episodes=episodes,
-                                imitation_epochs=3)
+    env_id = "CrowdNav-v0" if algo == "ppo" else "CrowdNavWarehouse-v0"
+    wrapper = WallActionMasker if algo == "maskableppo" else None
 
-    demos = collect_demonstrations(make_vec_env("CrowdNav-v0", n_envs=1, seed=5, env_kwargs={"num_humans": 2}), 3)
+    def envs(seed):
+        return make_vec_env(env_id, n_envs=1, seed=seed, env_kwargs={"num_humans": 2}, wrapper_class=wrapper)
+
+    def ppo(episodes):
+        return ZOO_ALGOS[algo]("ApgPolicy", envs(0), seed=0, n_steps=64, batch_size=32, imitation_episodes=episodes,
+                               imitation_epochs=3)
+
+    demos = collect_demonstrations(envs(5), 3)
 
     def log_likelihood(model):
         obs, _ = model.policy.obs_to_tensor({k: v for k, v in demos.observations.items()})

@@ -26,14 +26,20 @@ def _tensors(obs: dict[str, np.ndarray], idx: np.ndarray, device: th.device) -> 
 
 def pretrain_actor_critic(model, demos: Demonstrations, epochs: int = 10, learning_rate: float = 1e-3,
                           batch_size: int = 256, value_coef: float = 0.5) -> list[float]:
-    """Behaviour cloning of a PPO/A2C ``model``: ``-log π(a_E|s) + value_coef · (V(s) - G)²``; loss per epoch.
+    """Behaviour cloning of a PPO/A2C/MaskablePPO ``model``: ``-log π(a_E|s) + value_coef · (V(s) - G)²``; loss per
+    epoch.
 
-    Uses its own Adam optimiser (the model's optimiser state is left as it was).
+    Uses its own Adam optimiser (the model's optimiser state is left as it was). MaskablePPO's policy is cloned without
+    its action masks: at acting time the masks renormalise the cloned distribution over the allowed actions, while a
+    demonstrated action that a mask forbids (the ORCA robot does drive into racks) would have a masked log-probability
+    of about -1e8 and swamp the loss.
     """
+    from sb3_contrib.common.maskable.policies import MaskableActorCriticPolicy
     from stable_baselines3.common.policies import ActorCriticPolicy
 
-    if not isinstance(model.policy, ActorCriticPolicy):
-        raise TypeError(f"pretrain_actor_critic needs an actor-critic policy (PPO, A2C), got {type(model.policy).__name__}")
+    if not isinstance(model.policy, ActorCriticPolicy | MaskableActorCriticPolicy):
+        raise TypeError(f"pretrain_actor_critic needs an actor-critic policy (PPO, A2C, MaskablePPO), got "
+                        f"{type(model.policy).__name__}")
     _check_training_args(epochs, learning_rate, batch_size)
     policy = model.policy
     returns = th.as_tensor(demos.discounted_returns(model.gamma), device=model.device)

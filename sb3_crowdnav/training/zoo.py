@@ -15,7 +15,7 @@ never scores the training episodes, and every trial of a study starts its evalua
 
 Optuna tuning of ``dqn`` and ``qrdqn`` also samples ``n_steps`` (n-step returns, which the zoo's ``dqn`` and
 ``qrdqn`` build on this package's Dict observations with :class:`~sb3_crowdnav.nn.NStepDictReplayBuffer`).
-The zoo's ``ppo``, ``a2c`` and ``dqn`` take ``imitation_episodes`` (and ``imitation_epochs``,
+The zoo's ``ppo``, ``a2c``, ``maskableppo`` and ``dqn`` take ``imitation_episodes`` (and ``imitation_epochs``,
 ``imitation_learning_rate``) in a hyperparameter file: they imitate that many ORCA-robot episodes before their RL, in
 a run and in every Optuna trial, as ``sb3-crowdnav train --hyperparams`` does with the same file
 (:class:`ImitationMixin`).
@@ -90,9 +90,9 @@ def sample_qrdqn_params(trial, n_actions: int, n_envs: int, additional_args: dic
 class ImitationMixin:
     """The ORCA robot imitated before the first ``learn()``: the hyperparameters ``imitation_episodes`` (0: none),
     ``imitation_epochs`` and ``imitation_learning_rate`` of a file or an Optuna trial, as ``sb3-crowdnav train
-    --hyperparams`` reads them (:func:`~sb3_crowdnav.training.hyperparams.imitate`: behaviour cloning for PPO and A2C,
-    DQfD's loss with the demonstrations left in the replay buffer for DQN). A model saved after it (or loaded) does not
-    imitate again."""
+    --hyperparams`` reads them (:func:`~sb3_crowdnav.training.hyperparams.imitate`: behaviour cloning for PPO, A2C and
+    MaskablePPO, DQfD's loss with the demonstrations left in the replay buffer for DQN). A model saved after it (or
+    loaded) does not imitate again."""
 
     def __init__(self, *args: Any, imitation_episodes: int = IMITATION_DEFAULTS["imitation_episodes"],
                  imitation_epochs: int = IMITATION_DEFAULTS["imitation_epochs"],
@@ -147,8 +147,9 @@ class ZooRecurrentPPO(SafeLoadMixin, RecurrentPPO):
                                                               "ApgPolicy": APG_POLICIES["recurrentppo"]}
 
 
-class ZooMaskablePPO(SafeLoadMixin, MaskablePPO):
-    """sb3-contrib's MaskablePPO for which ``"ApgPolicy"`` names :class:`~sb3_crowdnav.nn.ApgMaskablePolicy`."""
+class ZooMaskablePPO(SafeLoadMixin, ImitationMixin, MaskablePPO):
+    """sb3-contrib's MaskablePPO for which ``"ApgPolicy"`` names :class:`~sb3_crowdnav.nn.ApgMaskablePolicy`, imitating
+    first with ``imitation_episodes`` (:class:`ImitationMixin`)."""
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {**MaskablePPO.policy_aliases,
                                                               "ApgPolicy": APG_POLICIES["maskableppo"]}
