@@ -50,7 +50,7 @@ def run(env: gym.Env, steps: int, policy: OrcaPolicy | str | None, seed: int = 0
     start, start_cpu = time.perf_counter(), time.process_time()
     for step in range(steps):
         if policy == RANDOM:
-            action = int(rng.integers(80)) if step % 8 == 0 else action
+            action = int(rng.integers(env.action_space.n)) if step % 8 == 0 else action
         elif policy is not None:
             action = int(policy.predict(obs)[0])
         obs, _, terminated, truncated, _ = env.step(action)
