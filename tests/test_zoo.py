@@ -205,8 +205,7 @@ def test_the_zoo_ppo_imitates_the_orca_robot(algo):
     from sb3_crowdnav.apg_value.action_masks import WallActionMasker
     from sb3_crowdnav.imitation import collect_demonstrations
 
-    env_id = "CrowdNav-v0" if algo == "ppo" else "CrowdNavWarehouse-v0"
-    wrapper = WallActionMasker if algo == "maskableppo" else None
+    env_id, wrapper = ("CrowdNav-v0", None) if algo == "ppo" else ("CrowdNavWarehouse-v0", WallActionMasker)
 
     def envs(seed):
         return make_vec_env(env_id, n_envs=1, seed=seed, env_kwargs={"num_humans": 2}, wrapper_class=wrapper)
