@@ -162,26 +162,29 @@ def test_imitation_settings_come_from_the_file_or_the_caller_once():
         imitation_settings("dqfd", prepare("dqfd", {}))
     assert prepare("apg_value", {"imitation_episodes": 7})["kwargs"]["imitation_episodes"] == 7
     with pytest.raises(ValueError, match="imitation_episodes"):
-        prepare("qrdqn", {"imitation_episodes": 7})
-    # MaskablePPO clones the ORCA robot as PPO does; RecurrentPPO (an LSTM policy) and QR-DQN take no imitation
-    assert imitation_settings("maskableppo", prepare("maskableppo", {"imitation_episodes": 7}))["imitation_episodes"] == 7
-    for algo in ("recurrentppo", "qrdqn"):
-        with pytest.raises(ValueError, match=f"imitation_episodes is for .*; {algo} takes no imitation"):
-            imitation_settings(algo, prepare(algo, {}), imitation_episodes=7)
+        prepare("recurrentppo", {"imitation_episodes": 7})
+    # MaskablePPO clones the ORCA robot as PPO does, QR-DQN learns from it as DQN does; RecurrentPPO (an LSTM policy)
+    # takes no imitation
+    for algo in ("maskableppo", "qrdqn"):
+        assert imitation_settings(algo, prepare(algo, {"imitation_episodes": 7}))["imitation_episodes"] == 7
+    with pytest.raises(ValueError, match=r"imitation_episodes is for .*; recurrentppo takes no imitation"):
+        imitation_settings("recurrentppo", prepare("recurrentppo", {}), imitation_episodes=7)
 
 
-def _dqn(imitation_episodes: int, **kwargs):
+def _dqn(imitation_episodes: int, algo: str = "dqn", **kwargs):
     from stable_baselines3.common.env_util import make_vec_env
 
     env = make_vec_env("CrowdNav-v0", n_envs=1, seed=0, env_kwargs={"num_humans": 2})
-    return ZOO_ALGOS["dqn"]("ApgPolicy", env, seed=0, buffer_size=5_000, learning_starts=10_000,
-                            imitation_episodes=imitation_episodes, imitation_epochs=1, **kwargs)
+    extra = {"policy_kwargs": {"n_quantiles": 8}} if algo == "qrdqn" else {}
+    return ZOO_ALGOS[algo]("ApgPolicy", env, seed=0, buffer_size=5_000, learning_starts=10_000,
+                           imitation_episodes=imitation_episodes, imitation_epochs=1, **extra, **kwargs)
 
 
-def test_the_zoo_dqn_imitates_once_before_its_first_learn(tmp_path):
+@pytest.mark.parametrize("algo", ["dqn", "qrdqn"])
+def test_the_zoo_dqn_imitates_once_before_its_first_learn(tmp_path, algo):
     """imitation_episodes fills the replay buffer with the ORCA robot's episodes (and trains on them) at the first
-    learn() only: a second learn() and a loaded model do not imitate again."""
-    plain, model = _dqn(0), _dqn(3)
+    learn() only: a second learn() and a loaded model do not imitate again (DQN and QR-DQN)."""
+    plain, model = _dqn(0, algo), _dqn(3, algo)
     assert plain.imitated and not model.imitated
     plain.learn(8)
     assert plain.replay_buffer.size() == 8
@@ -191,7 +194,7 @@ def test_the_zoo_dqn_imitates_once_before_its_first_learn(tmp_path):
     model.learn(8, reset_num_timesteps=False)
     assert model.replay_buffer.size() == demonstrations + 16
     model.save(tmp_path / "dqn.zip")
-    loaded = ZOO_ALGOS["dqn"].load(tmp_path / "dqn.zip", env=model.env)
+    loaded = ZOO_ALGOS[algo].load(tmp_path / "dqn.zip", env=model.env)
     assert loaded.imitated and loaded.imitation_episodes == 3
 
 

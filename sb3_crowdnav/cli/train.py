@@ -55,7 +55,7 @@ def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
     p.add_argument("--verbose", type=int, choices=(0, 1, 2), help="SB3 verbosity (default: 1 with --variant, else 0)")
     p.add_argument("--imitation-episodes", "--il-episodes", dest="imitation_episodes", type=common.nonneg_int,
                    help="ORCA-robot episodes imitated first (default: 3000 with --variant; 0 with --hyperparams, "
-                        "where it is for ppo, a2c, maskableppo, dqn and dqfd)")
+                        "where it is for ppo, a2c, maskableppo, dqn, qrdqn and dqfd)")
     p.add_argument("--imitation-epochs", "--il-epochs", dest="imitation_epochs", type=common.nonneg_int,
                    help="passes over the demonstrations (default: the variant's: 10, apg_warehouse 5, apg_robust 3; 10 "
                         "with --hyperparams)")

@@ -1,4 +1,5 @@
-"""Pre-training on ORCA demonstrations: behaviour cloning (PPO, A2C), DQfD-style Q-learning (DQN), value regression."""
+"""Pre-training on ORCA demonstrations: behaviour cloning (PPO, A2C, MaskablePPO), DQfD-style Q-learning (DQN, QR-DQN),
+value regression."""
 
 from __future__ import annotations
 
@@ -6,6 +7,8 @@ from collections.abc import Callable
 
 import numpy as np
 import torch as th
+from sb3_contrib import QRDQN
+from sb3_contrib.common.utils import quantile_huber_loss
 from stable_baselines3 import DQN
 from stable_baselines3.common.buffers import ReplayBuffer
 from torch.nn import functional as F
@@ -68,22 +71,24 @@ def pretrain_actor_critic(model, demos: Demonstrations, epochs: int = 10, learni
 def pretrain_dqn(model, demos: Demonstrations, epochs: int = 10, learning_rate: float = 1e-3, batch_size: int = 256,
                  margin: float = 0.1, margin_coef: float = 1.0, target_update: int = 500,
                  fill_buffer: bool = True) -> list[float]:
-    """Q-learning + large-margin loss on the demonstrations for a DQN ``model``; loss per epoch.
+    """Q-learning + large-margin loss on the demonstrations for a DQN or a QR-DQN ``model``; loss per epoch.
+
+    DQN: :func:`dqfd_loss`; QR-DQN: :func:`quantile_dqfd_loss`, the same with sb3-contrib's quantile regression as the
+    TD part and the margin on the mean over the quantiles (the Q-values QR-DQN acts on).
 
     With ``fill_buffer`` the demonstrations are also added to the model's replay buffer (single-env
-    DQN only; :func:`add_to_replay_buffer`), so that online learning keeps replaying them until they are overwritten,
+    models only; :func:`add_to_replay_buffer`), so that online learning keeps replaying them until they are overwritten,
     with the model's own targets (n-step ones with :class:`~sb3_crowdnav.nn.NStepDictReplayBuffer`). The loss here
     is one-step whatever the buffer's targets: a valid Bellman target of the same Q.
     """
-    if not isinstance(model, DQN):
-        raise TypeError(f"pretrain_dqn needs a DQN model, got {type(model).__name__}")
+    q_net, q_target = _q_networks(model)
+    loss_of = quantile_dqfd_loss if isinstance(model, QRDQN) else dqfd_loss
     _check_training_args(epochs, learning_rate, batch_size)
     check_number("margin", margin, allow_zero=True)
     if demos.next_observations is None:
         raise ValueError("pretrain_dqn needs next observations: collect with keep_next_observations=True")
     if fill_buffer:
         add_to_replay_buffer(model.replay_buffer, demos)
-    q_net, q_target = model.q_net, model.q_net_target
     q_target.load_state_dict(q_net.state_dict())
     optimizer = th.optim.Adam(q_net.parameters(), lr=learning_rate)
     tensors = DemoTensors(demos, model.device)
@@ -94,7 +99,7 @@ def pretrain_dqn(model, demos: Demonstrations, epochs: int = 10, learning_rate: 
         perm = rng.permutation(len(demos))
         epoch = []
         for begin in range(0, len(demos), batch_size):
-            loss = dqfd_loss(model, demos, tensors, perm[begin : begin + batch_size], margin, margin_coef)
+            loss = loss_of(model, demos, tensors, perm[begin : begin + batch_size], margin, margin_coef)
             optimizer.zero_grad()
             loss.backward()
             th.nn.utils.clip_grad_norm_(q_net.parameters(), 10.0)
@@ -137,8 +142,23 @@ class DemoTensors:
         self.not_done = th.as_tensor(~demos.terminated, dtype=th.float32, device=device)
 
 
+def _q_networks(model) -> tuple[th.nn.Module, th.nn.Module]:
+    """The online and target networks of a DQN (``q_net``) or a QR-DQN (``quantile_net``) model."""
+    if isinstance(model, DQN):
+        return model.q_net, model.q_net_target
+    if isinstance(model, QRDQN):
+        return model.quantile_net, model.quantile_net_target
+    raise TypeError(f"pretrain_dqn needs a DQN or QR-DQN model, got {type(model).__name__}")
+
+
+def _large_margin(q: th.Tensor, actions: th.Tensor, margin: float) -> th.Tensor:
+    """``max_a [Q(s, a) + margin·1(a ≠ a_E)] - Q(s, a_E)``, averaged: ``q`` (b, n_actions), ``actions`` (b, 1)."""
+    margins = th.full_like(q, margin).scatter_(1, actions, 0.0)
+    return ((q + margins).max(dim=1).values - q.gather(1, actions).squeeze(1)).mean()
+
+
 def dqfd_loss(model, demos: Demonstrations, tensors: DemoTensors, idx: np.ndarray, margin: float,
-               margin_coef: float) -> th.Tensor:
+              margin_coef: float) -> th.Tensor:
     """Huber 1-step TD loss (target network) + ``margin_coef`` x large-margin loss on the demonstrations ``idx``."""
     q = model.q_net(_tensors(demos.observations, idx, model.device))  # (b, 80)
     actions = tensors.actions[idx, None]
@@ -146,9 +166,25 @@ def dqfd_loss(model, demos: Demonstrations, tensors: DemoTensors, idx: np.ndarra
         q_next = model.q_net_target(_tensors(demos.next_observations, idx, model.device)).max(dim=1).values
         target = tensors.rewards[idx] + model.gamma * tensors.not_done[idx] * q_next
     q_demo = q.gather(1, actions).squeeze(1)
-    margins = th.full_like(q, margin).scatter_(1, actions, 0.0)
-    large_margin = ((q + margins).max(dim=1).values - q_demo).mean()
-    return F.smooth_l1_loss(q_demo, target) + margin_coef * large_margin
+    return F.smooth_l1_loss(q_demo, target) + margin_coef * _large_margin(q, actions, margin)
+
+
+def quantile_dqfd_loss(model, demos: Demonstrations, tensors: DemoTensors, idx: np.ndarray, margin: float,
+                       margin_coef: float) -> th.Tensor:
+    """:func:`dqfd_loss` of a QR-DQN ``model`` on the demonstrations ``idx``: sb3-contrib's quantile Huber 1-step TD
+    loss (target network; the next action greedy on the mean over the quantiles, as ``QRDQN.train``) + ``margin_coef``
+    x the large-margin loss on Q, the mean over the quantiles."""
+    quantiles = model.quantile_net(_tensors(demos.observations, idx, model.device))  # (b, n_quantiles, n_actions)
+    b, n = quantiles.shape[:2]
+    actions = tensors.actions[idx, None]
+    with th.no_grad():
+        following = model.quantile_net_target(_tensors(demos.next_observations, idx, model.device))
+        greedy = following.mean(dim=1, keepdim=True).argmax(dim=2, keepdim=True).expand(b, n, 1)
+        following = following.gather(2, greedy).squeeze(2)
+        target = tensors.rewards[idx, None] + model.gamma * tensors.not_done[idx, None] * following
+    demonstrated = quantiles.gather(2, actions[:, :, None].expand(b, n, 1)).squeeze(2)
+    return (quantile_huber_loss(demonstrated, target, sum_over_quantiles=True)
+            + margin_coef * _large_margin(quantiles.mean(dim=1), actions, margin))
 
 
 def pretrain_value(net: th.nn.Module, observations: dict[str, np.ndarray], targets: np.ndarray,

@@ -50,7 +50,7 @@ DEFAULT_POLICIES = {"apg_value": "ApgPolicy", "dqn": "MultiInputPolicy", "dqfd":
 ALGO_WRAPPERS = {"maskableppo": "sb3_crowdnav.apg_value.action_masks.WallActionMasker"}
 # the ORCA robot imitated before RL: keys a hyperparameter file may set (or the command line), with their defaults
 IMITATION_DEFAULTS = {"imitation_episodes": 0, "imitation_epochs": 10, "imitation_learning_rate": 1e-3}
-IMITATION_ALGOS = ("ppo", "a2c", "maskableppo", "dqn", "dqfd")
+IMITATION_ALGOS = ("ppo", "a2c", "maskableppo", "dqn", "qrdqn", "dqfd")
 ZOO_ONLY_KEYS = ("env_wrapper", "callback", "vec_env_wrapper", "frame_stack")
 SCHEDULE_KEYS = ("learning_rate", "clip_range", "clip_range_vf")
 _BINOPS = {ast.Add: operator.add, ast.Sub: operator.sub, ast.Mult: operator.mul, ast.Div: operator.truediv}
@@ -259,7 +259,8 @@ def imitation_settings(algo: str, cfg: Mapping[str, Any], imitation_episodes: in
                        imitation_epochs: int | None = None, imitation_learning_rate: float | None = None) -> dict[str, Any]:
     """The imitation of a run: each setting as given (None: not given), else the file's (``cfg["imitation"]``), else
     :data:`IMITATION_DEFAULTS`'. ``ValueError`` naming the setting when the file and the caller disagree, when a value
-    is out of range, or when ``algo`` takes no imitation (ppo, a2c, maskableppo, dqn and dqfd do; dqfd needs it)."""
+    is out of range, or when ``algo`` takes no imitation (ppo, a2c, maskableppo, dqn, qrdqn and dqfd do; dqfd needs
+    it)."""
     given = {"imitation_episodes": imitation_episodes, "imitation_epochs": imitation_epochs,
              "imitation_learning_rate": imitation_learning_rate}
     settings = {}
@@ -425,8 +426,8 @@ def _check_arguments(checkpoint_freq: int, wall_time: float | None, eval_episode
 
 def imitate(model: Any, env: Any, algo: str, episodes: int, epochs: int, learning_rate: float, verbose: int) -> None:
     """The ORCA robot's ``episodes`` in ``env`` (a VecEnv) imitated by ``model`` before its RL (``algo``: ``"ppo"``,
-    ``"a2c"`` and ``"maskableppo"`` by behaviour cloning, ``"dqn"`` by DQfD's loss with the demonstrations left in the
-    replay buffer, ``"dqfd"`` by the same loss with them kept beside it)."""
+    ``"a2c"`` and ``"maskableppo"`` by behaviour cloning, ``"dqn"`` and ``"qrdqn"`` by DQfD's loss with the
+    demonstrations left in the replay buffer, ``"dqfd"`` by the same loss with them kept beside it)."""
     from sb3_crowdnav import imitation
 
     demos = imitation.collect_demonstrations(env, episodes)
@@ -435,7 +436,7 @@ def imitate(model: Any, env: Any, algo: str, episodes: int, epochs: int, learnin
                                         margin=model.margin, margin_coef=model.margin_coef, fill_buffer=False)
         model.set_demonstrations(demos)
     else:
-        pretrain = imitation.pretrain_dqn if algo == "dqn" else imitation.pretrain_actor_critic
+        pretrain = imitation.pretrain_dqn if algo in ("dqn", "qrdqn") else imitation.pretrain_actor_critic
         losses = pretrain(model, demos, epochs=epochs, learning_rate=learning_rate)
     if verbose:
         print(f"imitation: {len(demos)} transitions of {episodes} ORCA episodes {demos.outcomes}; "

@@ -91,8 +91,8 @@ class ImitationMixin:
     """The ORCA robot imitated before the first ``learn()``: the hyperparameters ``imitation_episodes`` (0: none),
     ``imitation_epochs`` and ``imitation_learning_rate`` of a file or an Optuna trial, as ``sb3-crowdnav train
     --hyperparams`` reads them (:func:`~sb3_crowdnav.training.hyperparams.imitate`: behaviour cloning for PPO, A2C and
-    MaskablePPO, DQfD's loss with the demonstrations left in the replay buffer for DQN). A model saved after it (or
-    loaded) does not imitate again."""
+    MaskablePPO, DQfD's loss with the demonstrations left in the replay buffer for DQN and QR-DQN). A model saved after
+    it (or loaded) does not imitate again."""
 
     def __init__(self, *args: Any, imitation_episodes: int = IMITATION_DEFAULTS["imitation_episodes"],
                  imitation_epochs: int = IMITATION_DEFAULTS["imitation_epochs"],
@@ -105,7 +105,7 @@ class ImitationMixin:
 
     def learn(self, *args: Any, **kwargs: Any) -> Any:
         if not self.imitated:
-            imitate(self, self.env, "dqn" if isinstance(self, DQN) else "ppo", self.imitation_episodes,
+            imitate(self, self.env, "dqn" if isinstance(self, DQN | QRDQN) else "ppo", self.imitation_episodes,
                     self.imitation_epochs, self.imitation_learning_rate, self.verbose)
             self.imitated = True
         return super().learn(*args, **kwargs)
@@ -133,9 +133,10 @@ class ZooDQN(SafeLoadMixin, ImitationMixin, DictNStepMixin, DQN):
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {**DQN.policy_aliases, "ApgPolicy": APG_POLICIES["dqn"]}
 
 
-class ZooQRDQN(SafeLoadMixin, DictNStepMixin, QRDQN):
-    """sb3-contrib's QRDQN for which ``"ApgPolicy"`` names :class:`~sb3_crowdnav.nn.ApgQRDQNPolicy` and ``n_steps > 1``
-    builds an :class:`~sb3_crowdnav.nn.NStepDictReplayBuffer` (:class:`~sb3_crowdnav.nn.DictNStepMixin`)."""
+class ZooQRDQN(SafeLoadMixin, ImitationMixin, DictNStepMixin, QRDQN):
+    """sb3-contrib's QRDQN for which ``"ApgPolicy"`` names :class:`~sb3_crowdnav.nn.ApgQRDQNPolicy`, ``n_steps > 1``
+    builds an :class:`~sb3_crowdnav.nn.NStepDictReplayBuffer` (:class:`~sb3_crowdnav.nn.DictNStepMixin`), and
+    ``imitation_episodes`` imitates first (:class:`ImitationMixin`)."""
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {**QRDQN.policy_aliases, "ApgPolicy": APG_POLICIES["qrdqn"]}
 
