@@ -72,12 +72,20 @@ def test_behaviour_cloning_makes_ppo_imitate(demos):
         pretrain_actor_critic(model, demos, epochs=0)
 
 
-def test_dqn_pretraining_fills_buffer_and_ranks_demonstrated_actions_first(demos):
-    model = DQN(ApgDQNPolicy, make_vec_env("CrowdNav-v0", env_kwargs=ENV_KWARGS), seed=0, policy_kwargs=SMALL,
-                buffer_size=5_000)
+@pytest.mark.parametrize("algo", ["dqn", "qrdqn"])
+def test_dqn_pretraining_fills_buffer_and_ranks_demonstrated_actions_first(demos, algo):
+    """DQN, and QR-DQN by the largest mean over its quantiles (what its predict acts on): the greedy action becomes the
+    demonstrated one, the replay buffer holds the demonstrations, and the target network is the trained one."""
+    env = make_vec_env("CrowdNav-v0", env_kwargs=ENV_KWARGS)
+    if algo == "dqn":
+        model = DQN(ApgDQNPolicy, env, seed=0, policy_kwargs=SMALL, buffer_size=5_000)
+        online, target = model.q_net, model.q_net_target
+    else:
+        model = QRDQN(ApgQRDQNPolicy, env, seed=0, policy_kwargs=dict(SMALL, n_quantiles=8), buffer_size=5_000)
+        online, target = model.quantile_net, model.quantile_net_target
 
     def greedy(obs):
-        return model.q_net(obs).argmax(dim=1)
+        return model.q_net(obs).argmax(dim=1) if algo == "dqn" else model.quantile_net(obs).mean(dim=1).argmax(dim=1)
 
     before = _agreement(greedy, demos)
     losses = pretrain_dqn(model, demos, epochs=15, learning_rate=3e-3, batch_size=64)
@@ -86,36 +94,20 @@ def test_dqn_pretraining_fills_buffer_and_ranks_demonstrated_actions_first(demos
     assert after > before + 0.3, (before, after)
     assert model.replay_buffer.size() == len(demos)
     np.testing.assert_array_equal(model.replay_buffer.actions[: len(demos), 0, 0], demos.actions)
-    assert th.equal(next(model.q_net.parameters()), next(model.q_net_target.parameters()))
+    for mine, its in zip(online.parameters(), target.parameters(), strict=True):
+        assert th.equal(mine, its)
+    obs = {k: v[:50] for k, v in demos.observations.items()}
+    with th.no_grad():
+        np.testing.assert_array_equal(model.predict(obs, deterministic=True)[0],
+                                      greedy({k: th.as_tensor(v) for k, v in obs.items()}).numpy())
+
+
+def test_dqn_pretraining_refusals(demos):
     two = DQN(ApgDQNPolicy, make_vec_env("CrowdNav-v0", n_envs=2, env_kwargs=ENV_KWARGS), policy_kwargs=SMALL)
     with pytest.raises(ValueError, match="single-env"):
         pretrain_dqn(two, demos)
     with pytest.raises(TypeError, match="DQN or QR-DQN model, got PPO"):
         pretrain_dqn(PPO(ApgActorCriticPolicy, make_vec_env("CrowdNav-v0", env_kwargs=ENV_KWARGS)), demos)
-
-
-def test_qrdqn_pretraining_ranks_demonstrated_actions_first_by_the_mean_quantile(demos):
-    """QR-DQN learns from the demonstrations as DQN does: its greedy action (the largest mean over the quantiles)
-    becomes the demonstrated one, its replay buffer holds them, and its target network is the trained one."""
-    model = QRDQN(ApgQRDQNPolicy, make_vec_env("CrowdNav-v0", env_kwargs=ENV_KWARGS), seed=0,
-                  policy_kwargs=dict(SMALL, n_quantiles=8), buffer_size=5_000)
-
-    def greedy(obs):
-        return model.quantile_net(obs).mean(dim=1).argmax(dim=1)
-
-    before = _agreement(greedy, demos)
-    losses = pretrain_dqn(model, demos, epochs=15, learning_rate=3e-3, batch_size=64)
-    after = _agreement(greedy, demos)
-    assert losses[-1] < losses[0]
-    assert after > before + 0.3, (before, after)
-    assert model.replay_buffer.size() == len(demos)
-    np.testing.assert_array_equal(model.replay_buffer.actions[: len(demos), 0, 0], demos.actions)
-    for online, target in zip(model.quantile_net.parameters(), model.quantile_net_target.parameters(), strict=True):
-        assert th.equal(online, target)
-    obs = {k: v[:50] for k, v in demos.observations.items()}
-    with th.no_grad():  # QR-DQN's own predict acts on the same greedy rule
-        np.testing.assert_array_equal(model.predict(obs, deterministic=True)[0],
-                                      greedy({k: th.as_tensor(v) for k, v in obs.items()}).numpy())
 
 
 @pytest.mark.slow  # a training run or a full CLI run: make slow
