@@ -24,7 +24,7 @@ def picker_jobs(crowd: str, steps: int, seed: int = 0, robot_visible: bool = Fal
     rng = np.random.default_rng(seed)
     action, walking, picker_steps, jobs = 0, 0, 0, 0
     for step in range(steps):
-        action = int(rng.integers(80)) if step % 8 == 0 else action
+        action = int(rng.integers(env.action_space.n)) if step % 8 == 0 else action
         pickers = env.sim.pickers
         before = pickers.standing.copy() if pickers is not None else None
         _, _, terminated, truncated, _ = env.step(action)
