@@ -43,18 +43,17 @@ class RobotAgent(NamedTuple):
 
 @dataclass(frozen=True, eq=False)
 class Walls:
-    """The static world the people walk in (world frame, [m]): a hall and the obstacles inside it.
-
-    :param hall: (k, 2) the hall's boundary, counter-clockwise
-    :param obstacles: the obstacles (racks) inside it, each a (k, 2) counter-clockwise vertex array
-    """
+    """The static world the people walk in (world frame, [m]): ``hall`` (k, 2), its boundary, counter-clockwise, and the
+    ``obstacles`` (racks) inside it, each a (k, 2) counter-clockwise vertex array."""
 
     hall: np.ndarray
     obstacles: tuple[np.ndarray, ...]
 
-    def rvo_polygons(self) -> list[np.ndarray]:
-        """For RVO2: the obstacles, then the hall as one clockwise boundary (RVO2's way of keeping agents inside)."""
-        return [*self.obstacles, self.hall[::-1].copy()]
+    @functools.cached_property
+    def rvo_vertices(self) -> list[list[list[float]]]:
+        """For ``pyrvo``'s ``add_obstacle`` in ``[x, y]`` floats, once per episode: the obstacles, then the hall as one
+        clockwise boundary (RVO2's way of keeping agents inside)."""
+        return [polygon.tolist() for polygon in (*self.obstacles, self.hall[::-1])]
 
     @functools.cached_property
     def area(self) -> Any:
@@ -122,7 +121,7 @@ class OrcaCrowdModel:
         seeing, blind = np.flatnonzero(self.seeing).tolist(), np.flatnonzero(~self.seeing).tolist()
         self.sides = [side for side in (blind, seeing) if side]  # the people of each simulator, in order
         self._order = np.argsort(blind + seeing)  # the rows of both sides, blind then seeing, back in the people's order
-        obstacles = walls.rvo_polygons() if walls is not None else None
+        obstacles = walls.rvo_vertices if walls is not None else None
         # each simulator computes its side's people, the other side's passive in it (OrcaCrowd)
         self.crowds = [OrcaCrowd(self.scene, people.starts, radii, people.v_prefs, robot_agent if side is seeing else None,
                                  obstacles, passive=blind if side is seeing else seeing) for side in self.sides]

@@ -52,11 +52,13 @@ class OrcaCrowd:
     def __init__(self, cfg: SceneConfig, positions: np.ndarray, radii: np.ndarray, v_prefs: np.ndarray,
                  robot: tuple[np.ndarray, np.ndarray, float] | None,
                  obstacles: list[np.ndarray] | None = None, passive: Sequence[int] = ()) -> None:
-        """:param obstacles: static obstacles as counter-clockwise (k, 2) vertex arrays, seen by every agent"""
+        """:param obstacles: static obstacles as counter-clockwise (k, 2) vertex arrays or lists of ``[x, y]`` floats,
+            seen by every agent"""
         # (a simulator is never reused with clear_agents(): RVO2's agent tree keeps pointers to the removed agents)
         self.sim = make_simulator(cfg, max([*np.asarray(v_prefs, dtype=np.float64).tolist(), cfg.human_v_pref]))
         for polygon in obstacles or ():
-            self.sim.add_obstacle([(float(x), float(y)) for x, y in np.asarray(polygon).tolist()])
+            self.sim.add_obstacle(np.asarray(polygon, dtype=np.float64).tolist() if isinstance(polygon, np.ndarray)
+                                  else polygon)
         if obstacles:
             self.sim.process_obstacles()
         self.n = len(positions)

@@ -77,7 +77,7 @@ class PickSlots:
 
     def __init__(self, layout: WarehouseLayout, scene: SceneConfig, clearance: float) -> None:
         self.layout = layout
-        self.walls = Walls(layout.hall_vertices, tuple(layout.rack_vertices))  # (rvo_polygons(): rvo_obstacles(layout))
+        self.walls = Walls(layout.hall_vertices, tuple(layout.rack_vertices))  # (rvo_vertices: rvo_obstacles(layout))
         self.points = pick_slots(layout, scene)
         self.roadmap = Roadmap(layout, clearance)
         self._point_list = self.points.tolist()

@@ -1,4 +1,4 @@
-"""The roadmap of a layout: shortest routes through the free space of a disc, on a visibility graph (``networkx``)."""
+"""The roadmap of a layout: shortest routes through the free space of a disc, by A* on a visibility graph."""
 
 from __future__ import annotations
 
@@ -27,63 +27,6 @@ class RackLayout(Protocol):
     def boxes(self) -> np.ndarray | None: ...
 
     def free_space(self, clearance: float = 0.0, join_style: str = "round") -> Any: ...
-
-
-class _BuiltGraph(nx.Graph):
-    """An undirected ``networkx`` graph handed its node and adjacency dicts built (the ``node_dict_factory`` and
-    ``adjlist_outer_dict_factory`` hooks networkx documents for subclasses), without the per-edge work of its methods:
-    a visibility graph of a few dozen corners is built every episode, and a route adds its two ends to it.
-
-    :meth:`from_edges` gives the dicts ``add_nodes_from(nodes)`` then ``add_weighted_edges_from(zip(i, j, weights))``
-    give (each node's neighbours in the order of the edges, the two directions of an edge sharing one attribute
-    dict), and :meth:`with_ends` the graph a route's A* searches, this one unchanged.
-    """
-
-    def __init__(self, node_dict: dict | None = None, adjacency: dict | None = None) -> None:
-        self.built_nodes = {} if node_dict is None else node_dict  # the very dicts networkx's factories hand it
-        self.built_adjacency = {} if adjacency is None else adjacency
-        self.node_dict_factory = lambda: self.built_nodes
-        self.adjlist_outer_dict_factory = lambda: self.built_adjacency
-        super().__init__()
-
-    @classmethod
-    def from_edges(cls, nodes: list, i: list, j: list, weights: list) -> _BuiltGraph:
-        node_dict = {n: {} for n in nodes}
-        adjacency: dict = {n: {} for n in node_dict}
-        for u, v, w in zip(i, j, weights, strict=True):
-            adjacency[u][v] = adjacency[v][u] = {"weight": w}
-        return cls(node_dict, adjacency)
-
-    def with_ends(self, start: int, start_joins: list, start_lengths: list, goal_joins: list,
-                  goal_lengths: list) -> _BuiltGraph:
-        """The graph A* searches for a route from node ``start`` to node ``start + 1`` (the goal): this one with the
-        start's row (its edges to ``start_joins``) and the goal in the rows of ``goal_joins``. A search from the start
-        reads only the start's row and the rows of the corners it expands, so the edges back to the start and the
-        goal's own row, which ``add_weighted_edges_from`` of the ends' edges would add too, are left out: an edge back
-        to the start only queues the start again, to be skipped, so the search finds the same path (tested). This
-        graph is unchanged (its rows shared, copied where the goal is added); one graph object serves every route of
-        this graph (its dicts refilled: the previous route's is gone). An end without joins is not added."""
-        route = self.__dict__.get("_route")
-        if route is None:
-            route = self.__dict__["_route"] = _BuiltGraph()
-        node_dict, adjacency, base = route.built_nodes, route.built_adjacency, self.built_adjacency
-        node_dict.clear()
-        node_dict.update(self.built_nodes)
-        adjacency.clear()
-        adjacency.update(base)
-        route.__networkx_cache__.clear()
-        if start_joins:
-            node_dict[start] = {}
-            adjacency[start] = {k: {"weight": w} for k, w in zip(start_joins, start_lengths, strict=True)}
-        if goal_joins:
-            node_dict[start + 1], goal = {}, start + 1
-            for k, w in zip(goal_joins, goal_lengths, strict=True):
-                row = adjacency[k] = dict(base[k])
-                row[goal] = {"weight": w}
-        return route
-
-    def __reduce__(self):  # copies and pickles as a plain graph (the factories above are per instance)
-        return nx.Graph, (nx.to_dict_of_dicts(self),)
 
 
 class PolygonSpace:
@@ -160,9 +103,10 @@ class Roadmap:
     corners, so every corner is a point the disc can reach); two corners are joined when the straight segment
     between them stays in that free space (a segment along its boundary counts as inside), weighted by its
     length. A route adds the start and the goal to the graph, joined to the corners they see, and takes the A*
-    path (``networkx.astar_path``): the shortest polygonal path around the obstacles. A start or goal outside the
-    shrunk free space (a picker pressed against a rack) is joined to its nearest corner, from which the route goes
-    on as from a start.
+    path (:func:`~sb3_crowdnav.sim.warehouse.kernels.astar_route`: ``networkx.astar_path``'s search, compiled, with
+    the straight distance to the goal as the heuristic): the shortest polygonal path around the obstacles. A start or
+    goal outside the shrunk free space (a picker pressed against a rack) is joined to its nearest corner, from which the
+    route goes on as from a start.
 
     The free space is chosen once, in the constructor, as :attr:`space`: a
     :class:`~sb3_crowdnav.sim.warehouse.boxes.BoxSpace` when the racks are boxes whose grown copies stay apart and
@@ -184,9 +128,20 @@ class Roadmap:
 
     @functools.cached_property
     def graph(self) -> nx.Graph:
-        """The visibility graph of the corners, built when a route first needs it (a route's ends that see each other
-        need none)."""
-        return _BuiltGraph.from_edges(self.space.nodes.tolist(), *self.space.edges())
+        """The visibility graph of the corners as a ``networkx`` graph, edges weighted by their lengths (for a look at
+        it; the routes search :attr:`adjacency`, the same graph)."""
+        graph = nx.Graph()
+        graph.add_nodes_from(self.space.nodes.tolist())
+        graph.add_weighted_edges_from(zip(*self.space.edges(), strict=True))
+        return graph
+
+    @functools.cached_property
+    def adjacency(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The visibility graph as compressed rows (:func:`~sb3_crowdnav.sim.warehouse.kernels.adjacency`), built
+        when a route first needs it (a route's ends that see each other need none)."""
+        i, j, lengths = self.space.edges()
+        return kernels.adjacency(len(self.corners), np.array(i, dtype=np.int64), np.array(j, dtype=np.int64),
+                                 np.array(lengths, dtype=np.float64))
 
     @functools.cached_property
     def free(self) -> Any:
@@ -221,13 +176,10 @@ class Roadmap:
                 return [start, *self.waypoints(nearest, goal)]
             nearest = self.corners[np.argmin(np.linalg.norm(self.corners - goal, axis=1))].tolist()
             return [start, goal] if nearest == start else [*self.waypoints(start, nearest), goal]
-        graph, n = self.graph, len(self.corners)
-        remaining = query.heuristic.tolist()
-        ended = graph.with_ends(n, from_start, query.start_lengths.tolist(), to_goal, query.goal_lengths.tolist())
-        try:
-            path = nx.astar_path(ended, n, n + 1, heuristic=lambda u, _: remaining[u])
-        except (nx.NetworkXNoPath, nx.NodeNotFound):
-            raise ValueError(f"no route from {tuple(start)} to {tuple(goal)} in the free space") from None
+        path = kernels.astar_route(*self.adjacency, query.start_joins, query.start_lengths, query.goal_joins,
+                                   query.goal_lengths, query.heuristic).tolist()
+        if not path:
+            raise ValueError(f"no route from {tuple(start)} to {tuple(goal)} in the free space")
         points = [*self._corner_list, start, goal]
         return [[*points[k]] for k in path]  # (copies: the corners' lists stay the roadmap's)
 

@@ -46,6 +46,7 @@ from sb3_crowdnav.sim.warehouse.kernels.robot import (
     separated,
     swept_segment_distance,
 )
+from sb3_crowdnav.sim.warehouse.kernels.routes import adjacency, astar_route
 
 __all__ = [
     "AfterStep",
@@ -53,6 +54,8 @@ __all__ = [
     "RouteQuery",
     "Sensing",
     "SensingAndRoute",
+    "adjacency",
+    "astar_route",
     "bitangent_edges",
     "box_roadmap",
     "disc_in_sight",
