@@ -206,33 +206,34 @@ class PickerCrowd:
         :param robot: the robot at the start of the step (and where its move ends); read only when the pickers see it
         """
         dt = self.scene.time_step
-        state = np.concatenate(self.crowd.step(self.preferred_velocities(positions), robot), axis=1)
+        positions, velocities = self.crowd.step(self.preferred_velocities(positions), robot)
         # the overlap guard, then the dwells count down; a picker whose dwell is over gets its next job, one at the
         # last waypoint of its route stands for a dwell drawn now (in the pickers' order: the same draws)
         progress = (self.dwell, self.waypoint, self._route_array, self._route_lengths, dt, self.slot_arrival)
         if self._grown is not None:  # (one kernel for both when no picker is pressed)
             (w, h), radius = self._hall, self.scene.human_radius - 1e-6
-            after = kernels.picker_after_step(state, self._room, self._grown, self._layout.boxes, w, h, radius, *progress)
-            pressed = after.pressed.tolist()
-            events = zip(after.which.tolist(), after.what.tolist(), strict=True)
+            after = kernels.picker_after_step(positions, self._room, self._grown, self._layout.boxes, w, h, radius,
+                                              *progress)
+            pressed = after.pressed.tolist() if after.pressed.shape[0] else []
+            events = zip(after.which.tolist(), after.what.tolist(), strict=True) if after.which.shape[0] else ()
         else:
-            pressed, events = self._pressed_indices(state), None
+            pressed, events = self._pressed_indices(positions), None
         if self._place is None:
             pressed = []
         for i in pressed:  # never seen at Δt <= 0.5 s; a guard
-            p = self._outside(state[i, :2].copy())
+            p = self._outside(positions[i].copy())
             if p is not None:
                 self._place(i, p)
-                state[i, :2] = p
+                positions[i] = p
         if events is None or pressed:
-            which, what = kernels.picker_progress(state, *progress)
+            which, what = kernels.picker_progress(positions, *progress)
             events = zip(which.tolist(), what.tolist(), strict=True)
         for i, event in events:  # (picker, 1: its dwell is over, 2: it reached its slot), in the pickers' order
             if event == 1:
                 self._next_job(i)
             else:
                 self.dwell[i] = max(uniform(self.rng, *self.dwell_time), dt)
-        return state[:, :2], state[:, 2:]
+        return positions, velocities
 
     def _pressed(self, positions: np.ndarray) -> np.ndarray:
         """(n,) bool: the pickers at ``positions`` (n, 2) pressed into a rack or a wall (see :meth:`_pressed_indices`)."""
