@@ -26,7 +26,7 @@ SCHEDULE_FLAGS = {
     "value_target": "--value-target", "from_imitation": "--from-imitation", "overlap": "--overlap",
     "refill_steps": "--refill-steps", "lookahead_dtype": "--lookahead-dtype",
     "exploration_initial_eps": "--epsilon-start", "exploration_final_eps": "--epsilon-end",
-    "pedestrian_model": "--pedestrian-model", "stopping_check": "--stopping-check",
+    "pedestrian_model": "--pedestrian-model", "stopping_check": "--stopping-check", "ensemble": "--ensemble",
 }
 SHARED_FLAGS = ("eval_episodes",)  # schedule flags that a --hyperparams run takes too
 HYPERPARAMS_FLAGS = {"algo": "--algo", "timesteps": "--timesteps", "checkpoint_freq": "--checkpoint-freq",
@@ -110,6 +110,9 @@ def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
                    help="the acting lookahead also charges the actions the robot cannot brake from at its "
                         "max_acceleration (a world with an acceleration limit only) (default: the model's own; off "
                         "for a new one)")
+    g.add_argument("--ensemble", type=common.positive_int, metavar="K",
+                   help="train K member runs (one imitation; member k with seed SEED + 1000 k and the schedule given) "
+                        "and save their best checkpoints as one value ensemble in OUT/best.zip (default: 1, one run)")
 
     g = p.add_argument_group("hyperparameter files (--hyperparams)")
     g.add_argument("--algo", choices=ALGOS, help="algorithm (required with --hyperparams)")

@@ -81,8 +81,7 @@ def pretrain_dqn(model, demos: Demonstrations, epochs: int = 10, learning_rate: 
     with the model's own targets (n-step ones with :class:`~sb3_crowdnav.nn.NStepDictReplayBuffer`). The loss here
     is one-step whatever the buffer's targets: a valid Bellman target of the same Q.
     """
-    q_net, q_target = _q_networks(model)
-    loss_of = quantile_dqfd_loss if isinstance(model, QRDQN) else dqfd_loss
+    q_net, q_target, loss_of = _q_learning(model)
     _check_training_args(epochs, learning_rate, batch_size)
     check_number("margin", margin, allow_zero=True)
     if demos.next_observations is None:
@@ -142,12 +141,12 @@ class DemoTensors:
         self.not_done = th.as_tensor(~demos.terminated, dtype=th.float32, device=device)
 
 
-def _q_networks(model) -> tuple[th.nn.Module, th.nn.Module]:
-    """The online and target networks of a DQN (``q_net``) or a QR-DQN (``quantile_net``) model."""
+def _q_learning(model) -> tuple[th.nn.Module, th.nn.Module, Callable[..., th.Tensor]]:
+    """The online and target networks of a DQN (``q_net``) or a QR-DQN (``quantile_net``) model and its loss."""
     if isinstance(model, DQN):
-        return model.q_net, model.q_net_target
+        return model.q_net, model.q_net_target, dqfd_loss
     if isinstance(model, QRDQN):
-        return model.quantile_net, model.quantile_net_target
+        return model.quantile_net, model.quantile_net_target, quantile_dqfd_loss
     raise TypeError(f"pretrain_dqn needs a DQN or QR-DQN model, got {type(model).__name__}")
 
 

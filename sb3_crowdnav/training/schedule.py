@@ -189,6 +189,8 @@ class ScheduleConfig:
     :param refill_steps: resuming without the replay buffer, or starting from a ``from_imitation`` model without
         ``imitation_replay_buffer.npz`` beside it, env steps collected before the first gradient step
     :param lookahead_dtype: precision of the acting lookahead, ``"float32"`` or ``"bfloat16"``
+    :param ensemble: train this many member runs (one imitation, each member its own seed and this schedule) and
+        make their best checkpoints one value ensemble (:mod:`sb3_crowdnav.training.ensemble`); 1: one run
     """
 
     variant: str = "apg_rl"
@@ -217,6 +219,7 @@ class ScheduleConfig:
     select_by: Literal["success", "return"] = "success"
     overlap: bool | Literal["thread", "process"] = "process"
     lookahead_dtype: Literal["float32", "bfloat16"] = "float32"
+    ensemble: int = 1
 
     def __post_init__(self) -> None:
         for name, allowed in (("variant", tuple(VARIANTS)), ("select_by", SELECT_BY), ("optimizer", tuple(OPTIMIZERS)),
@@ -228,7 +231,7 @@ class ScheduleConfig:
         for name, minimum in (("rl_episodes", 1), ("imitation_episodes", 0), ("imitation_epochs", 0), ("n_envs", 1),
                               ("seed", 0), ("train_freq", 1), ("buffer_size", 1),
                               ("checkpoint_episodes", 1), ("eval_episodes", 0), ("exploration_episodes", 1),
-                              ("refill_steps", 0)):
+                              ("refill_steps", 0), ("ensemble", 1)):
             check_int(name, getattr(self, name), minimum)
         for count in self.num_humans if isinstance(self.num_humans, tuple) else (self.num_humans,):
             check_int("num_humans", count, 0)
@@ -324,6 +327,9 @@ def _from_imitation(path: Path, config: ScheduleConfig, env: Any, out: Path) -> 
         model.policy.optimizer_class, model.policy.optimizer_kwargs = optimizer_class, optimizer_kwargs
         model.policy.optimizer = optimizer_class(model.policy.value_net.parameters(), lr=config.learning_rate,
                                                  **optimizer_kwargs)
+    if model.seed != config.seed:  # the run's own seed for its ε draws (an ensemble's members start from one model)
+        model.seed = config.seed
+        model.set_random_seed(config.seed)
     if (path.parent / "imitation_replay_buffer.npz").exists():
         model.load_replay_buffer(path.parent / "imitation_replay_buffer.npz")
     else:  # e.g. fine-tuning a trained model: no gradient step on a handful of transitions
@@ -372,6 +378,11 @@ def train_schedule(out: str | Path, config: ScheduleConfig | None = None, from_i
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     with RunLock(out):
+        if config.ensemble > 1:
+            from sb3_crowdnav.training.ensemble import train_ensemble
+
+            return ScheduleResult(*train_ensemble(out, config, from_imitation, log, lambda folder, member, start: (
+                train_schedule(folder, member, from_imitation=start, log=log, threads=None))))
         return _train(out, config, from_imitation, log)
 
 

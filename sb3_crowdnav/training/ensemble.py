@@ -1,0 +1,80 @@
+"""A value ensemble trained by one command: ``ScheduleConfig(ensemble=K)``, ``sb3-crowdnav train --ensemble K``.
+
+The run folder holds K member runs, ``OUT/member_0`` ... ``OUT/member_{K-1}``, each the variant's schedule with its
+own seed, ``seed + 1000 k`` (its training episodes and its ε draws). Member 0 imitates the ORCA robot; the others
+start their RL from its ``imitation.zip`` and its demonstrations, so the imitation is paid once. ``rl_episodes`` and
+the other schedule settings are each member's. Each member keeps its best checkpoint by validation, as a single run
+does; then the members' ``best.zip`` (``final.zip`` without validation) become one model whose V is the mean of their
+value networks (:func:`~sb3_crowdnav.training.averaging.ensemble_models`), validated on the same validation
+episodes and saved as ``OUT/best.zip``, and their ``final.zip`` likewise as ``OUT/final.zip``. Nothing is chosen
+by hand.
+
+``OUT/ensemble.json`` lists the members (folder, seed, the checkpoint taken and its validation row) and the
+ensemble's validation; ``OUT/progress.json`` sums the members' RL episodes, env steps and wall time (the imitation
+once) and adds the assembly's. Run the same command again to resume: a finished member is not trained again, a
+member cut short resumes from its last checkpoint, and a finished ensemble is left as it is.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from sb3_crowdnav.apg_value import APGValue
+from sb3_crowdnav.training.averaging import ensemble_models
+from sb3_crowdnav.training.callbacks import validate_file
+from sb3_crowdnav.training.run_folder import atomic_write, read_json, sha256, write_json
+
+MEMBER_SEED_STRIDE = 1000  # member k trains with seed + 1000 k: its envs (seed + i) never meet another member's
+
+
+def member_config(config: Any, k: int) -> Any:
+    """The schedule of member ``k`` of ``config``'s ensemble: the same settings, one member, its own seed."""
+    return dataclasses.replace(config, ensemble=1, seed=config.seed + MEMBER_SEED_STRIDE * k)
+
+
+def member_folders(out: Path, count: int) -> list[Path]:
+    return [Path(out) / f"member_{k}" for k in range(count)]
+
+
+def train_ensemble(out: Path, config: Any, from_imitation: str | Path | None, log: Any,
+                   train_member: Callable[[Path, Any, str | Path | None], Any]) -> tuple[APGValue, int | None, float]:
+    """Train (or resume) the members of ``config.ensemble`` in ``out`` by ``train_member(folder, member_config,
+    from_imitation)`` (a :class:`~sb3_crowdnav.training.schedule.ScheduleResult`) and assemble them (see the module
+    docstring); the ensemble, None and this call's wall time [s], or the model and signal of the member a signal
+    stopped."""
+    record = read_json(out / "ensemble.json")
+    if record is not None and (out / "best.zip").exists() and sha256(out / "best.zip") == record.get("sha256"):
+        log(f"{out} holds its finished ensemble of {len(record['members'])} members: nothing to do")
+        return APGValue.load(out / "best.zip"), None, 0.0
+    start, folders = time.time(), member_folders(out, config.ensemble)
+    for k, folder in enumerate(folders):
+        imitation = from_imitation if k == 0 else folders[0] / "imitation.zip"
+        log(f"member {k} of {config.ensemble} in {folder}")
+        result = train_member(folder, member_config(config, k), imitation)
+        if result.stopped_by is not None:
+            return result.model, result.stopped_by, time.time() - start
+    began = time.time()
+    chosen = [folder / ("best.zip" if (folder / "best.zip").exists() else "final.zip") for folder in folders]
+    atomic_write(out / "best.zip", ensemble_models(chosen).save)
+    atomic_write(out / "final.zip", ensemble_models([folder / "final.zip" for folder in folders]).save)
+    validation = validate_file(lambda: APGValue.load(out / "best.zip"), config.eval_episodes,
+                               config.training_env_kwargs, config.spec.env_id) if config.eval_episodes else None
+    members = [{"folder": folder.name, "seed": member_config(config, k).seed, "model": path.name,
+                "best": read_json(folder / "best.json")} for k, (folder, path) in enumerate(zip(folders, chosen,
+                                                                                                   strict=True))]
+    runs = [read_json(folder / "progress.json") or {} for folder in folders]
+    write_json(out / "ensemble.json", {"members": members, "validation": validation, "sha256": sha256(out / "best.zip")})
+    write_json(out / "progress.json", {
+        "members": len(folders), "episodes": sum(r.get("episodes", 0) for r in runs),
+        "timesteps": sum(r.get("timesteps", 0) for r in runs),
+        "wall_time_s": round(sum(r.get("wall_time_s", 0.0) for r in runs) + time.time() - began, 1),
+        "finished": True})
+    if validation is not None:
+        log(f"ensemble of {len(folders)}: validation success {validation['success']:.3f}, collision "
+            f"{validation['collision']:.3f} (members: " + ", ".join(
+                f"{m['best']['success']:.3f}" if m["best"] else "-" for m in members) + ")")
+    return APGValue.load(out / "best.zip"), None, time.time() - start

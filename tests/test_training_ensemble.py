@@ -1,0 +1,56 @@
+"""``sb3-crowdnav train --ensemble K``: member runs from one imitation, assembled into one value ensemble."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import torch as th
+
+from sb3_crowdnav.apg_value import APGValue
+from sb3_crowdnav.cli import main
+from sb3_crowdnav.training.schedule import ScheduleConfig
+
+TINY = ["--il-episodes", "2", "--il-epochs", "1", "--num-humans", "2", "--checkpoint-episodes", "2",
+        "--eval-episodes", "2", "--rl-episodes", "4"]
+
+
+def test_an_ensemble_needs_at_least_one_member(tmp_path, capsys):
+    with pytest.raises(ValueError, match="ensemble"):
+        ScheduleConfig(ensemble=0)
+    with pytest.raises(SystemExit) as exit_info:
+        main(["train", "--variant", "apg_rl", "--out", str(tmp_path / "run"), "--ensemble", "0"])
+    assert exit_info.value.code == 2
+    assert "--ensemble" in capsys.readouterr().err
+    assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.slow  # three short training runs: make slow
+def test_members_share_one_imitation_and_become_one_value_ensemble(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert main(["train", "--variant", "apg_rl", "--out", str(out), "--seed", "3", "--ensemble", "2", *TINY]) == 0
+    members = [out / "member_0", out / "member_1"]
+    assert (members[0] / "imitation.zip").exists() and not (members[1] / "imitation.zip").exists()
+    record = json.loads((out / "ensemble.json").read_text())
+    assert [m["seed"] for m in record["members"]] == [3, 1003]
+    ensemble = APGValue.load(out / "best.zip")
+    assert ensemble.policy_kwargs["ensemble_size"] == 2 and len(ensemble.policy.value_net.members) == 2
+    loaded = [APGValue.load(m / record["members"][k]["model"]) for k, m in enumerate(members)]
+    assert [model.seed for model in loaded] == [3, 1003]  # each member's ε draws are its own
+    for slot, member in zip(ensemble.policy.value_net.members, loaded, strict=True):  # each member's network, as saved
+        for a, b in zip(slot.state_dict().values(), member.policy.value_net.state_dict().values(), strict=True):
+            assert th.equal(a, b)
+    first, second = (dict(m.policy.value_net.state_dict()) for m in loaded)
+    assert any(not th.equal(first[k], second[k]) for k in first)  # two runs, not one network twice
+    progress = json.loads((out / "progress.json").read_text())
+    runs = [json.loads((m / "progress.json").read_text()) for m in members]
+    assert progress["finished"] and progress["members"] == 2
+    assert progress["timesteps"] == sum(r["timesteps"] for r in runs) > 0
+    assert progress["episodes"] == sum(r["episodes"] for r in runs) == 8
+    assert progress["wall_time_s"] >= sum(r["wall_time_s"] for r in runs)
+    assert 0.0 <= record["validation"]["success"] <= 1.0
+    digest = record["sha256"]
+    capsys.readouterr()
+    assert main(["train", "--variant", "apg_rl", "--out", str(out), "--seed", "3", "--ensemble", "2", *TINY]) == 0
+    assert "nothing to do" in capsys.readouterr().out
+    assert json.loads((out / "ensemble.json").read_text())["sha256"] == digest
