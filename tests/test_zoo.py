@@ -93,6 +93,19 @@ def test_zoo_main_usage_error(capsys):
     assert "usage" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("given", [[], ["--num-threads", "2"], ["--num-threads=3"]])
+def test_zoo_commands_run_one_torch_thread_unless_told(monkeypatch, given):
+    """rl-zoo3 leaves torch every core; the package's entry point gives it the training floor's one thread."""
+    import rl_zoo3.train
+
+    seen = []
+    monkeypatch.setattr(rl_zoo3.train, "train", lambda: seen.append(list(sys.argv)))
+    monkeypatch.setattr(sys, "argv", list(sys.argv))
+    zoo_main(["train", "--algo", "ppo", "--env", "CrowdNav-v0", *given])
+    threads = [a for i, a in enumerate(seen[0]) if a.startswith("--num-threads") or seen[0][i - 1] == "--num-threads"]
+    assert threads == (given or ["--num-threads", "1"])
+
+
 @pytest.mark.slow  # a training run or a full CLI run: make slow
 def test_rl_zoo3_trains_ppo_and_apg_value(tmp_path):
     """The documented commands through the package's zoo entry point: PPO from its file ("ApgPolicy"), APGValue

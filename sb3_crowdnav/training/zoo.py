@@ -5,7 +5,8 @@ rl-zoo3's documented way of adding an algorithm is to add it to ``rl_zoo3.utils.
 for Optuna tuning, a sampler to ``rl_zoo3.hyperparams_opt.HYPERPARAMS_SAMPLER``); this module
 does exactly that and then hands the command line to rl-zoo3 unchanged, so every rl-zoo3 flag
 works (``--storage sqlite:///tune.db --study-name apg -optimize`` spreads tuning over machines
-through a shared database). ``--gym-packages sb3_crowdnav`` is added when missing.
+through a shared database). ``--gym-packages sb3_crowdnav`` is added when missing, and ``--num-threads 1`` (one torch
+thread, the package's training floor; rl-zoo3 leaves torch its default of every core) unless the command gives one.
 
 Its evaluations (``--eval-freq``, which keeps ``best_model.zip``, and every Optuna trial's, which scores the trial)
 play validation episodes: the eval envs are seeded with
@@ -245,6 +246,8 @@ def main(argv: list[str] | None = None) -> None:
         return tuned_main(rest)
     if "--gym-packages" not in rest:
         rest += ["--gym-packages", "sb3_crowdnav"]
+    if not any(arg == "--num-threads" or arg.startswith("--num-threads=") for arg in rest):
+        rest += ["--num-threads", "1"]  # the training floor's one torch thread (rl-zoo3's default is torch's: every core)
     register()
     sys.argv = [f"rl_zoo3.{command}", *rest]
     from rl_zoo3 import utils
