@@ -2,12 +2,12 @@
 
 The run folder holds K member runs, ``OUT/member_0`` ... ``OUT/member_{K-1}``, each the variant's schedule with its
 own seed, ``seed + 1000 k`` (its training episodes and its ε draws). Member 0 imitates the ORCA robot; the others
-start their RL from its ``imitation.zip`` and its demonstrations, so the imitation is paid once. ``rl_episodes`` and
-the other schedule settings are each member's. Each member keeps its best checkpoint by validation, as a single run
-does; then the members' ``best.zip`` (``final.zip`` without validation) become one model whose V is the mean of their
-value networks (:func:`~sb3_crowdnav.training.averaging.ensemble_models`), validated on the same validation
-episodes and saved as ``OUT/best.zip``, and their ``final.zip`` likewise as ``OUT/final.zip``. Nothing is chosen
-by hand.
+start their RL from its ``imitation.zip`` and its demonstrations, so the imitation is paid once (every member starts
+from ``from_imitation`` when one is given). ``rl_episodes`` and the other schedule settings are each member's. Each
+member keeps its best checkpoint by validation, as a single run does; then the members' ``best.zip`` (``final.zip``
+without validation) become one model whose V is the mean of their value networks
+(:func:`~sb3_crowdnav.training.averaging.ensemble_models`), validated on the same validation episodes and saved as
+``OUT/best.zip``, and their ``final.zip`` likewise as ``OUT/final.zip``. Nothing is chosen by hand.
 
 ``OUT/ensemble.json`` lists the members (folder, seed, the checkpoint taken and its validation row) and the
 ensemble's validation; ``OUT/progress.json`` sums the members' RL episodes, env steps and wall time (the imitation
@@ -52,7 +52,8 @@ def train_ensemble(out: Path, config: Any, from_imitation: str | Path | None, lo
         return APGValue.load(out / "best.zip"), None, 0.0
     start, folders = time.time(), member_folders(out, config.ensemble)
     for k, folder in enumerate(folders):
-        imitation = from_imitation if k == 0 else folders[0] / "imitation.zip"
+        # (a given post-imitation model starts every member; otherwise member 0's imitation does)
+        imitation = from_imitation if from_imitation is not None or k == 0 else folders[0] / "imitation.zip"
         log(f"member {k} of {config.ensemble} in {folder}")
         result = train_member(folder, member_config(config, k), imitation)
         if result.stopped_by is not None:
