@@ -54,3 +54,19 @@ def test_members_share_one_imitation_and_become_one_value_ensemble(tmp_path, cap
     assert main(["train", "--variant", "apg_rl", "--out", str(out), "--seed", "3", "--ensemble", "2", *TINY]) == 0
     assert "nothing to do" in capsys.readouterr().out
     assert json.loads((out / "ensemble.json").read_text())["sha256"] == digest
+
+
+@pytest.mark.slow  # two short training runs: make slow
+def test_a_given_post_imitation_model_starts_every_member(tmp_path):
+    first = tmp_path / "first"
+    assert main(["train", "--variant", "apg_rl", "--out", str(first), *TINY[:6], "--rl-episodes", "2",
+                 "--eval-episodes", "0"]) == 0
+    out = tmp_path / "run"
+    assert main(["train", "--variant", "apg_rl", "--out", str(out), "--ensemble", "2", "--from-imitation",
+                 str(first / "imitation.zip"), *TINY[4:6], "--rl-episodes", "2", "--checkpoint-episodes", "2",
+                 "--eval-episodes", "0"]) == 0
+    for member in ("member_0", "member_1"):
+        assert not (out / member / "imitation.zip").exists()  # neither imitated: both started from the given model
+        assert json.loads((out / member / "progress.json").read_text())["episodes"] == 2
+    record = json.loads((out / "ensemble.json").read_text())
+    assert [m["model"] for m in record["members"]] == ["final.zip", "final.zip"] and record["validation"] is None
