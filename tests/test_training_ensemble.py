@@ -18,6 +18,18 @@ TINY = ["--il-episodes", "2", "--il-epochs", "1", "--num-humans", "2", "--checkp
 def test_an_ensemble_needs_at_least_one_member(tmp_path, capsys):
     with pytest.raises(ValueError, match="ensemble"):
         ScheduleConfig(ensemble=0)
+    with pytest.raises(ValueError, match="ensemble_checkpoints"):
+        ScheduleConfig(ensemble_checkpoints=0)
+    with pytest.raises(ValueError, match="ensemble_checkpoints must be at most the run's validations"):
+        ScheduleConfig(ensemble_checkpoints=3, rl_episodes=4, checkpoint_episodes=2)  # two validations
+    with pytest.raises(ValueError, match="ensemble_checkpoints must be at most the run's validations"):
+        ScheduleConfig(ensemble_checkpoints=2, rl_episodes=4, checkpoint_episodes=2, eval_episodes=0)  # none
+    assert ScheduleConfig(ensemble_checkpoints=2, rl_episodes=4, checkpoint_episodes=2).ensemble_checkpoints == 2
+    for flags in (["--ensemble-checkpoints", "3", "--rl-episodes", "4", "--checkpoint-episodes", "2"],):
+        with pytest.raises(SystemExit) as exit_info:
+            main(["train", "--variant", "apg_rl", "--out", str(tmp_path / "run"), *flags])
+        assert exit_info.value.code == 2
+        assert "ensemble_checkpoints" in capsys.readouterr().err
     with pytest.raises(SystemExit) as exit_info:
         main(["train", "--variant", "apg_rl", "--out", str(tmp_path / "run"), "--ensemble", "0"])
     assert exit_info.value.code == 2
@@ -35,7 +47,8 @@ def test_members_share_one_imitation_and_become_one_value_ensemble(tmp_path, cap
     assert [m["seed"] for m in record["members"]] == [3, 1003]
     ensemble = APGValue.load(out / "best.zip")
     assert ensemble.policy_kwargs["ensemble_size"] == 2 and len(ensemble.policy.value_net.members) == 2
-    loaded = [APGValue.load(m / record["members"][k]["model"]) for k, m in enumerate(members)]
+    assert [len(m["checkpoints"]) for m in record["members"]] == [1, 1]
+    loaded = [APGValue.load(m / record["members"][k]["checkpoints"][0]["model"]) for k, m in enumerate(members)]
     assert [model.seed for model in loaded] == [3, 1003]  # each member's ε draws are its own
     for slot, member in zip(ensemble.policy.value_net.members, loaded, strict=True):  # each member's network, as saved
         for a, b in zip(slot.state_dict().values(), member.policy.value_net.state_dict().values(), strict=True):
@@ -69,4 +82,21 @@ def test_a_given_post_imitation_model_starts_every_member(tmp_path):
         assert not (out / member / "imitation.zip").exists()  # neither imitated: both started from the given model
         assert json.loads((out / member / "progress.json").read_text())["episodes"] == 2
     record = json.loads((out / "ensemble.json").read_text())
-    assert [m["model"] for m in record["members"]] == ["final.zip", "final.zip"] and record["validation"] is None
+    assert [[c["model"] for c in m["checkpoints"]] for m in record["members"]] == [["final.zip"], ["final.zip"]]
+    assert record["validation"] is None
+
+
+@pytest.mark.slow  # a short training run: make slow
+def test_one_run_gives_its_best_validated_checkpoints(tmp_path):
+    out = tmp_path / "run"
+    assert main(["train", "--variant", "apg_rl", "--out", str(out), "--ensemble-checkpoints", "2", *TINY[:-2],
+                 "--rl-episodes", "6"]) == 0
+    rows = [json.loads(line) for line in (out / "member_0" / "eval_curve.jsonl").read_text().splitlines()]
+    assert [r["episodes"] for r in rows] == [2, 4, 6]
+    time = [r["time"] if r["time"] == r["time"] else 0.0 for r in rows]  # (NaN without a success: not ranked by it)
+    ranked = [rows[i] for i in sorted(range(3), key=lambda i: (rows[i]["success"], -time[i], i), reverse=True)]
+    record = json.loads((out / "ensemble.json").read_text())
+    assert [c["model"] for c in record["members"][0]["checkpoints"]] == \
+        [f"checkpoint_{r['episodes']}.zip" for r in ranked[:2]]
+    assert APGValue.load(out / "best.zip").policy_kwargs["ensemble_size"] == 2
+    assert (out / "final.zip").read_bytes() == (out / "member_0" / "final.zip").read_bytes()

@@ -27,6 +27,7 @@ SCHEDULE_FLAGS = {
     "refill_steps": "--refill-steps", "lookahead_dtype": "--lookahead-dtype",
     "exploration_initial_eps": "--epsilon-start", "exploration_final_eps": "--epsilon-end",
     "pedestrian_model": "--pedestrian-model", "stopping_check": "--stopping-check", "ensemble": "--ensemble",
+    "ensemble_checkpoints": "--ensemble-checkpoints",
 }
 SHARED_FLAGS = ("eval_episodes",)  # schedule flags that a --hyperparams run takes too
 HYPERPARAMS_FLAGS = {"algo": "--algo", "timesteps": "--timesteps", "checkpoint_freq": "--checkpoint-freq",
@@ -113,6 +114,9 @@ def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
     g.add_argument("--ensemble", type=common.positive_int, metavar="K",
                    help="train K member runs (one imitation; member k with seed SEED + 1000 k and the schedule given) "
                         "and save their best checkpoints as one value ensemble in OUT/best.zip (default: 1, one run)")
+    g.add_argument("--ensemble-checkpoints", type=common.positive_int, metavar="C",
+                   help="each member's C best checkpoints by validation go into the ensemble (default: 1, its "
+                        "best.zip; C > 1 also with --ensemble 1)")
 
     g = p.add_argument_group("hyperparameter files (--hyperparams)")
     g.add_argument("--algo", choices=ALGOS, help="algorithm (required with --hyperparams)")

@@ -66,15 +66,20 @@ def record_validation(out: Path, key: str, value: int, compute: Callable[[], dic
     return row
 
 
+def selection_score(row: dict[str, Any], select_by: str = "success") -> list[float]:
+    """What ranks a validation ``row`` (higher is better): its success, then minus its navigation time (``"success"``),
+    or its mean discounted return (``"return"``)."""
+    check_choice("select_by", select_by, SELECT_BY)
+    if select_by == "return":
+        return [row["return"]]
+    return [row["success"], -row["time"] if row["time"] == row["time"] else 0.0]
+
+
 def update_best(out: Path, row: dict[str, Any], source: Path, select_by: str = "success") -> bool:
     """Copy ``source`` (the model validated in ``row``) to ``OUT/best.zip`` and ``row`` to ``OUT/best.json`` when it
     beats the best so far: highest success, then shortest navigation time (``select_by="success"``), or highest
     mean discounted return (``"return"``). Returns whether it did."""
-    check_choice("select_by", select_by, SELECT_BY)
-    if select_by == "return":
-        score = [row["return"]]
-    else:
-        score = [row["success"], -row["time"] if row["time"] == row["time"] else 0.0]
+    score = selection_score(row, select_by)
     best = read_json(Path(out) / "best.json")
     if best is not None and best.get("select_by", "success") == select_by and score <= list(best["score"]):
         return False

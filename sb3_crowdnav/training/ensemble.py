@@ -1,15 +1,18 @@
-"""A value ensemble trained by one command: ``ScheduleConfig(ensemble=K)``, ``sb3-crowdnav train --ensemble K``.
+"""A value ensemble trained by one command: ``sb3-crowdnav train --ensemble K --ensemble-checkpoints C``
+(``ScheduleConfig(ensemble=K, ensemble_checkpoints=C)``).
 
 The run folder holds K member runs, ``OUT/member_0`` ... ``OUT/member_{K-1}``, each the variant's schedule with its
 own seed, ``seed + 1000 k`` (its training episodes and its ε draws). Member 0 imitates the ORCA robot; the others
 start their RL from its ``imitation.zip`` and its demonstrations, so the imitation is paid once (every member starts
 from ``from_imitation`` when one is given). ``rl_episodes`` and the other schedule settings are each member's. Each
-member keeps its best checkpoint by validation, as a single run does; then the members' ``best.zip`` (``final.zip``
-without validation) become one model whose V is the mean of their value networks
-(:func:`~sb3_crowdnav.training.averaging.ensemble_models`), validated on the same validation episodes and saved as
-``OUT/best.zip``, and their ``final.zip`` likewise as ``OUT/final.zip``. Nothing is chosen by hand.
+member gives its C best checkpoints by validation (the ranking of ``best.zip``: ``select_by``; C = 1: its
+``best.zip``, or its ``final.zip`` without validation); then they become one model whose V is the mean of their
+value networks (:func:`~sb3_crowdnav.training.averaging.ensemble_models`), validated on the same validation episodes
+and saved as ``OUT/best.zip``; the members' ``final.zip`` likewise become ``OUT/final.zip``. Nothing is chosen by
+hand. Checkpoints of one run err in fewer common states than one network alone, those of independent runs in fewer
+still (docs/research_log.md).
 
-``OUT/ensemble.json`` lists the members (folder, seed, the checkpoint taken and its validation row) and the
+``OUT/ensemble.json`` lists the members (folder, seed, the checkpoints taken and their validation rows) and the
 ensemble's validation; ``OUT/progress.json`` sums the members' RL episodes, env steps and wall time (the imitation
 once) and adds the assembly's. Run the same command again to resume: a finished member is not trained again, a
 member cut short resumes from its last checkpoint, and a finished ensemble is left as it is.
@@ -18,6 +21,8 @@ member cut short resumes from its last checkpoint, and a finished ensemble is le
 from __future__ import annotations
 
 import dataclasses
+import json
+import shutil
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -25,15 +30,30 @@ from typing import Any
 
 from sb3_crowdnav.apg_value import APGValue
 from sb3_crowdnav.training.averaging import ensemble_models
-from sb3_crowdnav.training.callbacks import validate_file
-from sb3_crowdnav.training.run_folder import atomic_write, read_json, sha256, write_json
+from sb3_crowdnav.training.callbacks import selection_score, validate_file
+from sb3_crowdnav.training.run_folder import atomic_write, checkpoint_path, read_json, sha256, write_json
 
 MEMBER_SEED_STRIDE = 1000  # member k trains with seed + 1000 k: its envs (seed + i) never meet another member's
 
 
 def member_config(config: Any, k: int) -> Any:
-    """The schedule of member ``k`` of ``config``'s ensemble: the same settings, one member, its own seed."""
-    return dataclasses.replace(config, ensemble=1, seed=config.seed + MEMBER_SEED_STRIDE * k)
+    """The schedule of member ``k`` of ``config``'s ensemble: the same settings, one plain run, its own seed."""
+    return dataclasses.replace(config, ensemble=1, ensemble_checkpoints=1, seed=config.seed + MEMBER_SEED_STRIDE * k)
+
+
+def chosen_checkpoints(folder: Path, count: int, select_by: str) -> list[tuple[Path, dict[str, Any] | None]]:
+    """The ``count`` best validated checkpoints of the run in ``folder`` with their validation rows, best first (ties:
+    the later checkpoint); ``count`` = 1: its ``best.zip`` (``final.zip`` without validation)."""
+    if count == 1:
+        best = folder / "best.zip"
+        return [(best, read_json(folder / "best.json"))] if best.exists() else [(folder / "final.zip", None)]
+    curve = folder / "eval_curve.jsonl"
+    rows = [json.loads(line) for line in curve.read_text().splitlines()] if curve.exists() else []
+    rows = [r for r in rows if checkpoint_path(folder, r["episodes"]).exists()]
+    if len(rows) < count:
+        raise ValueError(f"{folder} has {len(rows)} validated checkpoints, {count} are to be taken")
+    rows.sort(key=lambda r: (selection_score(r, select_by), r["episodes"]), reverse=True)
+    return [(checkpoint_path(folder, r["episodes"]), r) for r in rows[:count]]
 
 
 def member_folders(out: Path, count: int) -> list[Path]:
@@ -48,7 +68,7 @@ def train_ensemble(out: Path, config: Any, from_imitation: str | Path | None, lo
     stopped."""
     record = read_json(out / "ensemble.json")
     if record is not None and (out / "best.zip").exists() and sha256(out / "best.zip") == record.get("sha256"):
-        log(f"{out} holds its finished ensemble of {len(record['members'])} members: nothing to do")
+        log(f"{out} holds its finished ensemble of {len(record['members'])} runs: nothing to do")
         return APGValue.load(out / "best.zip"), None, 0.0
     start, folders = time.time(), member_folders(out, config.ensemble)
     for k, folder in enumerate(folders):
@@ -59,14 +79,16 @@ def train_ensemble(out: Path, config: Any, from_imitation: str | Path | None, lo
         if result.stopped_by is not None:
             return result.model, result.stopped_by, time.time() - start
     began = time.time()
-    chosen = [folder / ("best.zip" if (folder / "best.zip").exists() else "final.zip") for folder in folders]
-    atomic_write(out / "best.zip", ensemble_models(chosen).save)
-    atomic_write(out / "final.zip", ensemble_models([folder / "final.zip" for folder in folders]).save)
+    chosen = [chosen_checkpoints(folder, config.ensemble_checkpoints, config.select_by) for folder in folders]
+    atomic_write(out / "best.zip", ensemble_models([path for taken in chosen for path, _ in taken]).save)
+    finals = [folder / "final.zip" for folder in folders]
+    atomic_write(out / "final.zip", ensemble_models(finals).save if len(finals) > 1 else
+                 lambda tmp: shutil.copyfile(finals[0], tmp))
     validation = validate_file(lambda: APGValue.load(out / "best.zip"), config.eval_episodes,
                                config.training_env_kwargs, config.spec.env_id) if config.eval_episodes else None
-    members = [{"folder": folder.name, "seed": member_config(config, k).seed, "model": path.name,
-                "best": read_json(folder / "best.json")} for k, (folder, path) in enumerate(zip(folders, chosen,
-                                                                                                   strict=True))]
+    members = [{"folder": folder.name, "seed": member_config(config, k).seed,
+                "checkpoints": [{"model": path.name, "validation": row} for path, row in taken]}
+               for k, (folder, taken) in enumerate(zip(folders, chosen, strict=True))]
     runs = [read_json(folder / "progress.json") or {} for folder in folders]
     write_json(out / "ensemble.json", {"members": members, "validation": validation, "sha256": sha256(out / "best.zip")})
     write_json(out / "progress.json", {
@@ -75,7 +97,8 @@ def train_ensemble(out: Path, config: Any, from_imitation: str | Path | None, lo
         "wall_time_s": round(sum(r.get("wall_time_s", 0.0) for r in runs) + time.time() - began, 1),
         "finished": True})
     if validation is not None:
-        log(f"ensemble of {len(folders)}: validation success {validation['success']:.3f}, collision "
-            f"{validation['collision']:.3f} (members: " + ", ".join(
-                f"{m['best']['success']:.3f}" if m["best"] else "-" for m in members) + ")")
+        taken = [c["validation"] for m in members for c in m["checkpoints"]]
+        log(f"ensemble of {len(taken)} networks from {len(folders)} runs: validation success "
+            f"{validation['success']:.3f}, collision {validation['collision']:.3f} (each alone: " + ", ".join(
+                f"{row['success']:.3f}" if row else "-" for row in taken) + ")")
     return APGValue.load(out / "best.zip"), None, time.time() - start

@@ -57,14 +57,7 @@ from sb3_crowdnav.apg_value.checks import VALUE_TARGETS
 from sb3_crowdnav.apg_value.overlap import OVERLAP_KINDS
 from sb3_crowdnav.apg_value.policies import ValueLookaheadPolicy
 from sb3_crowdnav.apg_value.propagation import PropagationModel, check_stopping_check
-from sb3_crowdnav.sim.validation import (
-    check_bool,
-    check_choice,
-    check_instance,
-    check_int,
-    check_number,
-    check_probability,
-)
+from sb3_crowdnav.sim.validation import check_bool, check_choice, check_instance, check_int, check_number, check_probability
 from sb3_crowdnav.sim.warehouse.config import PAPER_WAREHOUSE
 from sb3_crowdnav.training.callbacks import SELECT_BY, EpisodeCheckpoint
 from sb3_crowdnav.training.run_folder import (
@@ -112,11 +105,8 @@ VARIANTS = {
     "lm_rl": Variant("LmPolicy"),
     "lstm_rl": Variant("LstmRlPolicy"),
     "sarl": Variant("SarlPolicy"),
-    # the paper's method among racks, with route-progress shaping (progress_reward=0: the paper's reward), for the
-    # warehouse robot (stop, limits, racks that hide pickers) among ORCA and social-force pickers at measured speeds,
-    # 4 in 5 ORCA pickers seeing it, 4 to 10 pickers, the cautious lookahead with the stopping-distance check
-    # (docs/training.md); the schedule cut
-    # so that the whole command fits 2 hours on 2 cores of an AVX2 machine
+    # the paper's method among racks with route-progress shaping, for the warehouse robot among 4 to 10 ORCA and
+    # social-force pickers (docs/training.md); the schedule cut to fit 2 hours on 2 cores of an AVX2 machine
     "apg_warehouse": Variant("ApgPolicy", env_id="CrowdNavWorlds-v0",
                              env_kwargs={"worlds": "warehouse", "progress_reward": 0.1},
                              schedule={"rl_episodes": 7_000, "exploration_episodes": 3_500, "num_humans": (4, 10),
@@ -127,10 +117,8 @@ VARIANTS = {
     "apg_warehouse_paper": Variant("ApgPolicy", env_id="CrowdNavWarehouse-v0",
                                    env_kwargs={"progress_reward": 0.1, **PAPER_WAREHOUSE},
                                    schedule={"rl_episodes": 6_000, "exploration_episodes": 3_000}),
-    # the paper's method trained for people it never met: every episode one of several crowds, 0 to 10 people
-    # (sb3_crowdnav.envs.worlds.ROBUST_WORLDS; docs/decisions.md, "Robust training"); a shorter schedule, so that the
-    # whole command fits an hour on 2 cores of an AVX2 machine (its lookahead ~3x the AVX-512 machines'): 3 imitation
-    # epochs (the loss moves by 2 % after the third) and 4 validations (every 750 episodes) instead of 5 and 6
+    # the paper's method for people it never met: one of several crowds per episode, 0 to 10 people (docs/decisions.md,
+    # "Robust training"); 3 imitation epochs and 4 validations to fit an hour on 2 cores of an AVX2 machine
     "apg_robust": Variant("ApgPolicy", env_id="CrowdNavWorlds-v0", env_kwargs={"worlds": "robust"},
                           schedule={"train_freq": 8, "num_humans": (0, 10), "rl_episodes": 3_000,
                                     "exploration_episodes": 1_500, "imitation_epochs": 3, "checkpoint_episodes": 750}),
@@ -191,6 +179,8 @@ class ScheduleConfig:
     :param lookahead_dtype: precision of the acting lookahead, ``"float32"`` or ``"bfloat16"``
     :param ensemble: train this many member runs (one imitation, each member its own seed and this schedule) and
         make their best checkpoints one value ensemble (:mod:`sb3_crowdnav.training.ensemble`); 1: one run
+    :param ensemble_checkpoints: the best checkpoints by validation each member gives the ensemble (more than 1 needs
+        as many validations)
     """
 
     variant: str = "apg_rl"
@@ -220,6 +210,7 @@ class ScheduleConfig:
     overlap: bool | Literal["thread", "process"] = "process"
     lookahead_dtype: Literal["float32", "bfloat16"] = "float32"
     ensemble: int = 1
+    ensemble_checkpoints: int = 1
 
     def __post_init__(self) -> None:
         for name, allowed in (("variant", tuple(VARIANTS)), ("select_by", SELECT_BY), ("optimizer", tuple(OPTIMIZERS)),
@@ -231,8 +222,12 @@ class ScheduleConfig:
         for name, minimum in (("rl_episodes", 1), ("imitation_episodes", 0), ("imitation_epochs", 0), ("n_envs", 1),
                               ("seed", 0), ("train_freq", 1), ("buffer_size", 1),
                               ("checkpoint_episodes", 1), ("eval_episodes", 0), ("exploration_episodes", 1),
-                              ("refill_steps", 0), ("ensemble", 1)):
+                              ("refill_steps", 0), ("ensemble", 1), ("ensemble_checkpoints", 1)):
             check_int(name, getattr(self, name), minimum)
+        validations = self.rl_episodes // self.checkpoint_episodes if self.eval_episodes else 0
+        if self.ensemble_checkpoints > max(validations, 1):
+            raise ValueError(f"ensemble_checkpoints must be at most the run's validations ({validations}: "
+                             f"rl_episodes // checkpoint_episodes with eval_episodes > 0), got {self.ensemble_checkpoints}")
         for count in self.num_humans if isinstance(self.num_humans, tuple) else (self.num_humans,):
             check_int("num_humans", count, 0)
         check_number("learning_rate", self.learning_rate)
@@ -378,7 +373,7 @@ def train_schedule(out: str | Path, config: ScheduleConfig | None = None, from_i
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     with RunLock(out):
-        if config.ensemble > 1:
+        if config.ensemble > 1 or config.ensemble_checkpoints > 1:
             from sb3_crowdnav.training.ensemble import train_ensemble
 
             return ScheduleResult(*train_ensemble(out, config, from_imitation, log, lambda folder, member, start: (
