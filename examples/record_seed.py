@@ -16,7 +16,7 @@ different days and machines aggregate together (docs: training, "Sweeps and seed
   ``lead_in=1``); or
 * ``COLUMN=DIR``, the ``--out`` of ``sb3-crowdnav evaluate`` or of ``sb3-crowdnav benchmark`` with one ``--policy``.
 
-``--run`` copies the run's ``config.json`` (as ``train_config.json``) and its ``eval_curve.jsonl`` (the validations) beside
+``--run`` copies the run's ``config.json`` (as ``train_config.json``) and its ``eval_curve.jsonl`` (the validations, when it made any) beside
 them, and writes ``budget.json``: the RL env steps and the wall time the run used, from its ``progress.json``
 (``sb3-crowdnav aggregate --budget METHOD@S=paper_results/seeds/METHOD/seed_S/budget.json`` states them). A run that
 recorded no wall time (APGValue runs before it was recorded) takes it from ``--wall-time MIN``, measured outside the
@@ -121,10 +121,11 @@ def main(argv: list[str] | None = None) -> None:
                 columns[column] = csv
         extras = {}
         if args.run is not None:
-            extras = {"train_config.json": args.run / "config.json", "eval_curve.jsonl": args.run / "eval_curve.jsonl"}
-            for path in extras.values():
-                if not path.is_file():
-                    raise UsageError(f"--run: no {path.name} in {str(args.run)!r}")
+            extras = {"train_config.json": args.run / "config.json"}
+            if not extras["train_config.json"].is_file():
+                raise UsageError(f"--run: no config.json in {str(args.run)!r}")
+            if (args.run / "eval_curve.jsonl").is_file():  # (a run without validations has none)
+                extras["eval_curve.jsonl"] = args.run / "eval_curve.jsonl"
             json.loads(extras["train_config.json"].read_text())  # (a run's config, not any file of that name)
             budget = run_budget(args.run, args.wall_time)
         target = args.into / args.method / f"seed_{args.seed}"

@@ -67,6 +67,15 @@ def test_a_recorded_column_is_kept_unless_replace(tmp_path, capsys):
     assert read_seed_score(into / "m" / "seed_0" / "orca6", "M", "orca6", 0).success == 0.0
 
 
+def test_a_run_without_validations_is_recorded_without_a_curve(tmp_path):
+    """A run that made no validation (a hyperparameter-file run without --eval-episodes) has no eval_curve.jsonl."""
+    into = tmp_path / "seeds"
+    run = _run(tmp_path / "run", wall_time_s=2400.0)
+    (run / "eval_curve.jsonl").unlink()
+    load_example("record_seed").main(["m", "0", "--run", str(run), "--into", str(into)])
+    assert sorted(p.name for p in (into / "m" / "seed_0").iterdir()) == ["budget.json", "train_config.json"]
+
+
 def test_a_run_that_recorded_its_wall_time_is_recorded_alone(tmp_path, capsys):
     into = tmp_path / "seeds"
     run = _run(tmp_path / "run", wall_time_s=1727.4)
