@@ -16,11 +16,12 @@ different days and machines aggregate together (docs: training, "Sweeps and seed
   ``lead_in=1``); or
 * ``COLUMN=DIR``, the ``--out`` of ``sb3-crowdnav evaluate`` or of ``sb3-crowdnav benchmark`` with one ``--policy``.
 
-``--run`` copies the run's ``config.json`` (as ``train_config.json``) and its ``eval_curve.jsonl`` (the validations, when it made any) beside
-them, and writes ``budget.json``: the RL env steps and the wall time the run used, from its ``progress.json``
-(``sb3-crowdnav aggregate --budget METHOD@S=paper_results/seeds/METHOD/seed_S/budget.json`` states them). A run that
-recorded no wall time (APGValue runs before it was recorded) takes it from ``--wall-time MIN``, measured outside the
-run (``/usr/bin/time``); without it ``budget.json`` says ``null``. ``--run`` alone records just these files. Every
+``--run`` copies the run's ``config.json`` (as ``train_config.json``) and its ``eval_curve.jsonl`` (the validations,
+when it made any) beside them, and writes ``budget.json``: the RL env steps and the wall time the run used, from its
+``progress.json`` (``sb3-crowdnav aggregate --budget METHOD@S=paper_results/seeds/METHOD/seed_S/budget.json`` states
+them). A run that recorded no wall time (APGValue runs before it was recorded) takes it from ``--wall-time MIN``,
+measured outside the run (``/usr/bin/time``); without it ``budget.json`` says ``null``. ``--run`` alone records just
+these files. Every
 source is checked before anything is written, and a column recorded already is refused unless ``--replace`` is given.
 """
 
