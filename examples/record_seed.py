@@ -21,8 +21,8 @@ when it made any) beside them, and writes ``budget.json``: the RL env steps and 
 ``progress.json`` (``sb3-crowdnav aggregate --budget METHOD@S=paper_results/seeds/METHOD/seed_S/budget.json`` states
 them). A run that recorded no wall time (APGValue runs before it was recorded) takes it from ``--wall-time MIN``,
 measured outside the run (``/usr/bin/time``); without it ``budget.json`` says ``null``. ``--run`` alone records just
-these files. Every
-source is checked before anything is written, and a column recorded already is refused unless ``--replace`` is given.
+these files. Every source is checked before anything is written, and a column recorded already is refused unless
+``--replace`` is given.
 """
 
 from __future__ import annotations
