@@ -51,14 +51,13 @@ class OrcaCrowd:
 
     def __init__(self, cfg: SceneConfig, positions: np.ndarray, radii: np.ndarray, v_prefs: np.ndarray,
                  robot: tuple[np.ndarray, np.ndarray, float] | None,
-                 obstacles: list[np.ndarray] | None = None, passive: Sequence[int] = ()) -> None:
-        """:param obstacles: static obstacles as counter-clockwise (k, 2) vertex arrays or lists of ``[x, y]`` floats,
-            seen by every agent"""
+                 obstacles: list[list[list[float]]] | None = None, passive: Sequence[int] = ()) -> None:
+        """:param obstacles: static obstacles, each its counter-clockwise vertices as ``[x, y]`` floats (RVO2's
+            boundary clockwise; :attr:`~sb3_crowdnav.sim.crowd.Walls.rvo_vertices`), seen by every agent"""
         # (a simulator is never reused with clear_agents(): RVO2's agent tree keeps pointers to the removed agents)
         self.sim = make_simulator(cfg, max([*np.asarray(v_prefs, dtype=np.float64).tolist(), cfg.human_v_pref]))
         for polygon in obstacles or ():
-            self.sim.add_obstacle(np.asarray(polygon, dtype=np.float64).tolist() if isinstance(polygon, np.ndarray)
-                                  else polygon)
+            self.sim.add_obstacle(polygon)
         if obstacles:
             self.sim.process_obstacles()
         self.n = len(positions)

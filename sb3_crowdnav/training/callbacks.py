@@ -53,11 +53,16 @@ def validate_file(load: Callable[[], Any], episodes: int, env_kwargs: dict[str, 
             "comfort_time": s.comfort_zone_time, "heading": s.heading_change, "sharp_turns": s.sharp_turns}
 
 
+def validation_rows(out: Path) -> list[dict[str, Any]]:
+    """The rows of ``OUT/eval_curve.jsonl``, one per validated checkpoint (none without the file)."""
+    curve = Path(out) / "eval_curve.jsonl"
+    return [json.loads(line) for line in curve.read_text().splitlines()] if curve.exists() else []
+
+
 def record_validation(out: Path, key: str, value: int, compute: Callable[[], dict[str, Any]]) -> dict[str, Any]:
     """The row of ``OUT/eval_curve.jsonl`` whose ``key`` is ``value`` (``episodes`` of a paper-schedule run,
     ``timesteps`` of a hyperparameter-file run): the one a resumed run wrote before, else ``compute()``'s, appended."""
-    curve = Path(out) / "eval_curve.jsonl"
-    rows = [json.loads(line) for line in curve.read_text().splitlines()] if curve.exists() else []
+    curve, rows = Path(out) / "eval_curve.jsonl", validation_rows(out)
     row = next((r for r in rows if r.get(key) == value), None)
     if row is None:
         row = {key: value, **compute()}

@@ -21,7 +21,6 @@ member cut short resumes from its last checkpoint, and a finished ensemble is le
 from __future__ import annotations
 
 import dataclasses
-import json
 import shutil
 import time
 from collections.abc import Callable
@@ -30,7 +29,7 @@ from typing import Any
 
 from sb3_crowdnav.apg_value import APGValue
 from sb3_crowdnav.training.averaging import ensemble_models
-from sb3_crowdnav.training.callbacks import selection_score, validate_file
+from sb3_crowdnav.training.callbacks import selection_score, validate_file, validation_rows
 from sb3_crowdnav.training.run_folder import atomic_write, checkpoint_path, read_json, sha256, write_json
 
 MEMBER_SEED_STRIDE = 1000  # member k trains with seed + 1000 k: its envs (seed + i) never meet another member's
@@ -47,9 +46,7 @@ def chosen_checkpoints(folder: Path, count: int, select_by: str) -> list[tuple[P
     if count == 1:
         best = folder / "best.zip"
         return [(best, read_json(folder / "best.json"))] if best.exists() else [(folder / "final.zip", None)]
-    curve = folder / "eval_curve.jsonl"
-    rows = [json.loads(line) for line in curve.read_text().splitlines()] if curve.exists() else []
-    rows = [r for r in rows if checkpoint_path(folder, r["episodes"]).exists()]
+    rows = [r for r in validation_rows(folder) if checkpoint_path(folder, r["episodes"]).exists()]
     if len(rows) < count:
         raise ValueError(f"{folder} has {len(rows)} validated checkpoints, {count} are to be taken")
     rows.sort(key=lambda r: (selection_score(r, select_by), r["episodes"]), reverse=True)
