@@ -195,9 +195,9 @@ def _metadata(**kwargs) -> GraphMetadata:
 
 @pytest.mark.parametrize("meta", [
     _metadata(),
-    _metadata(kind="lookahead", gamma=0.9, pedestrian_model="cautious", ensemble_size=2,
+    _metadata(kind="lookahead", gamma=0.9, pedestrian_model="cautious", ensemble_size=2, planning_depth=1,
               world=World(actions="with_stop", max_acceleration=1.0, max_turn_rate=2.0)),
-    _metadata(kind="lookahead", gamma=0.9, pedestrian_model="constant_velocity", braking_steps=5,
+    _metadata(kind="lookahead", gamma=0.9, pedestrian_model="constant_velocity", braking_steps=5, planning_depth=2,
               world=World(actions="with_stop", max_acceleration=1.0, max_turn_rate=2.0)),
     _metadata(schema=ObservationSchema(5, 10, 16, 3), world=World(obstacle_collision_penalty=-0.25, waypoint_radius=0.6)),
 ])
@@ -220,7 +220,7 @@ def _edited(entry: str, edit) -> dict[str, str]:
     ({k: v for k, v in _metadata().props().items() if not k.endswith("world")}, "lacks"),
     (_edited("world", "{'time_step': 0.25}"), "not plain JSON"),
     (_edited("robot", '{"radius": NaN}'), "not plain JSON"),
-    (_edited("format", "3"), "update sb3_crowdnav"),
+    (_edited("format", "4"), "update sb3_crowdnav"),
     (_edited("decision", lambda d: json.dumps({**d, "braking_steps": 4})), "braking_steps is set for a lookahead"),
     (_edited("decision", lambda d: json.dumps({k: v for k, v in d.items() if k != "braking_steps"})), "decision must"),
     (_edited("world", lambda w: json.dumps({**w, "time_step": 0.5})), "robot does not match the world"),
@@ -244,6 +244,22 @@ def test_a_format_1_contract_reads_as_a_graph_without_the_stopping_check():
     assert GraphMetadata.from_props(props).braking_steps is None
     with pytest.raises(ValueError, match="decision must"):  # a format-2 file must have it
         GraphMetadata.from_props({**props, PREFIX + "format": "2"})
+
+
+def test_a_format_2_contract_reads_as_a_one_step_lookahead():
+    """Graphs written before deeper searches (formats 1 and 2) have no planning_depth: a lookahead of one step."""
+    meta = _metadata(kind="lookahead", gamma=0.9, pedestrian_model="constant_velocity", planning_depth=1)
+    props = meta.props()
+    decision = json.loads(props[PREFIX + "decision"])
+    del decision["planning_depth"]
+    props[PREFIX + "decision"], props[PREFIX + "format"] = json.dumps(decision), "2"
+    assert GraphMetadata.from_props(props) == meta
+    with pytest.raises(ValueError, match="decision must"):  # a format-3 file must have it
+        GraphMetadata.from_props({**props, PREFIX + "format": "3"})
+    with pytest.raises(ValueError, match="planning_depth is set for a lookahead only"):
+        _metadata(planning_depth=1)
+    with pytest.raises(ValueError, match="planning_depth must be >= 1"):
+        _metadata(kind="lookahead", gamma=0.9, pedestrian_model="constant_velocity", planning_depth=0)
 
 
 # ---------------------------------------------------------------- OnnxPolicy on a graph built by hand (fast)
@@ -342,7 +358,8 @@ def test_onnx_policy_refuses_a_robot_faster_than_its_stopping_check_brakes(tmp_p
     from sb3_crowdnav.deploy import OnnxPolicy
 
     world = World(actions="with_stop", max_acceleration=1.0, max_turn_rate=2.0)
-    meta = _metadata(kind="lookahead", gamma=0.9, pedestrian_model="constant_velocity", braking_steps=5, world=world)
+    meta = _metadata(kind="lookahead", gamma=0.9, pedestrian_model="constant_velocity", braking_steps=5, world=world,
+                     planning_depth=1)
     assert meta.braking_speed == 1.25
     _toy_graph(tmp_path / "toy.onnx", meta)
     policy = OnnxPolicy(tmp_path / "toy.onnx")

@@ -18,7 +18,7 @@ from sb3_crowdnav.apg_value import checks
 from sb3_crowdnav.apg_value.buffers import ValueReplayBuffer, follow_timeout_handling, is_npz, load_buffer, save_buffer
 from sb3_crowdnav.apg_value.learner import Batch, Learner, ValueLearner
 from sb3_crowdnav.apg_value.overlap import make_learner
-from sb3_crowdnav.apg_value.policies import POLICY_ALIASES, ValueLookaheadPolicy
+from sb3_crowdnav.apg_value.policies import LOOKAHEAD_SETTINGS, POLICY_ALIASES, ValueLookaheadPolicy
 from sb3_crowdnav.apg_value.pretraining import pretrain_from_orca
 from sb3_crowdnav.apg_value.rollout_stats import RolloutStats
 from sb3_crowdnav.serialization import UnsafeModelFileError, safe_custom_objects, write_spaces
@@ -342,18 +342,14 @@ class APGValue(OffPolicyAlgorithm):
         super().dump_logs()
 
     def save(self, path, exclude=None, include=None) -> None:
-        """SB3's ``save`` with the current ``lookahead_dtype``, ``pedestrian_model`` and ``stopping_check``, and the
-        spaces as plain JSON; inside ``learn()`` with ``overlap_training`` it first waits for the gradient steps in
-        flight (the V of a completed step is saved)."""
+        """SB3's ``save`` with the policy's current lookahead settings (:data:`LOOKAHEAD_SETTINGS`: its dtype,
+        pedestrian model, stopping check and planning depth), and the spaces as plain JSON; inside ``learn()`` with
+        ``overlap_training`` it first waits for the gradient steps in flight (the V of a completed step is saved)."""
         self._join_learner()
         self.learner.pull_optimizer()  # the learner process's optimiser state is saved with V
-        if self.policy is not None and self.policy_kwargs.get("lookahead_dtype", "float32") != self.policy.lookahead_dtype:
-            self.policy_kwargs["lookahead_dtype"] = self.policy.lookahead_dtype
-        if self.policy is not None and \
-                self.policy_kwargs.get("pedestrian_model", "constant_velocity") != self.policy.pedestrian_model:
-            self.policy_kwargs["pedestrian_model"] = self.policy.pedestrian_model
-        if self.policy is not None and self.policy_kwargs.get("stopping_check", False) != self.policy.stopping_check:
-            self.policy_kwargs["stopping_check"] = self.policy.stopping_check
+        for key, default in LOOKAHEAD_SETTINGS.items():  # a setting at its default is written only once changed
+            if self.policy is not None and self.policy_kwargs.get(key, default) != getattr(self.policy, key):
+                self.policy_kwargs[key] = getattr(self.policy, key)
         super().save(path, exclude, include)
         if isinstance(path, (str, Path)):  # so that loading never unpickles them
             write_spaces(path if str(path).endswith(".zip") else f"{path}.zip", self.observation_space, self.action_space)

@@ -22,6 +22,10 @@ from sb3_crowdnav.sim.validation import check_choice, check_int, check_range
 from sb3_crowdnav.sim.world import World
 
 STATIC_KEYS = (*OBSTACLE_KEYS, WAYPOINT_KEY)  # the warehouse's, propagated when the observation has them
+# how a trained model acts, each with its default: switched on a loaded model by ValueLookaheadPolicy's setters, and
+# written into the model file (APGValue.save) once it differs from the default
+LOOKAHEAD_SETTINGS = {"lookahead_dtype": "float32", "pedestrian_model": "constant_velocity", "stopping_check": False,
+                      "planning_depth": 1}
 
 
 class ValueNetwork(nn.Module):
@@ -99,6 +103,13 @@ class ValueLookaheadPolicy(BasePolicy):
         world's ``max_acceleration`` until it stands, would hit an observed rack, wall or person (see
         :class:`PropagationModel`; default False, the paper's lookahead). Refused for a world without
         ``max_acceleration``; :meth:`set_stopping_check` switches a loaded model
+    :param planning_depth: how many steps the lookahead searches before it takes V (default 1: the paper's
+        one-step lookahead). With d > 1 every distinct state the actions reach is propagated again, d steps in all
+        (the same propagation each step: the people at constant velocity, the reward, the terminal flags and the
+        checks), V is evaluated at the last step only and each step backs up ``R + γ^(Δt·v_pref)·max_a Q``. The cost
+        grows about as the number of distinct successors to the power d: about 11 a step under the warehouse robot's
+        limits, 80 on the open floor. Whatever acts through the lookahead uses it, training included;
+        :meth:`set_planning_depth` switches a loaded model
     :param ensemble_size: number of value networks whose mean is V (:class:`ValueEnsemble`; 1, the paper: one
         :class:`ValueNetwork`). Each decision costs one forward pass per member. Ensembles are made of trained models
         with :func:`sb3_crowdnav.training.ensemble_models`
@@ -125,6 +136,7 @@ class ValueLookaheadPolicy(BasePolicy):
         pedestrian_model: str = "constant_velocity",
         ensemble_size: int = 1,
         stopping_check: bool = False,
+        planning_depth: int = 1,
     ) -> None:
         schema = ObservationSchema.from_space(observation_space)
         self.history_length, self.max_humans = schema.history_length, schema.max_humans
@@ -132,6 +144,8 @@ class ValueLookaheadPolicy(BasePolicy):
         check_choice("pedestrian_model", pedestrian_model, PropagationModel.PEDESTRIAN_MODELS)
         check_int("ensemble_size", ensemble_size, 1)
         self.ensemble_size = int(ensemble_size)
+        check_int("planning_depth", planning_depth, 1)
+        self.planning_depth = int(planning_depth)
         world = World() if world is None else World.coerce(world)
         check_stopping_check(stopping_check, world)  # before any work
         if not isinstance(action_space, spaces.Discrete) or action_space.n != world.n_actions:
@@ -204,6 +218,11 @@ class ValueLookaheadPolicy(BasePolicy):
         self.propagation = PropagationModel(self.world, self.history_length, self.gamma, self.pedestrian_model,
                                             stopping_check)
 
+    def set_planning_depth(self, planning_depth: int) -> None:
+        """Switch the number of steps the lookahead searches before V (see the class docstring); V is unchanged."""
+        check_int("planning_depth", planning_depth, 1)
+        self.planning_depth = int(planning_depth)
+
     def make_value_net(self) -> ValueNetwork | ValueEnsemble:
         """A new V: one :class:`ValueNetwork`, or a :class:`ValueEnsemble` of ``ensemble_size`` of them."""
         members = [ValueNetwork(self.make_features_extractor(), self.net_arch, self.activation_fn)
@@ -234,13 +253,11 @@ class ValueLookaheadPolicy(BasePolicy):
             data["ensemble_size"] = self.ensemble_size
         if self.stopping_check:  # only when on: the files of models without it stay as they were
             data["stopping_check"] = True
+        if self.planning_depth != 1:  # likewise: a one-step model's file has no entry
+            data["planning_depth"] = self.planning_depth
         return data
 
     # ------------------------------------------------------------------ values
-    def _as_tensors(self, robot: np.ndarray, humans: np.ndarray, mask: np.ndarray) -> dict[str, th.Tensor]:
-        return {key: th.as_tensor(value, dtype=th.float32, device=self.device)
-                for key, value in zip(OBS_KEYS, (robot, humans, mask), strict=True)}
-
     def values(self, observation: dict[str, th.Tensor], target: bool = False) -> th.Tensor:
         """V(s) of a batch of observations (tensors) with the online or the target network; (batch,)."""
         net = self.value_net_target if target else self.value_net
@@ -265,35 +282,43 @@ class ValueLookaheadPolicy(BasePolicy):
         return shaping.clamp(min=success) if isinstance(shaping, th.Tensor) else np.maximum(shaping, success)
 
     def lookahead(self, observation: dict[str, np.ndarray], net: nn.Module | None = None) -> tuple[np.ndarray, Propagated]:
-        """R + γ^(Δt·v_pref)·V(s') for every action of a batch of numpy observations: (B, n_actions).
+        """R + γ^(Δt·v_pref)·V(s') for every action of a batch of numpy observations: (B, n_actions), and the first
+        step's propagation. With ``planning_depth`` d > 1, V(s') is the best of the (d - 1)-step search from s'.
 
         ``net`` replaces V (``self.value_net``) by another network of the same architecture (APGValue's acting copy).
         """
-        net = self.value_net if net is None else net
+        return self._search(observation, self.value_net if net is None else net, self.planning_depth)
+
+    def _search(self, observation: dict[str, np.ndarray], net: nn.Module, depth: int) -> tuple[np.ndarray, Propagated]:
         static = {k: observation[k] for k in STATIC_KEYS if k in observation}
         prop = self.propagation(observation["robot"], observation["humans"], observation["humans_mask"], static)
         b, n_actions = prop.reward.shape
-        tensors, inverse = self.lookahead_inputs(prop)
-        with th.inference_mode():  # a little cheaper than no_grad; the values leave as numpy
-            v = net(tensors).reshape(-1).cpu().numpy()
+        if depth > 1:  # the successors searched one step less deep (each distinct one once), their best Q as V(s')
+            states, inverse = self.successors(prop)
+            v = self._search(states, net, depth - 1)[0].max(axis=1)
+        else:
+            tensors, inverse = self.lookahead_inputs(prop)
+            with th.inference_mode():  # a little cheaper than no_grad; the values leave as numpy
+                v = net(tensors).reshape(-1).cpu().numpy()
         v = (v if inverse is None else v[inverse]).reshape(b, n_actions)
         ceiling = self.value_ceiling(np.asarray(observation["robot"], dtype=np.float64)[:, Robot.V_PREF])
-        if ceiling is not None:
+        if ceiling is not None and depth == 1:
             v = np.minimum(v, ceiling[:, None])
         q = prop.reward + prop.discount[:, None] * np.where(prop.terminal, 0.0, v)
         return q, prop
 
-    def lookahead_inputs(self, prop: Propagated,
-                         distinct: bool | None = None) -> tuple[dict[str, th.Tensor], np.ndarray | None]:
-        """The propagated states of :meth:`lookahead` that V is evaluated on, as tensors, and where each
-        (observation, action) pair's state is among them.
+    def successors(self, prop: Propagated,
+                   distinct: bool | None = None) -> tuple[dict[str, np.ndarray], np.ndarray | None]:
+        """The propagated states of a lookahead as float32 numpy observations (V's inputs, and where a deeper search
+        propagates from, as the exported graph does), and where each (observation, action) pair's state is among
+        them.
 
         :param prop: the propagation of B observations under the world's n_actions actions
-        :param distinct: evaluate every distinct state once. Under the robot's limits, commands beyond reach are clipped
+        :param distinct: keep every distinct state once. Under the robot's limits, commands beyond reach are clipped
             to the same reachable motion (the warehouse robot's 81 actions reach about 11 distinct states a step), and
             their rows are equal to the bit. Default: on in a world with ``max_acceleration`` or ``max_turn_rate``, off
             otherwise (every action reaches its own state)
-        :return: the tensors (rows in order of the observations) and the row of each of the B x n_actions pairs,
+        :return: the states (rows in order of the observations) and the row of each of the B x n_actions pairs,
             flattened (None when the rows are the B x n_actions states in order)
         """
         if distinct is not None and not isinstance(distinct, bool):
@@ -309,11 +334,18 @@ class ValueLookaheadPolicy(BasePolicy):
             _, rows, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
             inverse = inverse.reshape(-1)
         owner = rows // n_actions  # humans, their mask and the segments are the same under every action
-        tensors = self._as_tensors(robot[rows], prop.humans.astype(np.float32)[owner], prop.humans_mask[owner])
+        states = dict(zip(OBS_KEYS, (robot[rows], prop.humans.astype(np.float32)[owner], prop.humans_mask[owner]),
+                          strict=True))
         for key, value in prop.static.items():
-            flat = per_action[key][rows] if key in per_action else value[owner]
-            tensors[key] = th.as_tensor(flat, dtype=th.float32, device=self.device)
-        return tensors, inverse
+            states[key] = per_action[key][rows] if key in per_action else np.asarray(value, dtype=np.float32)[owner]
+        return states, inverse
+
+    def lookahead_inputs(self, prop: Propagated,
+                         distinct: bool | None = None) -> tuple[dict[str, th.Tensor], np.ndarray | None]:
+        """The propagated states of a one-step lookahead that V is evaluated on, as float32 tensors, and where each
+        (observation, action) pair's state is among them (:meth:`successors`, ``distinct`` likewise)."""
+        states, inverse = self.successors(prop, distinct)
+        return {k: th.as_tensor(v, dtype=th.float32, device=self.device) for k, v in states.items()}, inverse
 
     def action_values(self, observation: dict[str, np.ndarray], net: nn.Module | None = None) -> np.ndarray:
         """Lookahead value of each action, (B, n_actions) (Fig. 11's action-value map); ``net`` as in lookahead."""

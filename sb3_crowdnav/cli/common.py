@@ -12,7 +12,7 @@ from typing import Any, NoReturn
 from sb3_crowdnav.evaluation.crowd_spec import GRAMMAR as CROWD_GRAMMAR
 from sb3_crowdnav.evaluation.crowd_spec import CrowdSpec
 from sb3_crowdnav.evaluation.policy_spec import PolicySpec
-from sb3_crowdnav.evaluation.runner import DEFAULT_ENV_ID
+from sb3_crowdnav.evaluation.runner import DEFAULT_ENV_ID, LOOKAHEAD_KEYS
 from sb3_crowdnav.sim.validation import check_int, check_positive, check_probability
 
 
@@ -207,11 +207,10 @@ def check_out(path: Path, option: str = "--out", is_file: bool = False) -> None:
 
 
 def lookahead_settings(args: argparse.Namespace, spec: PolicySpec | None = None) -> dict[str, Any] | None:
-    """The lookahead settings ``evaluate`` / ``benchmark`` were given (``--pedestrian-model``, ``--stopping-check``;
-    None: none), or those ``spec`` acts with: the settings for a value model (APGValue, shipped or a ``.zip``), None
-    for another policy (ORCA, a DQN, an ONNX graph: its lookahead is in the graph)."""
-    given = {k: v for k, v in (("pedestrian_model", args.pedestrian_model), ("stopping_check", args.stopping_check))
-             if v is not None}
+    """The lookahead settings ``evaluate`` / ``benchmark`` were given (``--pedestrian-model``, ``--stopping-check``,
+    ``--planning-depth``; None: none), or those ``spec`` acts with: the settings for a value model (APGValue, shipped
+    or a ``.zip``), None for another policy (ORCA, a DQN, an ONNX graph: its lookahead is in the graph)."""
+    given = {key: getattr(args, key) for key in LOOKAHEAD_KEYS if getattr(args, key, None) is not None}
     if not given or spec is None:
         return given or None
     from sb3_crowdnav.models import PRETRAINED, detect_algorithm

@@ -69,6 +69,7 @@ def export_onnx(model: Any, path: str | Path, *, env: Any = None, world: World |
         ensemble_size=getattr(policy, "ensemble_size", 1),
         pedestrian_model=policy.pedestrian_model if lookahead else None, gamma=policy.gamma if lookahead else None,
         braking_steps=decision.propagation.braking_steps if lookahead else None,
+        planning_depth=decision.depth if lookahead else None,
     )
     proto = to_onnx(decision, schema)
     onnx = require("onnx", "export_onnx")

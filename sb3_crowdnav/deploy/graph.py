@@ -84,6 +84,7 @@ class LookaheadDecision(nn.Module):
         world = policy.world
         self.ceiling = world.has_value_ceiling and policy.gamma < 1
         self.ceiling_terms = (world.time_step, world.progress_reward, policy.gamma, world.reward.success_reward)
+        self.depth = policy.planning_depth
 
     def brake_for(self, v_pref: float) -> None:
         """With the stopping-distance check, brake for a robot of preferred speed ``v_pref`` [m/s] (the number of
@@ -107,13 +108,22 @@ class LookaheadDecision(nn.Module):
         return self.value_net(observation)
 
     def forward(self, observation: dict[str, th.Tensor]) -> tuple[th.Tensor, th.Tensor]:
+        q = self.search(observation, self.depth)
+        return q.argmax(dim=1), q
+
+    def search(self, observation: dict[str, th.Tensor], depth: int) -> th.Tensor:
+        """Q of every action, (B, A): V after one step, or with ``depth`` d > 1 the best Q of the (d - 1)-step search
+        from each of the B x A propagated states (every one, where the policy evaluates each distinct state once:
+        the same values; V runs once, on the B x A^d states of the last step)."""
         prop = self.propagation(observation)
         batch, n_actions = prop.reward.shape
-        v = self.values(prop.observation, n_actions).reshape(batch, n_actions).to(F64)
-        if self.ceiling:
-            v = th.minimum(v, self.value_ceiling(observation["robot"][:, Robot.V_PREF].to(F64))[:, None])
-        q = prop.reward + prop.discount[:, None] * th.where(prop.terminal, 0.0, v)
-        return q.argmax(dim=1), q
+        if depth > 1:
+            v = self.search(prop.observation, depth - 1).amax(dim=1).reshape(batch, n_actions)
+        else:
+            v = self.values(prop.observation, n_actions).reshape(batch, n_actions).to(F64)
+            if self.ceiling:
+                v = th.minimum(v, self.value_ceiling(observation["robot"][:, Robot.V_PREF].to(F64))[:, None])
+        return prop.reward + prop.discount[:, None] * th.where(prop.terminal, 0.0, v)
 
 
 class QDecision(nn.Module):

@@ -25,7 +25,7 @@ from sb3_crowdnav.sim.validation import check_choice, check_int, check_number
 from sb3_crowdnav.sim.world import World
 from sb3_crowdnav.version import __version__
 
-FORMAT = 2  # the version of this layout of metadata_props; a reader refuses a newer one (2: braking_steps)
+FORMAT = 3  # the version of this layout of metadata_props; a reader refuses a newer one (2: braking_steps, 3: planning_depth)
 OPSET = 18  # the ONNX opset of the exported graphs (torch.onnx's dynamo exporter implements 18 and above)
 PREFIX = "sb3_crowdnav."
 KEYS = ("format", "version", "decision", "world", "observation", "actions", "robot")  # each PREFIX + key
@@ -64,8 +64,8 @@ def _mapping(entry: str, value: Any, keys: tuple[str, ...]) -> Mapping[str, Any]
     return value
 
 
-DECISION_KEYS = ("kind", "policy", "extractor", "ensemble_size", "pedestrian_model", "gamma", "braking_steps", "opset",
-                 "outputs")
+DECISION_KEYS = ("kind", "policy", "extractor", "ensemble_size", "pedestrian_model", "gamma", "braking_steps",
+                 "planning_depth", "opset", "outputs")
 OBSERVATION_KEYS = ("keys", "shapes", "dtype", "history_length", "max_humans", "max_obstacles", "num_waypoints",
                     "robot_fields", "human_fields", "frame")
 ACTION_KEYS = ("n_actions", "kinematics", "speed_fractions", "directions", "stop_action")
@@ -98,6 +98,7 @@ class GraphMetadata:
     :param gamma: the lookahead's discount per second at v_pref = 1 (None for SB3 policies)
     :param braking_steps: the braking sub-steps of the lookahead's stopping-distance check
         (:func:`~sb3_crowdnav.deploy.propagation.braking_steps`); None: the graph has no such check
+    :param planning_depth: the steps the lookahead searches before V (1: one step); None for SB3 policies
     :param version: the sb3_crowdnav version that wrote the file
     :param opset: the graph's ONNX opset
     """
@@ -113,6 +114,7 @@ class GraphMetadata:
     pedestrian_model: str | None = None
     gamma: float | None = None
     braking_steps: int | None = None
+    planning_depth: int | None = None
     version: str = __version__
     opset: int = OPSET
 
@@ -132,6 +134,10 @@ class GraphMetadata:
         if (self.kind == "lookahead") != (self.gamma is not None) or (self.gamma is None) != (self.pedestrian_model is None):
             raise ValueError(f"gamma and pedestrian_model are set for a lookahead only (kind {self.kind!r}), got "
                              f"{self.gamma!r} and {self.pedestrian_model!r}")
+        if (self.kind == "lookahead") != (self.planning_depth is not None):
+            raise ValueError(f"planning_depth is set for a lookahead only (kind {self.kind!r}), got {self.planning_depth!r}")
+        if self.planning_depth is not None:
+            check_int("planning_depth", self.planning_depth, 1)
         if self.braking_steps is not None:
             check_int("braking_steps", self.braking_steps, 1)
             if self.kind != "lookahead" or self.world.max_acceleration is None:
@@ -171,7 +177,8 @@ class GraphMetadata:
             "version": self.version,
             "decision": {"kind": self.kind, "policy": self.policy, "extractor": self.extractor,
                          "ensemble_size": self.ensemble_size, "pedestrian_model": self.pedestrian_model,
-                         "gamma": self.gamma, "braking_steps": self.braking_steps, "opset": self.opset,
+                         "gamma": self.gamma, "braking_steps": self.braking_steps,
+                         "planning_depth": self.planning_depth, "opset": self.opset,
                          "outputs": {"action": OUTPUTS["action"], "action_values": OUTPUTS["action_values"][self.kind]}},
             "world": world.to_dict(),
             "observation": {"keys": list(self.keys), "shapes": {k: list(s) for k, s in schema.shapes.items()},
@@ -202,6 +209,9 @@ class GraphMetadata:
         decision = data["decision"]
         if data["format"] == 1 and isinstance(decision, Mapping) and "braking_steps" not in decision:
             decision = {**decision, "braking_steps": None}  # format 1 came before the stopping check
+        if data["format"] <= 2 and isinstance(decision, Mapping) and "planning_depth" not in decision:
+            # formats 1 and 2 came before deeper searches: a lookahead of one step
+            decision = {**decision, "planning_depth": 1 if decision.get("kind") == "lookahead" else None}
         decision = _mapping("decision", decision, DECISION_KEYS)
         observation = _mapping("observation", data["observation"], OBSERVATION_KEYS)
         robot = _mapping("robot", data["robot"], ROBOT_KEYS)
@@ -212,7 +222,8 @@ class GraphMetadata:
             meta = cls(kind=decision["kind"], world=world, schema=schema, robot_radius=robot["radius"],
                        robot_v_pref=robot["v_pref"], policy=decision["policy"], extractor=decision["extractor"],
                        ensemble_size=decision["ensemble_size"], pedestrian_model=decision["pedestrian_model"],
-                       gamma=decision["gamma"], braking_steps=decision["braking_steps"], version=data["version"],
+                       gamma=decision["gamma"], braking_steps=decision["braking_steps"],
+                       planning_depth=decision["planning_depth"], version=data["version"],
                        opset=decision["opset"])
         except (TypeError, ValueError) as exc:
             raise ValueError(f"the graph's metadata is not a valid contract: {exc}") from None

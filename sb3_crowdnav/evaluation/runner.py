@@ -101,13 +101,14 @@ def make_policy(spec: Any, env: gym.Env | None = None, allow_env_mismatch: bool 
     return ProtectedPolicy(policy, protective_field, env)
 
 
-LOOKAHEAD_KEYS = ("pedestrian_model", "stopping_check")
+LOOKAHEAD_KEYS = ("pedestrian_model", "stopping_check", "planning_depth")
 
 
 def with_lookahead(policy: Any, lookahead: Mapping[str, Any]) -> Any:
-    """``policy`` (a value model: APGValue) with its lookahead's ``pedestrian_model`` and/or ``stopping_check`` set
-    (:class:`~sb3_crowdnav.apg_value.ValueLookaheadPolicy`'s setters; V unchanged). ``ValueError`` for another policy
-    or another key; the setters refuse a value the model's world does not take (a stopping check without limits)."""
+    """``policy`` (a value model: APGValue) with its lookahead's ``pedestrian_model``, ``stopping_check`` and/or
+    ``planning_depth`` set (:class:`~sb3_crowdnav.apg_value.ValueLookaheadPolicy`'s setters; V unchanged).
+    ``ValueError`` for another policy or another key; the setters refuse a value the model's world does not take (a
+    stopping check without limits) or a depth that is not an int >= 1."""
     unknown = sorted(set(lookahead) - set(LOOKAHEAD_KEYS))
     if unknown:
         raise ValueError(f"lookahead takes {LOOKAHEAD_KEYS}, got {unknown}")
@@ -119,6 +120,8 @@ def with_lookahead(policy: Any, lookahead: Mapping[str, Any]) -> Any:
         value_policy.set_pedestrian_model(lookahead["pedestrian_model"])
     if "stopping_check" in lookahead:
         value_policy.set_stopping_check(bool(lookahead["stopping_check"]))
+    if "planning_depth" in lookahead:
+        value_policy.set_planning_depth(lookahead["planning_depth"])
     return policy
 
 

@@ -119,6 +119,7 @@ def ensemble_models(paths: Sequence[str | Path], **load_kwargs) -> APGValue:
     policy.set_pedestrian_model(base.policy.pedestrian_model)
     policy.set_stopping_check(base.policy.stopping_check)
     policy.set_lookahead_dtype(base.policy.lookahead_dtype)
+    policy.set_planning_depth(base.policy.planning_depth)
     with th.no_grad():
         for target in (policy.value_net, policy.value_net_target):
             for slot, member in zip(target.members, members, strict=True):
