@@ -14,6 +14,7 @@ import pytest
 from sb3_crowdnav.apg_value import APGValue
 from sb3_crowdnav.cli import main
 from sb3_crowdnav.nn.layers import bfloat16_supported
+from sb3_crowdnav.training.run_folder import sha256
 from sb3_crowdnav.training.schedule import ScheduleConfig
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "train_paper.py"
@@ -273,7 +274,7 @@ def test_resume_validates_an_unvalidated_checkpoint_and_repairs_best(tmp_path, m
     rows = [json.loads(line)["episodes"] for line in (out / "eval_curve.jsonl").read_text().splitlines()]
     assert rows == [2, 4]
     best = json.loads((out / "best.json").read_text())
-    from sb3_crowdnav.training.run_folder import sha256
+
 
     assert best["sha256"] == sha256(out / "best.zip") and APGValue.load(out / "best.zip") is not None
 
@@ -288,7 +289,7 @@ def test_a_kill_at_any_save_point_resumes_into_a_consistent_run(tmp_path, kill_a
     """SIGKILL at each save point in turn, resume with the same command: a complete, consistent run."""
     import os
 
-    from sb3_crowdnav.training.run_folder import checkpoints, sha256
+    from sb3_crowdnav.training.run_folder import checkpoints
 
     out = tmp_path / "run"
     argv = [*CLI, "--variant", "apg_rl", "--out", str(out), *TINY_RUN, "--eval-episodes", "2", "--rl-episodes", "4"]
@@ -318,6 +319,34 @@ def test_warehouse_variant_trains_in_the_warehouse(tmp_path, monkeypatch):
     model = APGValue.load(out / "final.zip")
     assert model.policy.world.has_static_world
     assert any("static_world" in n for n, _ in model.policy.named_parameters())  # and V sees them
+    # the finished run's models search two steps (the variant's depth), its checkpoints one, best.json follows the file
+    assert model.policy.planning_depth == 2 and APGValue.load(out / "best.zip").policy.planning_depth == 2
+    assert APGValue.load(out / "checkpoint_2.zip").policy.planning_depth == 1
+    best = json.loads((out / "best.json").read_text())
+    assert best["sha256"] == sha256(out / "best.zip") and best["planning_depth"] == 2
+    before = {name: sha256(out / name) for name in ("best.zip", "final.zip")}
+    _run(monkeypatch, "--variant", "apg_warehouse", "--out", str(out), "--il-episodes", "2", "--il-epochs", "1",
+         "--num-humans", "2", "--rl-episodes", "2", "--checkpoint-episodes", "2", "--eval-episodes", "1")
+    assert {name: sha256(out / name) for name in before} == before  # a finished run is left as it is
+
+
+def test_finish_depth_sets_a_killed_runs_depth_on_rerun(tmp_path):
+    """A run killed between final.zip and its depth gets the depth from the rerun ("nothing to do"), once."""
+    import gymnasium as gym
+
+    from sb3_crowdnav.training.callbacks import finish_depth
+
+    env = gym.make("CrowdNavWarehouse-v0")
+    model = APGValue("ApgPolicy", env, learning_starts=0, seed=0)
+    model.save(tmp_path / "final.zip")
+    model.save(tmp_path / "best.zip")
+    (tmp_path / "best.json").write_text(json.dumps({"sha256": sha256(tmp_path / "best.zip"), "score": [1.0]}))
+    said = []
+    finish_depth(tmp_path, 3, said.append)
+    assert len(said) == 2 and all(APGValue.load(tmp_path / n).policy.planning_depth == 3 for n in ("best.zip", "final.zip"))
+    assert json.loads((tmp_path / "best.json").read_text())["sha256"] == sha256(tmp_path / "best.zip")
+    finish_depth(tmp_path, 3, said.append)
+    assert len(said) == 2  # already at that depth: nothing written
 
 
 def test_a_variant_brings_its_env_settings_and_schedule_and_a_run_overrides_them():
@@ -332,6 +361,10 @@ def test_a_variant_brings_its_env_settings_and_schedule_and_a_run_overrides_them
     assert warehouse.pedestrian_model == "cautious" and paper.pedestrian_model is None
     assert warehouse.stopping_check is True and paper.stopping_check is None  # the warehouse recipe brakes in time
     assert ScheduleConfig(variant="apg_warehouse", stopping_check=False).stopping_check is False
+    assert (warehouse.planning_depth, paper.planning_depth) == (2, 1)  # the depth the finished run's models act with
+    assert ScheduleConfig(variant="apg_warehouse", planning_depth=1).planning_depth == 1
+    with pytest.raises(ValueError, match="planning_depth must be >= 1"):
+        ScheduleConfig(planning_depth=0)
     assert warehouse.num_humans == (4, 10) and warehouse.training_env_kwargs["worlds"] == "warehouse"
     old = ScheduleConfig(variant="apg_warehouse_paper")  # the shipped apg_warehouse_paper's world
     assert old.spec.env_id == "CrowdNavWarehouse-v0" and old.training_env_kwargs["actions"] == "paper"

@@ -27,7 +27,7 @@ SCHEDULE_FLAGS = {
     "refill_steps": "--refill-steps", "lookahead_dtype": "--lookahead-dtype",
     "exploration_initial_eps": "--epsilon-start", "exploration_final_eps": "--epsilon-end",
     "pedestrian_model": "--pedestrian-model", "stopping_check": "--stopping-check", "ensemble": "--ensemble",
-    "ensemble_checkpoints": "--ensemble-checkpoints",
+    "ensemble_checkpoints": "--ensemble-checkpoints", "planning_depth": "--planning-depth",
 }
 SHARED_FLAGS = ("eval_episodes",)  # schedule flags that a --hyperparams run takes too
 HYPERPARAMS_FLAGS = {"algo": "--algo", "timesteps": "--timesteps", "checkpoint_freq": "--checkpoint-freq",
@@ -111,6 +111,9 @@ def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
                    help="the acting lookahead also charges the actions the robot cannot brake from at its "
                         "max_acceleration (a world with an acceleration limit only) (default: the model's own; off "
                         "for a new one)")
+    g.add_argument("--planning-depth", type=common.positive_int, metavar="D",
+                   help="the lookahead depth the finished run's best.zip and final.zip act with (training and its "
+                        "validations search one step) (default: the variant's; apg_warehouse: 2, the others 1)")
     g.add_argument("--ensemble", type=common.positive_int, metavar="K",
                    help="train K member runs (one imitation; member k with seed SEED + 1000 k and the schedule given) "
                         "and save their best checkpoints as one value ensemble in OUT/best.zip (default: 1, one run)")

@@ -96,6 +96,27 @@ def update_best(out: Path, row: dict[str, Any], source: Path, select_by: str = "
     return True
 
 
+def finish_depth(out: Path, depth: int, log: Callable[[str], Any] = print) -> None:
+    """Give a finished run's ``OUT/final.zip`` and ``OUT/best.zip`` the lookahead ``depth`` they act with
+    (``ValueLookaheadPolicy.planning_depth``; ``best.json`` records the new file's hash). Training, its checkpoints and
+    validations search one step: a deeper search costs several times a decision. Files at that depth already are
+    left as they are, so a rerun changes nothing."""
+    from sb3_crowdnav.apg_value import APGValue
+
+    for name in ("final.zip", "best.zip"):
+        path = Path(out) / name
+        if not path.exists():
+            continue
+        model = APGValue.load(path)
+        if model.policy.planning_depth == depth:
+            continue
+        model.policy.set_planning_depth(depth)
+        atomic_write(path, model.save)
+        if name == "best.zip" and (best := read_json(Path(out) / "best.json")) is not None:
+            write_json(Path(out) / "best.json", {**best, "sha256": sha256(path), "planning_depth": depth})
+        log(f"{path} acts with a lookahead of depth {depth}")
+
+
 class EpisodeCheckpoint(BaseCallback):
     """Stop after ``max_episodes`` RL episodes in total; every ``every`` episodes checkpoint and validate.
 

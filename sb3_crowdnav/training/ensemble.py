@@ -7,10 +7,10 @@ start their RL from its ``imitation.zip`` and its demonstrations, so the imitati
 from ``from_imitation`` when one is given). ``rl_episodes`` and the other schedule settings are each member's. Each
 member gives its C best checkpoints by validation (the ranking of ``best.zip``: ``select_by``; C = 1: its
 ``best.zip``, or its ``final.zip`` without validation); then they become one model whose V is the mean of their
-value networks (:func:`~sb3_crowdnav.training.averaging.ensemble_models`), validated on the same validation episodes
-and saved as ``OUT/best.zip``; the members' ``final.zip`` likewise become ``OUT/final.zip``. Nothing is chosen by
-hand. Checkpoints of one run err in fewer common states than one network alone, those of independent runs in fewer
-still (docs/research_log.md).
+value networks (:func:`~sb3_crowdnav.training.averaging.ensemble_models`) acting with the run's ``planning_depth``,
+validated on the same validation episodes and saved as ``OUT/best.zip``; the members' ``final.zip`` likewise become
+``OUT/final.zip``. Nothing is chosen by hand. Checkpoints of one run err in fewer common states than one network
+alone, those of independent runs in fewer still (docs/research_log.md).
 
 ``OUT/ensemble.json`` lists the members (folder, seed, the checkpoints taken and their validation rows) and the
 ensemble's validation; ``OUT/progress.json`` sums the members' RL episodes, env steps and wall time (the imitation
@@ -53,6 +53,12 @@ def chosen_checkpoints(folder: Path, count: int, select_by: str) -> list[tuple[P
     return [(checkpoint_path(folder, r["episodes"]), r) for r in rows[:count]]
 
 
+def _at_depth(model: APGValue, config: Any) -> APGValue:
+    """``model`` acting with the run's ``planning_depth`` (checkpoints, which the ensemble may take, search one step)."""
+    model.policy.set_planning_depth(config.planning_depth)
+    return model
+
+
 def member_folders(out: Path, count: int) -> list[Path]:
     return [Path(out) / f"member_{k}" for k in range(count)]
 
@@ -77,9 +83,9 @@ def train_ensemble(out: Path, config: Any, from_imitation: str | Path | None, lo
             return result.model, result.stopped_by, time.time() - start
     began = time.time()
     chosen = [chosen_checkpoints(folder, config.ensemble_checkpoints, config.select_by) for folder in folders]
-    atomic_write(out / "best.zip", ensemble_models([path for taken in chosen for path, _ in taken]).save)
-    finals = [folder / "final.zip" for folder in folders]
-    atomic_write(out / "final.zip", ensemble_models(finals).save if len(finals) > 1 else
+    atomic_write(out / "best.zip", _at_depth(ensemble_models([p for taken in chosen for p, _ in taken]), config).save)
+    finals = [folder / "final.zip" for folder in folders]  # (a finished member's final.zip has the depth already)
+    atomic_write(out / "final.zip", _at_depth(ensemble_models(finals), config).save if len(finals) > 1 else
                  lambda tmp: shutil.copyfile(finals[0], tmp))
     validation = validate_file(lambda: APGValue.load(out / "best.zip"), config.eval_episodes,
                                config.training_env_kwargs, config.spec.env_id) if config.eval_episodes else None

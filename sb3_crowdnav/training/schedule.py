@@ -1,7 +1,6 @@
 """The paper's training schedule for every variant, with checkpoints, resume, validation and best-model selection.
 
-``sb3-crowdnav train --variant apg_rl --out runs/apg_rl`` runs it from the command line;
-from Python::
+``sb3-crowdnav train --variant apg_rl --out runs/apg_rl`` runs it from the command line; from Python::
 
     from sb3_crowdnav.training import ScheduleConfig, train_schedule
 
@@ -59,7 +58,7 @@ from sb3_crowdnav.apg_value.policies import ValueLookaheadPolicy
 from sb3_crowdnav.apg_value.propagation import PropagationModel, check_stopping_check
 from sb3_crowdnav.sim.validation import check_bool, check_choice, check_instance, check_int, check_number, check_probability
 from sb3_crowdnav.sim.warehouse.config import PAPER_WAREHOUSE
-from sb3_crowdnav.training.callbacks import SELECT_BY, EpisodeCheckpoint
+from sb3_crowdnav.training.callbacks import SELECT_BY, EpisodeCheckpoint, finish_depth
 from sb3_crowdnav.training.run_folder import (
     RunClock,
     RunLock,
@@ -93,7 +92,7 @@ class Variant:
 
 # §3: ε from 0.5 to 0.1 over 5,000 episodes; one gradient step every 4 env steps unless a variant's test row says 8
 PAPER_SCHEDULE = {"rl_episodes": 10_000, "exploration_episodes": 5_000, "train_freq": 4, "num_humans": 6,
-                  "imitation_epochs": 10, "checkpoint_episodes": 500}
+                  "imitation_epochs": 10, "checkpoint_episodes": 500, "planning_depth": 1}
 
 
 VARIANTS = {
@@ -111,7 +110,7 @@ VARIANTS = {
                              env_kwargs={"worlds": "warehouse", "progress_reward": 0.1},
                              schedule={"rl_episodes": 7_000, "exploration_episodes": 3_500, "num_humans": (4, 10),
                                        "pedestrian_model": "cautious", "stopping_check": True, "imitation_epochs": 5,
-                                       "train_freq": 8}),
+                                       "train_freq": 8, "planning_depth": 2}),
     # the same in the world the shipped apg_warehouse was trained in: the paper's robot among blind ORCA pickers,
     # seen through racks at any range (sim.warehouse.config.PAPER_WAREHOUSE)
     "apg_warehouse_paper": Variant("ApgPolicy", env_id="CrowdNavWarehouse-v0",
@@ -177,6 +176,8 @@ class ScheduleConfig:
     :param refill_steps: resuming without the replay buffer, or starting from a ``from_imitation`` model without
         ``imitation_replay_buffer.npz`` beside it, env steps collected before the first gradient step
     :param lookahead_dtype: precision of the acting lookahead, ``"float32"`` or ``"bfloat16"``
+    :param planning_depth: the lookahead depth of the finished run's ``best.zip`` and ``final.zip`` (``finish_depth``;
+        training, checkpoints and validations search one step); None: the variant's (``apg_warehouse``: 2, else 1)
     :param ensemble: train this many member runs (one imitation, each member its own seed and this schedule) and
         make their best checkpoints one value ensemble (:mod:`sb3_crowdnav.training.ensemble`); 1: one run
     :param ensemble_checkpoints: the best checkpoints by validation each member gives the ensemble (more than 1 needs
@@ -211,6 +212,7 @@ class ScheduleConfig:
     lookahead_dtype: Literal["float32", "bfloat16"] = "float32"
     ensemble: int = 1
     ensemble_checkpoints: int = 1
+    planning_depth: int | None = None
 
     def __post_init__(self) -> None:
         for name, allowed in (("variant", tuple(VARIANTS)), ("select_by", SELECT_BY), ("optimizer", tuple(OPTIMIZERS)),
@@ -222,7 +224,7 @@ class ScheduleConfig:
         for name, minimum in (("rl_episodes", 1), ("imitation_episodes", 0), ("imitation_epochs", 0), ("n_envs", 1),
                               ("seed", 0), ("train_freq", 1), ("buffer_size", 1),
                               ("checkpoint_episodes", 1), ("eval_episodes", 0), ("exploration_episodes", 1),
-                              ("refill_steps", 0), ("ensemble", 1), ("ensemble_checkpoints", 1)):
+                              ("refill_steps", 0), ("ensemble", 1), ("ensemble_checkpoints", 1), ("planning_depth", 1)):
             check_int(name, getattr(self, name), minimum)
         validations = self.rl_episodes // self.checkpoint_episodes if self.eval_episodes else 0
         if self.ensemble_checkpoints > max(validations, 1):
@@ -387,6 +389,7 @@ def _train(out: Path, config: ScheduleConfig, from_imitation: str | Path | None,
     if progress.get("finished") and latest is not None and latest[0] >= config.rl_episodes \
             and (out / "final.zip").exists():
         log(f"{out} has finished its {latest[0]} RL episodes: nothing to do")
+        finish_depth(out, config.planning_depth, log)  # (a run killed before its depth was set)
         return ScheduleResult(APGValue.load(out / "final.zip"), None, 0.0)
     imitated = (out / "imitation.zip").exists() and (out / "imitation_replay_buffer.npz").exists()
     clock = RunClock(progress.get("wall_time_s", 0.0) if latest is not None or imitated else 0.0)
@@ -435,6 +438,8 @@ def _train(out: Path, config: ScheduleConfig, from_imitation: str | Path | None,
         write_json(out / "progress.json", {**(read_json(out / "progress.json") or {}), "finished": True,
                                            "wall_time_s": round(clock.total(), 1)})
         log(f"done: {model.episodes_done} RL episodes, {model.num_timesteps} steps, {time.time() - start:.0f} s this run")
+        finish_depth(out, config.planning_depth, log)
+        model.policy.set_planning_depth(config.planning_depth)
     return ScheduleResult(model, callback.stopped_by, time.time() - start)
 
 
