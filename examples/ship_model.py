@@ -2,6 +2,7 @@
 
     python examples/ship_model.py runs/apg_rl/best.zip apg_rl
     python examples/ship_model.py runs/apg_warehouse/best.zip apg_warehouse --pedestrian-model cautious
+    python examples/ship_model.py runs/apg_warehouse/best.zip apg_warehouse --planning-depth 2
     python examples/ship_model.py runs/apg_warehouse/checkpoint_{6000,6500,7000,7500,8000}.zip apg_warehouse
     python examples/ship_model.py runs/a/checkpoint_7000.zip runs/b/checkpoint_6500.zip apg_warehouse --ensemble
 
@@ -38,6 +39,8 @@ def main() -> None:
     p.add_argument("--stopping-check", action=argparse.BooleanOptionalAction, default=None,
                    help="ship a value model with the lookahead's stopping-distance check on or off (default: the "
                         "checkpoint's)")
+    p.add_argument("--planning-depth", type=int, metavar="D",
+                   help="ship a value model whose lookahead searches D steps before V (default: the checkpoint's)")
     p.add_argument("--ensemble", action="store_true",
                    help="several checkpoints: ship their value ensemble instead of their mean weights")
     args = p.parse_args()
@@ -68,6 +71,13 @@ def main() -> None:
         if not hasattr(model.policy, "set_stopping_check"):
             p.error(f"--stopping-check: {first} is not a value-lookahead model")
         model.policy.set_stopping_check(args.stopping_check)
+    if args.planning_depth is not None:
+        if not hasattr(model.policy, "set_planning_depth"):
+            p.error(f"--planning-depth: {first} is not a value-lookahead model")
+        try:
+            model.policy.set_planning_depth(args.planning_depth)
+        except (TypeError, ValueError) as exc:
+            p.error(f"--planning-depth: {exc}")
     out = WEIGHTS_DIR / f"{args.name}.zip"
     model.save(out)
     # the world it was trained in, recorded with its spaces (a value model keeps its own in its policy_kwargs)

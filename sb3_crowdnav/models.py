@@ -61,7 +61,7 @@ PRETRAINED_SHA256 = {
     "ppo_warehouse": "e71d387a6b327616c7d26df7b92ed14f7166616286530fcc8ed31c5a293df208",
     "apg_warehouse_paper": "e1e2ae06da71b01fe614afe609866df603dda9f5a74e1f10030430387395254c",
     "apg_robust": "3a88b62d309cecde11d0e346f27fb1f45667164e40018422aac980be403c3038",
-    "apg_warehouse": "6fc887371772eecea3ccf6ac391e9b1036df7d89b77da9600613c5dd6b4cc312",
+    "apg_warehouse": "f32d970eca31ea030f9e8ab92eea1e2a065d2b7a9b38e18a94c107ae32ecbdd3",
 }
 
 
