@@ -11,9 +11,9 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch as th
+from lookahead_helpers import random_observations, value_policy
 
 import sb3_crowdnav  # noqa: F401  (registers the envs)
-from sb3_crowdnav.apg_value.policies import ValueLookaheadPolicy
 from sb3_crowdnav.deploy.graph import LookaheadDecision, decision_module
 from sb3_crowdnav.deploy.metadata import PREFIX, GraphMetadata
 from sb3_crowdnav.deploy.propagation import atan2, wrap
@@ -45,25 +45,6 @@ WORLDS = {
 }
 
 
-def _observations(env: gym.Env, count: int, seed: int = 0) -> dict[str, np.ndarray]:
-    """``count`` observations of random-action episodes, batched."""
-    rng = np.random.default_rng(seed)
-    obs, _ = env.reset(seed=seed)
-    seen = []
-    while len(seen) < count:
-        seen.append(obs)
-        obs, _, terminated, truncated, _ = env.step(int(rng.integers(env.action_space.n)))
-        if terminated or truncated:
-            obs, _ = env.reset()
-    return {k: np.stack([o[k] for o in seen]) for k in seen[0]}
-
-
-def _policy(env: gym.Env, **kwargs) -> ValueLookaheadPolicy:
-    th.manual_seed(0)
-    return ValueLookaheadPolicy(env.observation_space, env.action_space, lambda _: 1e-3, world=env.unwrapped.world,
-                                **kwargs)
-
-
 def test_wrap_and_atan2_are_the_numpy_ones():
     angles = np.concatenate([np.linspace(-20, 20, 2001), [math.pi, -math.pi, 3 * math.pi, 0.0, -0.0]])
     np.testing.assert_array_equal(wrap(th.as_tensor(angles)).numpy(), wrap_angle(angles))
@@ -81,8 +62,8 @@ def test_the_graph_decision_is_the_policys(case, monkeypatch):
     """The torch propagation, reward and value ceiling give the numpy lookahead's values on real observations."""
     env_id, env_kwargs, policy_kwargs = WORLDS[case]
     env = gym.make(env_id, **env_kwargs)
-    policy = _policy(env, **policy_kwargs)
-    obs = _observations(env, 200 if policy.stopping_check else 40)  # enough for the check to charge some actions
+    policy = value_policy(env, **policy_kwargs)
+    obs = random_observations(env, 200 if policy.stopping_check else 40)  # enough for the check to charge some actions
     distinct = policy.action_values(obs)  # under limits V once per distinct state: other batch sizes, float32 rounding
     # the graph evaluates V on every (observation, action) row, as the policy does when told to
     monkeypatch.setattr(policy, "lookahead_inputs", functools.partial(policy.lookahead_inputs, distinct=False))
@@ -150,7 +131,7 @@ def _masks(model, obs: dict[str, np.ndarray], seed: int = 0) -> np.ndarray:
 def test_the_contrib_decisions_act_as_their_models(algo):
     """QR-DQN: argmax of the mean over the quantiles; MaskablePPO: argmax of the masked logits, as their predict."""
     model, env = _contrib_models()[algo]
-    obs = _observations(env, 120)
+    obs = random_observations(env, 120)
     decision = decision_module(model).eval()
     tensors = {k: th.as_tensor(v) for k, v in obs.items()}
     with th.no_grad():
@@ -178,11 +159,11 @@ def test_export_refuses_before_any_work(tmp_path):
     with pytest.raises(ValueError, match="holds no world: pass world="):
         export_onnx(PPO(ApgActorCriticPolicy, env, n_steps=8, batch_size=8), tmp_path / "ppo.onnx")
     with pytest.raises(ValueError, match=r"world= differs .*time_step=0.25 \(world= has 0.5\)"):
-        export_onnx(_policy(env), tmp_path / "apg.onnx", world=World(time_step=0.5))
+        export_onnx(value_policy(env), tmp_path / "apg.onnx", world=World(time_step=0.5))
     with pytest.raises(ValueError, match=r"actions='paper' \(the env has 'with_stop'\)"):
         export_onnx(pretrained("apg_warehouse_paper"), tmp_path / "wh.onnx", env=gym.make("CrowdNavWarehouse-v0"))
     with pytest.raises(ValueError, match="trained on observations"):
-        export_onnx(_policy(env), tmp_path / "apg.onnx", env=gym.make("CrowdNav-v0", max_humans=7))
+        export_onnx(value_policy(env), tmp_path / "apg.onnx", env=gym.make("CrowdNav-v0", max_humans=7))
     assert not list(tmp_path.iterdir())
 
 
@@ -299,7 +280,7 @@ def test_onnx_policy_predicts_like_sb3(tmp_path):
     weights = _toy_graph(tmp_path / "toy.onnx")
     env = gym.make("CrowdNav-v0")
     policy = OnnxPolicy(tmp_path / "toy.onnx", env)
-    batch = _observations(env, 5)
+    batch = random_observations(env, 5)
     actions, state = policy.predict(batch, state="kept")
     np.testing.assert_array_equal(actions, (batch["robot"] @ weights).argmax(axis=1))
     assert state == "kept"
@@ -321,7 +302,7 @@ def test_onnx_policy_takes_action_masks_of_a_masked_graph(tmp_path):
     weights = _toy_graph(tmp_path / "masked.onnx", masked=True)
     env = gym.make("CrowdNav-v0")
     policy = OnnxPolicy(tmp_path / "masked.onnx", env)
-    batch = _observations(env, 6)
+    batch = random_observations(env, 6)
     logits = batch["robot"] @ weights
     masks = np.ones_like(logits, dtype=bool)
     masks[np.arange(6), logits.argmax(axis=1)] = False  # the best action forbidden
@@ -473,7 +454,7 @@ def test_round_trip_of_a_shipped_model(graphs, name, env_id, env_kwargs):
     env = gym.make(env_id, **env_kwargs)
     model, graph = pretrained(name), OnnxPolicy(graphs[name], env)
     assert graph.metadata.ensemble_size == model.policy.ensemble_size
-    obs = _observations(env, 300, seed=1)
+    obs = random_observations(env, 300, seed=1)
     _assert_graph_matches(graph, model.policy, obs, atol=1e-4)
 
 
@@ -485,9 +466,9 @@ def test_round_trip_with_limits_a_stop_and_every_reward_term(tmp_path):
 
     env = gym.make("CrowdNav-v0", reward="comfort_angular", actions="with_stop", max_acceleration=1.0,
                    max_turn_rate=8.0)
-    policy = _policy(env, pedestrian_model="cautious")
+    policy = value_policy(env, pedestrian_model="cautious")
     graph = OnnxPolicy(export_onnx(policy, tmp_path / "limits.onnx", env=env), env)
-    obs = _observations(env, 200)
+    obs = random_observations(env, 200)
     _assert_graph_matches(graph, policy, obs, atol=1e-5)
 
 
@@ -498,10 +479,10 @@ def test_round_trip_with_the_stopping_check(tmp_path):
     from sb3_crowdnav.deploy import OnnxPolicy, export_onnx
 
     env = gym.make("CrowdNavWarehouse-v0")
-    policy = _policy(env, pedestrian_model="cautious", stopping_check=True)
+    policy = value_policy(env, pedestrian_model="cautious", stopping_check=True)
     graph = OnnxPolicy(export_onnx(policy, tmp_path / "braking.onnx", env=env), env)
     assert graph.metadata.braking_steps == 5 and graph.metadata.braking_speed == 1.25
-    obs = _observations(env, 300)
+    obs = random_observations(env, 300)
     _assert_graph_matches(graph, policy, obs, atol=1e-5)
     policy.set_stopping_check(False)
     assert (policy.action_values(obs) != graph.action_values(obs)).any()  # the check is in the graph
@@ -520,7 +501,7 @@ def test_round_trip_of_a_model_trained_with_goal_progress(tmp_path):
     assert model.policy.world.progress_reward == 0.1 and model.policy.value_ceiling(np.ones(1)) is not None
     graph = OnnxPolicy(export_onnx(model, tmp_path / "progress.onnx", env=env), env)
     assert graph.metadata.world == model.policy.world
-    obs = _observations(env, 300, seed=1)
+    obs = random_observations(env, 300, seed=1)
     _assert_graph_matches(graph, model.policy, obs, atol=1e-4)
 
 
@@ -550,11 +531,11 @@ def test_round_trip_of_several_observations_per_iteration(tmp_path, extractor):
     from sb3_crowdnav.nn import extractors
 
     env = gym.make("CrowdNav-v0")
-    policy = _policy(env, features_extractor_class=getattr(extractors, extractor))
+    policy = value_policy(env, features_extractor_class=getattr(extractors, extractor))
     per_iteration = observations_per_iteration(LookaheadDecision(policy), ObservationSchema.from_space(env.observation_space))
     assert per_iteration > 1
     graph = OnnxPolicy(export_onnx(policy, tmp_path / "sf.onnx", env=env), env)
-    obs = _observations(env, 2 * per_iteration + 1)
+    obs = random_observations(env, 2 * per_iteration + 1)
     obs["humans_mask"][1] = 0.0  # nobody present: an LSTM over no item
     empty = {**obs, "humans_mask": np.zeros_like(obs["humans_mask"])}  # nobody in the whole batch: one masked slot
     for count, source in ((1, obs), (per_iteration - 1, obs), (per_iteration, empty), (2 * per_iteration + 1, obs)):
@@ -592,7 +573,7 @@ def test_round_trip_of_a_contrib_model(tmp_path, algo):
 
     model, env = _contrib_models()[algo]
     graph = OnnxPolicy(export_onnx(model, tmp_path / f"{algo}.onnx", env=env), env)
-    obs = _observations(env, 300, seed=1)
+    obs = random_observations(env, 300, seed=1)
     np.testing.assert_array_equal(graph.predict(obs)[0], model.predict(obs, deterministic=True)[0])
     if algo == "qrdqn":
         return
@@ -629,7 +610,7 @@ def _edge_cases(env: gym.Env, count: int, seed: int = 0) -> dict[str, np.ndarray
     from sb3_crowdnav.sim.observation import Human, Robot
 
     rng = np.random.default_rng(seed)
-    obs = _observations(env, count, seed)
+    obs = random_observations(env, count, seed)
     schema = ObservationSchema.from_space(env.observation_space)
     humans = schema.humans_view(obs["humans"].copy())  # (B, T, M, 5)
     robot = obs["robot"]

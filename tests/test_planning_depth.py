@@ -11,6 +11,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch as th
+from lookahead_helpers import random_observations, value_policy
 
 import sb3_crowdnav  # noqa: F401  (registers the envs)
 from sb3_crowdnav import APGValue
@@ -25,24 +26,6 @@ WORLDS = {
     "limits and a stop, cautious": ("CrowdNav-v0", {"actions": "with_stop", "max_acceleration": 1.0,
                                                     "max_turn_rate": 2.0}, {"pedestrian_model": "cautious"}),
 }
-
-
-def _observations(env: gym.Env, count: int, seed: int = 0) -> dict[str, np.ndarray]:
-    rng = np.random.default_rng(seed)
-    obs, _ = env.reset(seed=seed)
-    seen = []
-    while len(seen) < count:
-        seen.append(obs)
-        obs, _, terminated, truncated, _ = env.step(int(rng.integers(env.action_space.n)))
-        if terminated or truncated:
-            obs, _ = env.reset()
-    return {k: np.stack([o[k] for o in seen]) for k in seen[0]}
-
-
-def _policy(env: gym.Env, **kwargs) -> ValueLookaheadPolicy:
-    th.manual_seed(0)
-    return ValueLookaheadPolicy(env.observation_space, env.action_space, lambda _: 1e-3, world=env.unwrapped.world,
-                                **kwargs)
 
 
 def _brute_force(policy: ValueLookaheadPolicy, obs: dict[str, np.ndarray], depth: int) -> np.ndarray:
@@ -71,8 +54,8 @@ def _brute_force(policy: ValueLookaheadPolicy, obs: dict[str, np.ndarray], depth
 def test_a_two_step_search_backs_up_the_best_successor(case):
     env_id, env_kwargs, policy_kwargs = WORLDS[case]
     env = gym.make(env_id, **env_kwargs)
-    policy = _policy(env, planning_depth=2, **policy_kwargs)
-    obs = _observations(env, 6 if env.unwrapped.world.has_limits else 2)  # 80 successors each on the open floor
+    policy = value_policy(env, planning_depth=2, **policy_kwargs)
+    obs = random_observations(env, 6 if env.unwrapped.world.has_limits else 2)  # 80 successors each on the open floor
     q2 = policy.action_values(obs)
     q, prop = policy.lookahead(obs)
     np.testing.assert_array_equal(q, q2)
@@ -90,9 +73,9 @@ def test_planning_depth_is_refused_unless_an_int_of_one_or_more():
     env = gym.make("CrowdNav-v0")
     for bad, error in ((0, ValueError), (-1, ValueError), (1.5, TypeError), (True, TypeError), ("2", TypeError)):
         with pytest.raises(error, match="planning_depth"):
-            _policy(env, planning_depth=bad)
+            value_policy(env, planning_depth=bad)
         with pytest.raises(error, match="planning_depth"):
-            _policy(env).set_planning_depth(bad)
+            value_policy(env).set_planning_depth(bad)
     with pytest.raises(ValueError, match="planning_depth"):
         with_lookahead(APGValue("ApgPolicy", env, learning_starts=0), {"planning_depth": 0})
 
@@ -107,14 +90,14 @@ def test_the_depth_travels_in_the_model_file_and_only_when_deeper(tmp_path):
     model.save(tmp_path / "two")
     loaded = APGValue.load(tmp_path / "two", env=env)
     assert loaded.policy.planning_depth == 2
-    obs = _observations(env, 3)
+    obs = random_observations(env, 3)
     np.testing.assert_array_equal(loaded.predict(obs, deterministic=True)[0], model.predict(obs, deterministic=True)[0])
 
 
 def test_the_graph_searches_as_deep_as_the_policy():
     env = gym.make("CrowdNavWarehouse-v0")
-    policy = _policy(env, planning_depth=2, stopping_check=True)
-    obs = _observations(env, 4, seed=1)
+    policy = value_policy(env, planning_depth=2, stopping_check=True)
+    obs = random_observations(env, 4, seed=1)
     expected = policy.action_values(obs)
     with th.no_grad():
         action, values = LookaheadDecision(policy).eval()({k: th.as_tensor(v) for k, v in obs.items()})
@@ -145,8 +128,8 @@ def test_the_cli_refuses_a_depth_without_a_value_model():
 
 def test_observation_keys_are_what_the_search_propagates():
     env = gym.make("CrowdNavWarehouse-v0")
-    policy = _policy(env)
-    obs = _observations(env, 2)
+    policy = value_policy(env)
+    obs = random_observations(env, 2)
     prop = policy.propagation(obs["robot"], obs["humans"], obs["humans_mask"], {k: obs[k] for k in STATIC_KEYS})
     states, inverse = policy.successors(prop)
     assert set(states) == set(obs) and set(OBS_KEYS) <= set(states)
