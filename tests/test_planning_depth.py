@@ -116,7 +116,7 @@ def test_the_cli_refuses_a_bad_depth_with_one_line(value):
                           "--env", "CrowdNavWarehouse-v0", "--episodes", "1", "--planning-depth", value],
                          capture_output=True, text=True)
     assert out.returncode == 2
-    assert "--planning-depth" in out.stderr and "int >= 1" in out.stderr
+    assert "--planning-depth" in out.stderr and "positive integer" in out.stderr
 
 
 def test_the_cli_refuses_a_depth_without_a_value_model():

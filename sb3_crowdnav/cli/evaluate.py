@@ -52,20 +52,10 @@ def _run_options(p: argparse.ArgumentParser, default_episodes: int = 500) -> Non
     g.add_argument("--stopping-check", action=argparse.BooleanOptionalAction, default=None,
                    help="the lookahead's stopping-distance check of every value model evaluated on or off (default: "
                         "each model's own; on needs limits in the env's world)")
-    g.add_argument("--planning-depth", type=_planning_depth, metavar="D",
+    g.add_argument("--planning-depth", type=positive_int, metavar="D",
                    help="the number of steps the lookahead of every value model evaluated searches before V (1: the "
                         "paper's one-step lookahead; the cost grows as the distinct successors to the power D; "
                         "default: each model's own)")
-
-
-def _planning_depth(text: str) -> int:
-    try:
-        depth = int(text)
-    except ValueError:
-        depth = 0
-    if depth < 1:
-        raise argparse.ArgumentTypeError(f"an int >= 1 (1: the one-step lookahead), got {text!r}")
-    return depth
 
 
 def _protective_field(text: str) -> Any:
