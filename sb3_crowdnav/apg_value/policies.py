@@ -301,9 +301,10 @@ class ValueLookaheadPolicy(BasePolicy):
             with th.inference_mode():  # a little cheaper than no_grad; the values leave as numpy
                 v = net(tensors).reshape(-1).cpu().numpy()
         v = (v if inverse is None else v[inverse]).reshape(b, n_actions)
-        ceiling = self.value_ceiling(np.asarray(observation["robot"], dtype=np.float64)[:, Robot.V_PREF])
-        if ceiling is not None and depth == 1:
-            v = np.minimum(v, ceiling[:, None])
+        if depth == 1:  # V at the last step is cut at the value ceiling (a deeper level's Q holds it already)
+            ceiling = self.value_ceiling(np.asarray(observation["robot"], dtype=np.float64)[:, Robot.V_PREF])
+            if ceiling is not None:
+                v = np.minimum(v, ceiling[:, None])
         q = prop.reward + prop.discount[:, None] * np.where(prop.terminal, 0.0, v)
         return q, prop
 

@@ -34,7 +34,7 @@ import torch as th
 from torch.optim.swa_utils import AveragedModel
 
 from sb3_crowdnav.apg_value import APGValue
-from sb3_crowdnav.apg_value.policies import ValueEnsemble
+from sb3_crowdnav.apg_value.policies import LOOKAHEAD_SETTINGS, ValueEnsemble
 from sb3_crowdnav.sim.world import compare_worlds
 
 
@@ -116,10 +116,8 @@ def ensemble_models(paths: Sequence[str | Path], **load_kwargs) -> APGValue:
         members.extend(net.members if isinstance(net, ValueEnsemble) else [net])
     base.policy_kwargs["ensemble_size"] = len(members)
     policy = base.policy_class(base.observation_space, base.action_space, base.lr_schedule, **base.policy_kwargs)
-    policy.set_pedestrian_model(base.policy.pedestrian_model)
-    policy.set_stopping_check(base.policy.stopping_check)
-    policy.set_lookahead_dtype(base.policy.lookahead_dtype)
-    policy.set_planning_depth(base.policy.planning_depth)
+    for name in LOOKAHEAD_SETTINGS:  # how the first model acts: set_pedestrian_model, set_stopping_check, ...
+        getattr(policy, f"set_{name}")(getattr(base.policy, name))
     with th.no_grad():
         for target in (policy.value_net, policy.value_net_target):
             for slot, member in zip(target.members, members, strict=True):
