@@ -17,6 +17,10 @@ from numba import njit
 
 SEGMENT_DIM = 4  # x0, y0, x1, y1
 JIT = dict(cache=True, nogil=True, error_model="numpy")  # error_model: x / 0.0 is inf or NaN, as in NumPy
+# [m] distances within this of each other are ties, ordered by index: segments equally far in exact arithmetic (the
+# faces of an aisle from its centre line) differ in the last bits of their computed distances, and those bits differ
+# between machines (vector width, fused multiply-adds), so ordering by them made the observation machine-dependent
+TIE_QUANTUM = 1e-9
 
 
 @njit(**JIT)
@@ -135,9 +139,20 @@ def polygon_segments(polygons: list[np.ndarray]) -> np.ndarray:
     return np.concatenate([vertices, vertices[following]], axis=1)
 
 
+@njit(**JIT)
+def distance_order(dist, order):  # pragma: no cover  (compiled)
+    """Fill ``order`` (n,) with the indices of ``dist`` (n,) nearest first, distances on the same multiple of
+    :data:`TIE_QUANTUM` (rounded) in index order."""
+    key = np.empty(dist.shape[0])
+    for k in range(dist.shape[0]):
+        key[k] = math.floor(dist[k] / TIE_QUANTUM + 0.5)
+    order[:] = np.argsort(key, kind="mergesort")  # stable: ties by index
+
+
 def nearest_segments(position: np.ndarray, segments: np.ndarray, max_count: int,
                      sensor_range: float) -> tuple[np.ndarray, np.ndarray]:
-    """The ``max_count`` segments nearest ``position`` (2,) within ``sensor_range``, nearest first, padded with zeros.
+    """The ``max_count`` segments nearest ``position`` (2,) within ``sensor_range``, nearest first (equally far ones in
+    index order, :func:`distance_order`), padded with zeros.
 
     :return: segments (max_count, 4) and mask (max_count,) bool
     """
@@ -145,7 +160,8 @@ def nearest_segments(position: np.ndarray, segments: np.ndarray, max_count: int,
     mask = np.zeros(max_count, dtype=bool)
     if len(segments):
         d = point_segment_distance(position, segments[:, :2], segments[:, 2:])
-        order = np.argsort(d, kind="stable")
+        order = np.zeros(len(d), dtype=np.int64)
+        distance_order(d, order)
         order = order[d[order] <= sensor_range][:max_count]
         out[: len(order)] = segments[order]
         mask[: len(order)] = True

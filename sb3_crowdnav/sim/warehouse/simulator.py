@@ -69,7 +69,7 @@ class WarehouseSimulator(CrowdSimulator):
         self.segments = np.zeros((0, 4))
         self._segments_of: WarehouseLayout | None = None  # the layout whose segments are cached (see reset)
         self._seg_dist = np.zeros(0)  # distance from the robot's centre to every segment, kept current (_sense_obstacles)
-        self._seg_order = np.zeros(0, dtype=np.int64)  # their stable order
+        self._seg_order = np.zeros(0, dtype=np.int64)  # their order (nearest first, ties by index)
         self._observed = [np.zeros((config.max_obstacles, SEGMENT_DIM)), np.zeros(config.max_obstacles, dtype=bool)]
         self.hit_obstacle = False
         # [m] the smallest distance from the robot's disc to a rack or wall this episode (its steps swept: below 0 exactly
@@ -105,7 +105,7 @@ class WarehouseSimulator(CrowdSimulator):
             self._segments_of, self.segments = self.layout, self.layout.segments
             self._sight = None  # where the robot's centre may go (shapely), built when _in_sight needs it
             self._boxes = self.layout.boxes
-            # filled by every sensing: the distance from the robot's centre to every segment, their stable order
+            # filled by every sensing: the distance from the robot's centre to every segment, their order
             self._seg_dist, self._seg_order = np.zeros(len(self.segments)), np.zeros(len(self.segments), dtype=np.int64)
             if self.sensor is not None and cfg.occlusion:
                 self.sensor.occluder = RackSight(self.layout)
@@ -180,7 +180,7 @@ class WarehouseSimulator(CrowdSimulator):
     # ------------------------------------------------------------------ observation
     def _sense_obstacles(self, x: float, y: float) -> None:
         """Sense from the robot's centre at (x, y) at the start of an episode (:func:`kernels.sense` of no move): the
-        distances to every segment, their stable order, the observed segments; a step senses in
+        distances to every segment, their order, the observed segments; a step senses in
         :func:`kernels.sense_and_follow`."""
         radius = self.scene.robot_radius
         _, *self._observed = kernels.sense(self.segments, x, y, x, y, radius, radius, self.config.sensor_range,
@@ -188,8 +188,8 @@ class WarehouseSimulator(CrowdSimulator):
 
     def observed_obstacles(self) -> tuple[np.ndarray, np.ndarray]:
         """The ``max_obstacles`` segments nearest the robot within ``sensor_range``: (M, 4), mask (M,)
-        (:func:`~sb3_crowdnav.sim.geometry.nearest_segments`' rule on the sensed distances: the first of their stable
-        order, as many as are within range, zeros after them; :func:`~sb3_crowdnav.sim.warehouse.kernels.sense`)."""
+        (:func:`~sb3_crowdnav.sim.geometry.nearest_segments`' rule on the sensed distances: the first of their order,
+        as many as are within range, zeros after them; :func:`~sb3_crowdnav.sim.warehouse.kernels.sense`)."""
         return self._observed[0], self._observed[1]
 
     def observed_waypoints(self) -> np.ndarray:

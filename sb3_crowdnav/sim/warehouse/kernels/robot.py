@@ -8,7 +8,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from sb3_crowdnav.sim.geometry import JIT, point_to_segment, segment_to_segment
+from sb3_crowdnav.sim.geometry import JIT, TIE_QUANTUM, distance_order, point_to_segment, segment_to_segment
 from sb3_crowdnav.sim.warehouse.kernels.base import misses_boxes, segment_clearance
 
 
@@ -81,7 +81,7 @@ def sense(segments, p0x, p0y, p1x, p1y, reach, radius, sensor_range, max_count, 
 
     :param reach: the radius + the step's length: only segments closer than it to p1 can be touched
     :param dist: (S,) filled with the distance from p1 to every segment
-    :param order: (S,) filled with the stable order of ``dist``
+    :param order: (S,) filled with the order of ``dist`` (nearest first, ties by index: :func:`distance_order`)
     :return: :class:`Sensing`: whether the disc of ``radius`` swept from p0 to p1 touches a segment closer than
         ``reach`` (:func:`~sb3_crowdnav.sim.geometry.segment_to_segment` below ``radius``), and the observed segments:
         the first of that order within ``sensor_range``, at most ``max_count``, padded with zeros (max_count, 4), with
@@ -90,7 +90,7 @@ def sense(segments, p0x, p0y, p1x, p1y, reach, radius, sensor_range, max_count, 
     n = segments.shape[0]
     for k in range(n):
         dist[k] = point_to_segment(p1x, p1y, segments[k, 0], segments[k, 1], segments[k, 2], segments[k, 3])
-    order[:] = np.argsort(dist, kind="mergesort")  # stable
+    distance_order(dist, order)
     observed, mask = np.zeros((max_count, 4)), np.zeros(max_count, np.bool_)
     seen = 0
     while seen < n and seen < max_count and dist[order[seen]] <= sensor_range:
@@ -99,7 +99,7 @@ def sense(segments, p0x, p0y, p1x, p1y, reach, radius, sensor_range, max_count, 
         seen += 1
     hit = False
     for k in order:
-        if dist[k] >= reach:
+        if dist[k] >= reach + TIE_QUANTUM:  # (a later one is at least dist[k] - TIE_QUANTUM away: distance_order)
             break
         if segment_to_segment(p0x, p0y, p1x, p1y, segments[k, 0], segments[k, 1], segments[k, 2],
                               segments[k, 3]) < radius:
@@ -143,7 +143,7 @@ def swept_segment_distance(segments, p0x, p0y, p1x, p1y, dist, order):  # pragma
     step = math.hypot(p1x - p0x, p1y - p0y)
     best = np.inf
     for k in order:
-        if dist[k] - step >= best:
+        if dist[k] - step >= best + TIE_QUANTUM:  # (as in sense: the order is by distance to within TIE_QUANTUM)
             break
         best = min(best, segment_to_segment(p0x, p0y, p1x, p1y, segments[k, 0], segments[k, 1], segments[k, 2],
                                             segments[k, 3]))
