@@ -3,6 +3,7 @@
     python examples/ship_model.py runs/apg_rl/best.zip apg_rl
     python examples/ship_model.py runs/apg_warehouse/best.zip apg_warehouse --pedestrian-model cautious
     python examples/ship_model.py runs/apg_warehouse/best.zip apg_warehouse --planning-depth 2
+    python examples/ship_model.py runs/apg_robust/best.zip apg_robust --planning-depth 2 --planning-width 8
     python examples/ship_model.py runs/apg_warehouse/checkpoint_{6000,6500,7000,7500,8000}.zip apg_warehouse
     python examples/ship_model.py runs/a/checkpoint_7000.zip runs/b/checkpoint_6500.zip apg_warehouse --ensemble
 
@@ -41,6 +42,9 @@ def main() -> None:
                         "checkpoint's)")
     p.add_argument("--planning-depth", type=int, metavar="D",
                    help="ship a value model whose lookahead searches D steps before V (default: the checkpoint's)")
+    p.add_argument("--planning-width", type=int, metavar="K",
+                   help="with a depth > 1, ship it searching the best K actions of each step deeper (default: the "
+                        "checkpoint's)")
     p.add_argument("--ensemble", action="store_true",
                    help="several checkpoints: ship their value ensemble instead of their mean weights")
     args = p.parse_args()
@@ -71,13 +75,18 @@ def main() -> None:
         if not hasattr(model.policy, "set_stopping_check"):
             p.error(f"--stopping-check: {first} is not a value-lookahead model")
         model.policy.set_stopping_check(args.stopping_check)
-    if args.planning_depth is not None:
-        if not hasattr(model.policy, "set_planning_depth"):
-            p.error(f"--planning-depth: {first} is not a value-lookahead model")
+    if args.planning_depth is not None or args.planning_width is not None:
+        flags = " / ".join(f for f, v in (("--planning-depth", args.planning_depth),
+                                          ("--planning-width", args.planning_width)) if v is not None)
+        if not hasattr(model.policy, "set_planning"):
+            p.error(f"{flags}: {first} is not a value-lookahead model")
+        depth = args.planning_depth if args.planning_depth is not None else model.policy.planning_depth
+        width = args.planning_width if args.planning_width is not None else \
+            (model.policy.planning_width if depth != 1 else None)
         try:
-            model.policy.set_planning_depth(args.planning_depth)
+            model.policy.set_planning(depth, width)
         except (TypeError, ValueError) as exc:
-            p.error(f"--planning-depth: {exc}")
+            p.error(f"{flags}: {exc}")
     out = WEIGHTS_DIR / f"{args.name}.zip"
     model.save(out)
     # the world it was trained in, recorded with its spaces (a value model keeps its own in its policy_kwargs)

@@ -15,7 +15,7 @@ from lookahead_helpers import random_observations, value_policy
 
 import sb3_crowdnav  # noqa: F401  (registers the envs)
 from sb3_crowdnav.deploy.graph import LookaheadDecision, decision_module
-from sb3_crowdnav.deploy.metadata import PREFIX, GraphMetadata
+from sb3_crowdnav.deploy.metadata import FORMAT, PREFIX, GraphMetadata
 from sb3_crowdnav.deploy.propagation import atan2, wrap
 from sb3_crowdnav.sim.actions import wrap_angle
 from sb3_crowdnav.sim.observation import ObservationSchema, Robot
@@ -201,7 +201,7 @@ def _edited(entry: str, edit) -> dict[str, str]:
     ({k: v for k, v in _metadata().props().items() if not k.endswith("world")}, "lacks"),
     (_edited("world", "{'time_step': 0.25}"), "not plain JSON"),
     (_edited("robot", '{"radius": NaN}'), "not plain JSON"),
-    (_edited("format", "4"), "update sb3_crowdnav"),
+    (_edited("format", str(FORMAT + 1)), "update sb3_crowdnav"),
     (_edited("decision", lambda d: json.dumps({**d, "braking_steps": 4})), "braking_steps is set for a lookahead"),
     (_edited("decision", lambda d: json.dumps({k: v for k, v in d.items() if k != "braking_steps"})), "decision must"),
     (_edited("world", lambda w: json.dumps({**w, "time_step": 0.5})), "robot does not match the world"),

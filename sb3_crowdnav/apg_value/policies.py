@@ -14,18 +14,29 @@ from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 from torch import nn
 
 from sb3_crowdnav.apg_value.propagation import Propagated, PropagationModel, check_stopping_check
+from sb3_crowdnav.apg_value.search import STATIC_KEYS, search
 from sb3_crowdnav.nn import ApgExtractor, CadrlExtractor, LmExtractor, LstmRlExtractor, SarlExtractor, SfExtractor
 from sb3_crowdnav.nn.layers import bfloat16_supported
 from sb3_crowdnav.sim.config import RewardConfig
-from sb3_crowdnav.sim.observation import OBS_KEYS, OBSTACLE_KEYS, WAYPOINT_KEY, ObservationSchema, Robot
+from sb3_crowdnav.sim.observation import OBS_KEYS, ObservationSchema
 from sb3_crowdnav.sim.validation import check_choice, check_int, check_range
 from sb3_crowdnav.sim.world import World
 
-STATIC_KEYS = (*OBSTACLE_KEYS, WAYPOINT_KEY)  # the warehouse's, propagated when the observation has them
 # how a trained model acts, each with its default: switched on a loaded model by ValueLookaheadPolicy's setters, and
 # written into the model file (APGValue.save) once it differs from the default
 LOOKAHEAD_SETTINGS = {"lookahead_dtype": "float32", "pedestrian_model": "constant_velocity", "stopping_check": False,
-                      "planning_depth": 1}
+                      "planning_depth": 1, "planning_width": None}
+
+
+def check_planning(planning_depth: int, planning_width: int | None) -> tuple[int, int | None]:
+    """``planning_depth`` an int >= 1, ``planning_width`` None or an int >= 1 and only with a depth > 1; both back."""
+    check_int("planning_depth", planning_depth, 1)
+    if planning_width is not None:
+        check_int("planning_width", planning_width, 1)
+        if planning_depth == 1:
+            raise ValueError(f"planning_width={planning_width!r} needs planning_depth > 1 (a one-step lookahead "
+                             f"searches nothing deeper); got planning_depth=1")
+    return int(planning_depth), None if planning_width is None else int(planning_width)
 
 
 class ValueNetwork(nn.Module):
@@ -110,6 +121,10 @@ class ValueLookaheadPolicy(BasePolicy):
         grows about as the number of distinct successors to the power d: about 11 a step under the warehouse robot's
         limits, 80 on the open floor. Whatever acts through the lookahead uses it, training included;
         :meth:`set_planning_depth` switches a loaded model
+    :param planning_width: with ``planning_depth`` > 1, search only the best ``planning_width`` actions of each step
+        deeper, ranked by their one-step Q (a beam; :mod:`~sb3_crowdnav.apg_value.search`); None (default): every
+        successor. Refused at depth 1, where nothing is searched deeper; :meth:`set_planning_width` switches a
+        loaded model
     :param ensemble_size: number of value networks whose mean is V (:class:`ValueEnsemble`; 1, the paper: one
         :class:`ValueNetwork`). Each decision costs one forward pass per member. Ensembles are made of trained models
         with :func:`sb3_crowdnav.training.ensemble_models`
@@ -137,6 +152,7 @@ class ValueLookaheadPolicy(BasePolicy):
         ensemble_size: int = 1,
         stopping_check: bool = False,
         planning_depth: int = 1,
+        planning_width: int | None = None,
     ) -> None:
         schema = ObservationSchema.from_space(observation_space)
         self.history_length, self.max_humans = schema.history_length, schema.max_humans
@@ -144,8 +160,7 @@ class ValueLookaheadPolicy(BasePolicy):
         check_choice("pedestrian_model", pedestrian_model, PropagationModel.PEDESTRIAN_MODELS)
         check_int("ensemble_size", ensemble_size, 1)
         self.ensemble_size = int(ensemble_size)
-        check_int("planning_depth", planning_depth, 1)
-        self.planning_depth = int(planning_depth)
+        self.planning_depth, self.planning_width = check_planning(planning_depth, planning_width)
         world = World() if world is None else World.coerce(world)
         check_stopping_check(stopping_check, world)  # before any work
         if not isinstance(action_space, spaces.Discrete) or action_space.n != world.n_actions:
@@ -218,10 +233,17 @@ class ValueLookaheadPolicy(BasePolicy):
         self.propagation = PropagationModel(self.world, self.history_length, self.gamma, self.pedestrian_model,
                                             stopping_check)
 
+    def set_planning(self, planning_depth: int, planning_width: int | None = None) -> None:
+        """Switch the lookahead's search, its depth and width (see the class docstring); V is unchanged."""
+        self.planning_depth, self.planning_width = check_planning(planning_depth, planning_width)
+
     def set_planning_depth(self, planning_depth: int) -> None:
-        """Switch the number of steps the lookahead searches before V (see the class docstring); V is unchanged."""
-        check_int("planning_depth", planning_depth, 1)
-        self.planning_depth = int(planning_depth)
+        """Switch the search's depth, keeping its width (refused at 1 with a width: :meth:`set_planning`)."""
+        self.set_planning(planning_depth, self.planning_width)
+
+    def set_planning_width(self, planning_width: int | None) -> None:
+        """Switch how many actions of each step a deeper search expands, keeping its depth."""
+        self.set_planning(self.planning_depth, planning_width)
 
     def make_value_net(self) -> ValueNetwork | ValueEnsemble:
         """A new V: one :class:`ValueNetwork`, or a :class:`ValueEnsemble` of ``ensemble_size`` of them."""
@@ -255,6 +277,8 @@ class ValueLookaheadPolicy(BasePolicy):
             data["stopping_check"] = True
         if self.planning_depth != 1:  # likewise: a one-step model's file has no entry
             data["planning_depth"] = self.planning_depth
+        if self.planning_width is not None:
+            data["planning_width"] = self.planning_width
         return data
 
     # ------------------------------------------------------------------ values
@@ -287,26 +311,7 @@ class ValueLookaheadPolicy(BasePolicy):
 
         ``net`` replaces V (``self.value_net``) by another network of the same architecture (APGValue's acting copy).
         """
-        return self._search(observation, self.value_net if net is None else net, self.planning_depth)
-
-    def _search(self, observation: dict[str, np.ndarray], net: nn.Module, depth: int) -> tuple[np.ndarray, Propagated]:
-        static = {k: observation[k] for k in STATIC_KEYS if k in observation}
-        prop = self.propagation(observation["robot"], observation["humans"], observation["humans_mask"], static)
-        b, n_actions = prop.reward.shape
-        if depth > 1:  # the successors searched one step less deep (each distinct one once), their best Q as V(s')
-            states, inverse = self.successors(prop)
-            v = self._search(states, net, depth - 1)[0].max(axis=1)
-        else:
-            tensors, inverse = self.lookahead_inputs(prop)
-            with th.inference_mode():  # a little cheaper than no_grad; the values leave as numpy
-                v = net(tensors).reshape(-1).cpu().numpy()
-        v = (v if inverse is None else v[inverse]).reshape(b, n_actions)
-        if depth == 1:  # V at the last step is cut at the value ceiling (a deeper level's Q holds it already)
-            ceiling = self.value_ceiling(np.asarray(observation["robot"], dtype=np.float64)[:, Robot.V_PREF])
-            if ceiling is not None:
-                v = np.minimum(v, ceiling[:, None])
-        q = prop.reward + prop.discount[:, None] * np.where(prop.terminal, 0.0, v)
-        return q, prop
+        return search(self, observation, self.value_net if net is None else net, self.planning_depth)
 
     def successors(self, prop: Propagated,
                    distinct: bool | None = None) -> tuple[dict[str, np.ndarray], np.ndarray | None]:

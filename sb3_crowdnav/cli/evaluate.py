@@ -56,6 +56,8 @@ def _run_options(p: argparse.ArgumentParser, default_episodes: int = 500) -> Non
                    help="the number of steps the lookahead of every value model evaluated searches before V (1: the "
                         "paper's one-step lookahead; the cost grows as the distinct successors to the power D; "
                         "default: each model's own)")
+    g.add_argument("--planning-width", type=positive_int, metavar="K", help="with a depth > 1, search only the best K "
+                   "actions of each step deeper, by their one-step Q (default: each model's own, else every one)")
 
 
 def _protective_field(text: str) -> Any:

@@ -28,6 +28,7 @@ SCHEDULE_FLAGS = {
     "exploration_initial_eps": "--epsilon-start", "exploration_final_eps": "--epsilon-end",
     "pedestrian_model": "--pedestrian-model", "stopping_check": "--stopping-check", "ensemble": "--ensemble",
     "ensemble_checkpoints": "--ensemble-checkpoints", "planning_depth": "--planning-depth",
+    "planning_width": "--planning-width",
 }
 SHARED_FLAGS = ("eval_episodes",)  # schedule flags that a --hyperparams run takes too
 HYPERPARAMS_FLAGS = {"algo": "--algo", "timesteps": "--timesteps", "checkpoint_freq": "--checkpoint-freq",
@@ -114,6 +115,9 @@ def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
     g.add_argument("--planning-depth", type=common.positive_int, metavar="D",
                    help="the lookahead depth the finished run's best.zip and final.zip act with (training and its "
                         "validations search one step) (default: the variant's; apg_warehouse: 2, the others 1)")
+    g.add_argument("--planning-width", type=common.positive_int, metavar="K",
+                   help="with a depth > 1, the best K actions of each step that search expands (default: the "
+                        "variant's, else every one)")
     g.add_argument("--ensemble", type=common.positive_int, metavar="K",
                    help="train K member runs (one imitation; member k with seed SEED + 1000 k and the schedule given) "
                         "and save their best checkpoints as one value ensemble in OUT/best.zip (default: 1, one run)")

@@ -70,6 +70,7 @@ def export_onnx(model: Any, path: str | Path, *, env: Any = None, world: World |
         pedestrian_model=policy.pedestrian_model if lookahead else None, gamma=policy.gamma if lookahead else None,
         braking_steps=decision.propagation.braking_steps if lookahead else None,
         planning_depth=decision.depth if lookahead else None,
+        planning_width=decision.width if lookahead else None,
     )
     proto = to_onnx(decision, schema)
     onnx = require("onnx", "export_onnx")
@@ -256,8 +257,34 @@ def observations_per_iteration(decision: LookaheadDecision, schema: ObservationS
 
 
 def _splice_values(proto: Any, value_net: Any, schema: ObservationSchema, per_iteration: int) -> None:
-    """Replace the decision's placeholder for V (:func:`~sb3_crowdnav.deploy.graph.values_per_observation`) by
-    ``Scan(body=value_net)`` over the batch's observations, at most ``per_iteration`` at a time, in place.
+    """Replace each of the decision's placeholders for V (:func:`~sb3_crowdnav.deploy.graph.values_per_observation`:
+    one, or one per step of a beam search) by ``Scan(body=value_net)`` over its observations, at most
+    ``per_iteration`` at a time, in place (:func:`_scan_values`)."""
+    onnx = require("onnx", "export_onnx")
+    graph = proto.graph
+    stubs = [node for node in graph.node if node.domain == PLACEHOLDER_DOMAIN]
+    if not stubs:
+        raise RuntimeError("the exported decision holds no placeholder of its value network")
+    for index, stub in enumerate(stubs):
+        suffix = f"_{index}" if index else ""
+        body = onnx.compose.add_prefix_graph(value_net.graph, f"value_net{suffix}/")  # no name shadows another
+        position = list(graph.node).index(stub)
+        spliced = [*graph.node[:position], *_scan_values(graph, stub, body, schema, per_iteration, suffix),
+                   *graph.node[position + 1:]]
+        del graph.node[:]
+        graph.node.extend(spliced)
+    proto.functions.extend(value_net.functions)
+    domains = {entry.domain for entry in proto.opset_import}
+    proto.opset_import.extend(entry for entry in value_net.opset_import if entry.domain not in domains)
+    imports = [entry for entry in proto.opset_import if entry.domain != PLACEHOLDER_DOMAIN]
+    del proto.opset_import[:]
+    proto.opset_import.extend(imports)
+
+
+def _scan_values(graph: Any, stub: Any, body: Any, schema: ObservationSchema, per_iteration: int,
+                 suffix: str) -> list[Any]:
+    """The nodes that compute the placeholder ``stub``'s output by ``Scan(body)`` (constants go into ``graph``'s
+    initializers; the Scan node is named ``value_net_per_observation`` + ``suffix``).
 
     The placeholder takes the B x A propagated tensors (B * A, n) in the schema's key order, the value network's
     inputs. For B observations the graph runs ``I = ceil(B / per_iteration)`` iterations of ``k = ceil(B / I)``
@@ -266,13 +293,8 @@ def _splice_values(proto: Any, value_net: Any, schema: ObservationSchema, per_it
     (I, k * A, n); the ``Scan`` feeds the body one block and stacks its V, and the padding's values are cut off.
     """
     onnx = require("onnx", "export_onnx")
-    helper, graph, int64 = onnx.helper, proto.graph, onnx.TensorProto.INT64
-    stubs = [index for index, node in enumerate(graph.node) if node.domain == PLACEHOLDER_DOMAIN]
-    if len(stubs) != 1:
-        raise RuntimeError(f"the exported decision holds {len(stubs)} placeholders of its value network, expected 1")
-    stub = graph.node[stubs[0]]
+    helper, int64 = onnx.helper, onnx.TensorProto.INT64
     n_actions = helper.get_attribute_value(next(a for a in stub.attribute if a.name == "n_actions"))
-    body = onnx.compose.add_prefix_graph(value_net.graph, "value_net/")  # no name shadows one of the decision's
     for value in body.input:  # one block of states per iteration
         value.type.tensor_type.shape.dim[0].dim_param = "block"
     values = stub.output[0]
@@ -309,19 +331,11 @@ def _splice_values(proto: Any, value_net: Any, schema: ObservationSchema, per_it
         shape = node("Concat", [iterations, block_rows, width], f"{key}/block_shape", axis=0)
         blocks.append(node("Reshape", [padded, shape], f"{key}/blocks"))
     scanned = node("Scan", blocks, "blocks", num_scan_inputs=len(blocks), body=body)
-    nodes[-1].name = "value_net_per_observation"
+    nodes[-1].name = f"value_net_per_observation{suffix}"
     flat = node("Reshape", [scanned, constant("flat", [-1])], "flat")
     kept = node("Slice", [flat, constant("start", [0]), rows], "kept")  # the padding's rows cut off
     nodes.append(helper.make_node("Identity", [kept], [values]))
-    spliced = [*graph.node[:stubs[0]], *nodes, *graph.node[stubs[0] + 1:]]
-    del graph.node[:]
-    graph.node.extend(spliced)
-    proto.functions.extend(value_net.functions)
-    domains = {entry.domain for entry in proto.opset_import}
-    proto.opset_import.extend(entry for entry in value_net.opset_import if entry.domain not in domains)
-    imports = [entry for entry in proto.opset_import if entry.domain != PLACEHOLDER_DOMAIN]
-    del proto.opset_import[:]
-    proto.opset_import.extend(imports)
+    return nodes
 
 
 __all__ = ["example_observation", "export_onnx", "to_onnx"]

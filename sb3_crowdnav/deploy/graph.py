@@ -84,7 +84,7 @@ class LookaheadDecision(nn.Module):
         world = policy.world
         self.ceiling = world.has_value_ceiling and policy.gamma < 1
         self.ceiling_terms = (world.time_step, world.progress_reward, policy.gamma, world.reward.success_reward)
-        self.depth = policy.planning_depth
+        self.depth, self.width = policy.planning_depth, policy.planning_width
 
     def brake_for(self, v_pref: float) -> None:
         """With the stopping-distance check, brake for a robot of preferred speed ``v_pref`` [m/s] (the number of
@@ -114,16 +114,27 @@ class LookaheadDecision(nn.Module):
     def search(self, observation: dict[str, th.Tensor], depth: int) -> th.Tensor:
         """Q of every action, (B, A): V after one step, or with ``depth`` d > 1 the best Q of the (d - 1)-step search
         from each of the B x A propagated states (every one, where the policy evaluates each distinct state once:
-        the same values; V runs once, on the B x A^d states of the last step)."""
+        the same values; V runs once, on the B x A^d states of the last step), or from the best ``width`` of them
+        by their one-step Q (``TopK``: ties to the lower action index, as
+        :func:`~sb3_crowdnav.apg_value.search.best_actions`), the others keeping their one-step Q."""
         prop = self.propagation(observation)
         batch, n_actions = prop.reward.shape
-        if depth > 1:
+        if depth > 1 and (self.width is None or self.width >= n_actions):
             v = self.search(prop.observation, depth - 1).amax(dim=1).reshape(batch, n_actions)
-        else:
-            v = self.values(prop.observation, n_actions).reshape(batch, n_actions).to(F64)
-            if self.ceiling:
-                v = th.minimum(v, self.value_ceiling(observation["robot"][:, Robot.V_PREF].to(F64))[:, None])
-        return prop.reward + prop.discount[:, None] * th.where(prop.terminal, 0.0, v)
+            return prop.reward + prop.discount[:, None] * th.where(prop.terminal, 0.0, v)
+        v = self.values(prop.observation, n_actions).reshape(batch, n_actions).to(F64)
+        if self.ceiling:
+            v = th.minimum(v, self.value_ceiling(observation["robot"][:, Robot.V_PREF].to(F64))[:, None])
+        q = prop.reward + prop.discount[:, None] * th.where(prop.terminal, 0.0, v)
+        if depth == 1:
+            return q
+        top = th.sort(q, dim=1, descending=True, stable=True).indices[:, : self.width]  # (B, k); ONNX: TopK
+        rows = (th.arange(batch)[:, None] * n_actions + top).reshape(-1)
+        deeper = self.search({k: v.index_select(0, rows) for k, v in prop.observation.items()}, depth - 1)
+        deeper = deeper.amax(dim=1).reshape(batch, self.width)
+        expanded = prop.reward.gather(1, top) + prop.discount[:, None] * th.where(prop.terminal.gather(1, top), 0.0,
+                                                                                   deeper)
+        return q.scatter(1, top, expanded)
 
 
 class QDecision(nn.Module):

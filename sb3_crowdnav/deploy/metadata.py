@@ -25,7 +25,8 @@ from sb3_crowdnav.sim.validation import check_choice, check_int, check_number
 from sb3_crowdnav.sim.world import World
 from sb3_crowdnav.version import __version__
 
-FORMAT = 3  # the version of this layout of metadata_props; a reader refuses a newer one (2: braking_steps, 3: planning_depth)
+FORMAT = 4  # the version of this layout of metadata_props; a reader refuses a newer one (2: braking_steps, 3: planning_depth,
+# 4: planning_width)
 OPSET = 18  # the ONNX opset of the exported graphs (torch.onnx's dynamo exporter implements 18 and above)
 PREFIX = "sb3_crowdnav."
 KEYS = ("format", "version", "decision", "world", "observation", "actions", "robot")  # each PREFIX + key
@@ -65,7 +66,7 @@ def _mapping(entry: str, value: Any, keys: tuple[str, ...]) -> Mapping[str, Any]
 
 
 DECISION_KEYS = ("kind", "policy", "extractor", "ensemble_size", "pedestrian_model", "gamma", "braking_steps",
-                 "planning_depth", "opset", "outputs")
+                 "planning_depth", "planning_width", "opset", "outputs")
 OBSERVATION_KEYS = ("keys", "shapes", "dtype", "history_length", "max_humans", "max_obstacles", "num_waypoints",
                     "robot_fields", "human_fields", "frame")
 ACTION_KEYS = ("n_actions", "kinematics", "speed_fractions", "directions", "stop_action")
@@ -99,6 +100,7 @@ class GraphMetadata:
     :param braking_steps: the braking sub-steps of the lookahead's stopping-distance check
         (:func:`~sb3_crowdnav.deploy.propagation.braking_steps`); None: the graph has no such check
     :param planning_depth: the steps the lookahead searches before V (1: one step); None for SB3 policies
+    :param planning_width: the actions of each step a deeper search expands (None: every one, and for SB3 policies)
     :param version: the sb3_crowdnav version that wrote the file
     :param opset: the graph's ONNX opset
     """
@@ -115,6 +117,7 @@ class GraphMetadata:
     gamma: float | None = None
     braking_steps: int | None = None
     planning_depth: int | None = None
+    planning_width: int | None = None
     version: str = __version__
     opset: int = OPSET
 
@@ -138,6 +141,11 @@ class GraphMetadata:
             raise ValueError(f"planning_depth is set for a lookahead only (kind {self.kind!r}), got {self.planning_depth!r}")
         if self.planning_depth is not None:
             check_int("planning_depth", self.planning_depth, 1)
+        if self.planning_width is not None:
+            check_int("planning_width", self.planning_width, 1)
+            if self.planning_depth is None or self.planning_depth == 1:
+                raise ValueError(f"planning_width is set for a lookahead of planning_depth > 1 only, got "
+                                 f"{self.planning_width!r} with planning_depth {self.planning_depth!r}")
         if self.braking_steps is not None:
             check_int("braking_steps", self.braking_steps, 1)
             if self.kind != "lookahead" or self.world.max_acceleration is None:
@@ -178,7 +186,8 @@ class GraphMetadata:
             "decision": {"kind": self.kind, "policy": self.policy, "extractor": self.extractor,
                          "ensemble_size": self.ensemble_size, "pedestrian_model": self.pedestrian_model,
                          "gamma": self.gamma, "braking_steps": self.braking_steps,
-                         "planning_depth": self.planning_depth, "opset": self.opset,
+                         "planning_depth": self.planning_depth, "planning_width": self.planning_width,
+                         "opset": self.opset,
                          "outputs": {"action": OUTPUTS["action"], "action_values": OUTPUTS["action_values"][self.kind]}},
             "world": world.to_dict(),
             "observation": {"keys": list(self.keys), "shapes": {k: list(s) for k, s in schema.shapes.items()},
@@ -212,6 +221,8 @@ class GraphMetadata:
         if data["format"] <= 2 and isinstance(decision, Mapping) and "planning_depth" not in decision:
             # formats 1 and 2 came before deeper searches: a lookahead of one step
             decision = {**decision, "planning_depth": 1 if decision.get("kind") == "lookahead" else None}
+        if data["format"] <= 3 and isinstance(decision, Mapping) and "planning_width" not in decision:
+            decision = {**decision, "planning_width": None}  # formats 1 to 3 came before beams: every successor
         decision = _mapping("decision", decision, DECISION_KEYS)
         observation = _mapping("observation", data["observation"], OBSERVATION_KEYS)
         robot = _mapping("robot", data["robot"], ROBOT_KEYS)
@@ -223,7 +234,8 @@ class GraphMetadata:
                        robot_v_pref=robot["v_pref"], policy=decision["policy"], extractor=decision["extractor"],
                        ensemble_size=decision["ensemble_size"], pedestrian_model=decision["pedestrian_model"],
                        gamma=decision["gamma"], braking_steps=decision["braking_steps"],
-                       planning_depth=decision["planning_depth"], version=data["version"],
+                       planning_depth=decision["planning_depth"], planning_width=decision["planning_width"],
+                       version=data["version"],
                        opset=decision["opset"])
         except (TypeError, ValueError) as exc:
             raise ValueError(f"the graph's metadata is not a valid contract: {exc}") from None

@@ -54,10 +54,9 @@ from stable_baselines3.common.env_util import make_vec_env
 from sb3_crowdnav.apg_value import APGValue
 from sb3_crowdnav.apg_value.checks import VALUE_TARGETS
 from sb3_crowdnav.apg_value.overlap import OVERLAP_KINDS
-from sb3_crowdnav.apg_value.policies import ValueLookaheadPolicy
+from sb3_crowdnav.apg_value.policies import ValueLookaheadPolicy, check_planning
 from sb3_crowdnav.apg_value.propagation import PropagationModel, check_stopping_check
 from sb3_crowdnav.sim.validation import check_bool, check_choice, check_instance, check_int, check_number, check_probability
-from sb3_crowdnav.sim.warehouse.config import PAPER_WAREHOUSE
 from sb3_crowdnav.training.callbacks import SELECT_BY, EpisodeCheckpoint, finish_depth
 from sb3_crowdnav.training.run_folder import (
     RunClock,
@@ -73,55 +72,8 @@ from sb3_crowdnav.training.run_folder import (
     sha256,
     write_json,
 )
+from sb3_crowdnav.training.variants import PAPER_SCHEDULE, VARIANTS, Variant
 
-
-@dataclass(frozen=True)
-class Variant:
-    """A row of the paper's tables: the value network (a policy alias of APGValue), its env and reward.
-
-    :param env_kwargs: the variant's env settings (a run's own ``env_kwargs`` override them)
-    :param schedule: the variant's defaults of :class:`ScheduleConfig` fields left None
-    """
-
-    policy: str
-    reward: str = "crowdnav"
-    env_id: str = "CrowdNav-v0"
-    env_kwargs: dict[str, Any] = field(default_factory=dict)
-    schedule: dict[str, Any] = field(default_factory=dict)
-
-
-# §3: ε from 0.5 to 0.1 over 5,000 episodes; one gradient step every 4 env steps unless a variant's test row says 8
-PAPER_SCHEDULE = {"rl_episodes": 10_000, "exploration_episodes": 5_000, "train_freq": 4, "num_humans": 6,
-                  "imitation_epochs": 10, "checkpoint_episodes": 500, "planning_depth": 1}
-
-
-VARIANTS = {
-    "apg_rl": Variant("ApgPolicy", schedule={"train_freq": 8}),  # 8: the same test row in half the time (two seeds)
-    "apg_crl": Variant("ApgPolicy", "comfort"),
-    "apg_carl": Variant("ApgPolicy", "comfort_angular"),
-    "cadrl": Variant("CadrlPolicy"),
-    "sf_rl": Variant("SfPolicy"),
-    "lm_rl": Variant("LmPolicy"),
-    "lstm_rl": Variant("LstmRlPolicy"),
-    "sarl": Variant("SarlPolicy"),
-    # the paper's method among racks with route-progress shaping, for the warehouse robot among 4 to 10 ORCA and
-    # social-force pickers (docs/training.md); the schedule cut to fit 2 hours on 2 cores of an AVX2 machine
-    "apg_warehouse": Variant("ApgPolicy", env_id="CrowdNavWorlds-v0",
-                             env_kwargs={"worlds": "warehouse", "progress_reward": 0.1},
-                             schedule={"rl_episodes": 7_000, "exploration_episodes": 3_500, "num_humans": (4, 10),
-                                       "pedestrian_model": "cautious", "stopping_check": True, "imitation_epochs": 5,
-                                       "train_freq": 8, "planning_depth": 2}),
-    # the same in the world the shipped apg_warehouse was trained in: the paper's robot among blind ORCA pickers,
-    # seen through racks at any range (sim.warehouse.config.PAPER_WAREHOUSE)
-    "apg_warehouse_paper": Variant("ApgPolicy", env_id="CrowdNavWarehouse-v0",
-                                   env_kwargs={"progress_reward": 0.1, **PAPER_WAREHOUSE},
-                                   schedule={"rl_episodes": 6_000, "exploration_episodes": 3_000}),
-    # the paper's method for people it never met: one of several crowds per episode, 0 to 10 people (docs/decisions.md,
-    # "Robust training"); 3 imitation epochs and 4 validations to fit an hour on 2 cores of an AVX2 machine
-    "apg_robust": Variant("ApgPolicy", env_id="CrowdNavWorlds-v0", env_kwargs={"worlds": "robust"},
-                          schedule={"train_freq": 8, "num_humans": (0, 10), "rl_episodes": 3_000,
-                                    "exploration_episodes": 1_500, "imitation_epochs": 3, "checkpoint_episodes": 750}),
-}
 OPTIMIZERS = {"adam": (th.optim.Adam, {}), "sgd": (th.optim.SGD, {"momentum": 0.9})}
 LOOKAHEAD_DTYPES = ValueLookaheadPolicy.LOOKAHEAD_DTYPES
 PEDESTRIAN_MODELS = PropagationModel.PEDESTRIAN_MODELS
@@ -178,6 +130,8 @@ class ScheduleConfig:
     :param lookahead_dtype: precision of the acting lookahead, ``"float32"`` or ``"bfloat16"``
     :param planning_depth: the lookahead depth of the finished run's ``best.zip`` and ``final.zip`` (``finish_depth``;
         training, checkpoints and validations search one step); None: the variant's (``apg_warehouse``: 2, else 1)
+    :param planning_width: with a depth > 1, how many actions of each step that search expands
+        (``ValueLookaheadPolicy.planning_width``); None: the variant's, else every one
     :param ensemble: train this many member runs (one imitation, each member its own seed and this schedule) and
         make their best checkpoints one value ensemble (:mod:`sb3_crowdnav.training.ensemble`); 1: one run
     :param ensemble_checkpoints: the best checkpoints by validation each member gives the ensemble (more than 1 needs
@@ -213,6 +167,7 @@ class ScheduleConfig:
     ensemble: int = 1
     ensemble_checkpoints: int = 1
     planning_depth: int | None = None
+    planning_width: int | None = None
 
     def __post_init__(self) -> None:
         for name, allowed in (("variant", tuple(VARIANTS)), ("select_by", SELECT_BY), ("optimizer", tuple(OPTIMIZERS)),
@@ -226,6 +181,7 @@ class ScheduleConfig:
                               ("checkpoint_episodes", 1), ("eval_episodes", 0), ("exploration_episodes", 1),
                               ("refill_steps", 0), ("ensemble", 1), ("ensemble_checkpoints", 1), ("planning_depth", 1)):
             check_int(name, getattr(self, name), minimum)
+        check_planning(self.planning_depth, self.planning_width)
         validations = self.rl_episodes // self.checkpoint_episodes if self.eval_episodes else 0
         if self.ensemble_checkpoints > max(validations, 1):
             raise ValueError(f"ensemble_checkpoints must be at most the run's validations ({validations}: "
@@ -389,7 +345,7 @@ def _train(out: Path, config: ScheduleConfig, from_imitation: str | Path | None,
     if progress.get("finished") and latest is not None and latest[0] >= config.rl_episodes \
             and (out / "final.zip").exists():
         log(f"{out} has finished its {latest[0]} RL episodes: nothing to do")
-        finish_depth(out, config.planning_depth, log)  # (a run killed before its depth was set)
+        finish_depth(out, config.planning_depth, log, config.planning_width)  # (a run killed before it was set)
         return ScheduleResult(APGValue.load(out / "final.zip"), None, 0.0)
     imitated = (out / "imitation.zip").exists() and (out / "imitation_replay_buffer.npz").exists()
     clock = RunClock(progress.get("wall_time_s", 0.0) if latest is not None or imitated else 0.0)
@@ -438,8 +394,8 @@ def _train(out: Path, config: ScheduleConfig, from_imitation: str | Path | None,
         write_json(out / "progress.json", {**(read_json(out / "progress.json") or {}), "finished": True,
                                            "wall_time_s": round(clock.total(), 1)})
         log(f"done: {model.episodes_done} RL episodes, {model.num_timesteps} steps, {time.time() - start:.0f} s this run")
-        finish_depth(out, config.planning_depth, log)
-        model.policy.set_planning_depth(config.planning_depth)
+        finish_depth(out, config.planning_depth, log, config.planning_width)
+        model.policy.set_planning(config.planning_depth, config.planning_width)
     return ScheduleResult(model, callback.stopped_by, time.time() - start)
 
 
