@@ -1,11 +1,13 @@
 """Lookahead decision time of APGValue: one env, and per env with 16 envs batched.
 
 Usage: python benchmarks/lookahead_speed.py [--env CrowdNav-v0] [--extractor apg] [--decisions 300]
-    [--dtype float32|bfloat16] [--threads 1]
+    [--dtype float32|bfloat16] [--threads 1] [--planning-depth 2 [--planning-width 8]]
 Prints median milliseconds, and the multiply-add rate of the encoder's per-(step, pedestrian) layers
 (the work that cannot be shared between actions); one torch thread unless ``--threads``. In a world with the robot's
 limits (the warehouse's defaults) it also times V on every (observation, action) row against V on the distinct
-propagated states the lookahead evaluates, same observations, same run.
+propagated states the lookahead evaluates, same observations, same run. With ``--planning-depth`` it also times the
+single-env decision of that deeper search (``--planning-width``: the beam) on the same observations, and its ratio to
+the one-step decision.
 """
 
 from __future__ import annotations
@@ -59,6 +61,8 @@ def main() -> None:
     parser.add_argument("--dtype", default="float32", choices=("float32", "bfloat16"),
                         help="lookahead precision (ValueLookaheadPolicy's lookahead_dtype)")
     parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads (the package's default: 1)")
+    parser.add_argument("--planning-depth", type=int, help="also time a search of this depth (single env)")
+    parser.add_argument("--planning-width", type=int, help="with --planning-depth: the beam's width")
     parser.add_argument("--onednn", choices=("default", "on", "off"), default="default",
                         help="oneDNN's fused linear kernel at inference (default: the package's choice for this CPU)")
     args = parser.parse_args()
@@ -83,6 +87,12 @@ def main() -> None:
     print(f"single env decision: {one:.2f} ms (target < 3 ms; reference code ~92 ms)")
     print(f"16 envs batched: {sixteen:.2f} ms per call = {sixteen / 16:.3f} ms per env (target < 0.5 ms)")
     print(f"  of which propagation + reward model for 16 x {policy.world.n_actions} states: {t_prop:.2f} ms")
+    if args.planning_depth is not None:
+        policy.set_planning(args.planning_depth, args.planning_width)
+        deeper = time_decisions(model, singles, single=True)
+        policy.set_planning(1)
+        print(f"single env decision at depth {args.planning_depth}, width {args.planning_width or 'all'}: "
+              f"{deeper:.2f} ms ({deeper / one:.1f}x the one-step decision, same observations)")
     if policy.world.has_limits:
         every, distinct, counts = value_times(policy, singles)
         print(f"single env, V alone: every (observation, action) row {every:.2f} ms, the distinct states {distinct:.2f} "
