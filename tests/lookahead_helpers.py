@@ -27,3 +27,16 @@ def value_policy(env: gym.Env, **kwargs) -> ValueLookaheadPolicy:
     th.manual_seed(0)
     return ValueLookaheadPolicy(env.observation_space, env.action_space, lambda _: 1e-3, world=env.unwrapped.world,
                                 **kwargs)
+
+
+def assert_graph_decides_as_policy(policy: ValueLookaheadPolicy, obs: dict[str, np.ndarray]) -> np.ndarray:
+    """The decision graph (``LookaheadDecision``, in torch) gives the policy's action values to 1e-6 and their argmax;
+    returns the graph's values."""
+    from sb3_crowdnav.deploy.graph import LookaheadDecision
+
+    expected = policy.action_values(obs)
+    with th.no_grad():
+        action, values = LookaheadDecision(policy).eval()({k: th.as_tensor(v) for k, v in obs.items()})
+    np.testing.assert_allclose(values.numpy(), expected, rtol=0, atol=1e-6)
+    np.testing.assert_array_equal(action.numpy(), expected.argmax(axis=1))
+    return values.numpy()

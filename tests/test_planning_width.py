@@ -10,12 +10,11 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch as th
-from lookahead_helpers import random_observations, value_policy
+from lookahead_helpers import assert_graph_decides_as_policy, random_observations, value_policy
 
 import sb3_crowdnav  # noqa: F401  (registers the envs)
 from sb3_crowdnav import APGValue
 from sb3_crowdnav.apg_value.search import best_actions
-from sb3_crowdnav.deploy.graph import LookaheadDecision
 from sb3_crowdnav.deploy.metadata import GraphMetadata
 from sb3_crowdnav.evaluation.runner import with_lookahead
 
@@ -129,12 +128,7 @@ def test_the_graph_expands_the_same_actions_as_the_policy(case):
     env_id, policy_kwargs = WORLDS[case]
     env = gym.make(env_id)
     policy = value_policy(env, planning_depth=2, planning_width=4, **policy_kwargs)
-    obs = random_observations(env, 6, seed=5)
-    expected = policy.action_values(obs)
-    with th.no_grad():
-        action, values = LookaheadDecision(policy).eval()({k: th.as_tensor(v) for k, v in obs.items()})
-    np.testing.assert_allclose(values.numpy(), expected, rtol=0, atol=1e-6)
-    np.testing.assert_array_equal(action.numpy(), expected.argmax(axis=1))
+    assert_graph_decides_as_policy(policy, random_observations(env, 6, seed=5))
 
 
 def test_the_graph_contract_records_the_width_and_reads_older_formats_as_every_successor():
