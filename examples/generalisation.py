@@ -3,7 +3,8 @@ crowds than the one they were trained in.
 
     python examples/generalisation.py [--episodes 500] [--workers 2] [--out paper_results/generalisation] \\
         [--scene eth=DIR/biwi_eth.txt,frame_rate=15 --scene hotel=DIR/biwi_hotel.txt ...] \\
-        [--markdown-into docs/results.md] [--resume] [--keep paper_results/generalisation/generalisation.csv]
+        [--markdown-into docs/results.md] [--resume] [--keep paper_results/generalisation/generalisation.csv] \\
+        [--planning-depth 2 --planning-width 8]
 
 Rows: ``pretrained:NAME`` for each shipped open-floor model and the ORCA robot (``orca-constrained``: ORCA's velocity
 mapped onto the robot's 80 actions), or the ``--policy`` given. Columns (``--columns``, default all five), each one
@@ -29,9 +30,12 @@ episode CSV and its ``meta.json``. The rows run one after the other over every c
 ``--resume`` keeps the finished cells of an interrupted run; ``--keep CSV`` (an earlier run's
 ``generalisation.csv``) keeps its rows of the policies this run does not run, so that one model's row can be run
 again (``--policy pretrained:apg_robust --keep paper_results/generalisation/generalisation.csv``).
-With two or more scenes, ``OUT/pooled.md`` also pools each row's episodes over the scenes (success and collision rates
-with Wilson intervals). ``--markdown-into FILE`` also replaces the block between ``<!-- generalisation:begin -->`` and
-``<!-- generalisation:end -->`` in FILE (docs/results.md) with the table.
+``--planning-depth D`` / ``--planning-width K`` set the lookahead of the value-model rows (``benchmark``'s options;
+the other rows act as they are; refused when no row is a value model), recorded in each cell's ``meta.json``; a
+resumed cell run with other settings is refused. With two or more scenes, ``OUT/pooled.md`` also pools each row's
+episodes over the scenes (success and collision rates with Wilson intervals). ``--markdown-into FILE`` also replaces
+the block between ``<!-- generalisation:begin -->`` and ``<!-- generalisation:end -->`` in FILE (docs/results.md)
+with the table.
 """
 
 from __future__ import annotations
@@ -43,10 +47,19 @@ from pathlib import Path
 from typing import Any
 
 from sb3_crowdnav.cli import main as cli
-from sb3_crowdnav.cli.common import Parser, UsageError, check_env, check_out, positive_int
+from sb3_crowdnav.cli.common import (
+    Parser,
+    UsageError,
+    check_env,
+    check_lookahead,
+    check_out,
+    lookahead_settings,
+    positive_int,
+)
 from sb3_crowdnav.evaluation.aggregate import check_block, write_block
 from sb3_crowdnav.evaluation.crowd_spec import CrowdSpec
 from sb3_crowdnav.evaluation.metrics import wilson_interval
+from sb3_crowdnav.evaluation.policy_spec import PolicySpec
 from sb3_crowdnav.evaluation.runner import TEST_SEED_OFFSET
 from sb3_crowdnav.evaluation.tables import CrowdTable
 from sb3_crowdnav.sim.crowd import CROWD_MODELS
@@ -115,9 +128,11 @@ def cell(out: Path, key: str, policy: str) -> Path:
     return out / "cells" / key / "".join(c if c.isalnum() or c in "-_." else "_" for c in policy)
 
 
-def done(folder: Path, episodes: int, seed_offset: int = TEST_SEED_OFFSET) -> bool:
-    """Whether the cell in ``folder`` is finished with ``episodes`` episodes from ``seed_offset`` (``--resume`` keeps
-    it); a finished cell with other episodes or seeds is refused, not mixed into the table."""
+def done(folder: Path, episodes: int, seed_offset: int = TEST_SEED_OFFSET,
+         lookahead: dict[str, Any] | None = None) -> bool:
+    """Whether the cell in ``folder`` is finished with ``episodes`` episodes from ``seed_offset`` and the lookahead
+    settings ``lookahead`` (``--resume`` keeps it); a finished cell with other episodes, seeds or settings is refused,
+    not mixed into the table."""
     if not (folder / "crowds.csv").is_file():
         return False
     meta = json.loads((folder / "meta.json").read_text())
@@ -125,14 +140,26 @@ def done(folder: Path, episodes: int, seed_offset: int = TEST_SEED_OFFSET) -> bo
     if had != episodes or seeds[0] != seed_offset:
         raise SystemExit(f"{folder} holds {had} episodes from seed {seeds[0]}, not --episodes {episodes} from seed "
                          f"{seed_offset}: give another --out")
+    if meta.get("lookahead") != lookahead:
+        raise SystemExit(f"{folder} was run with the lookahead settings {meta.get('lookahead')}, not {lookahead}: "
+                         "give another --out")
     return True
 
 
+def lookahead_flags(args: argparse.Namespace, policy: str) -> list[str]:
+    """``--planning-depth`` / ``--planning-width`` as given, for a value model's benchmark (APGValue); none for
+    another policy (ORCA, a DQN: the settings are a value model's lookahead)."""
+    if lookahead_settings(args, PolicySpec.parse(policy)) is None:
+        return []
+    return [item for key in ("planning_depth", "planning_width") if getattr(args, key) is not None
+            for item in (f"--{key.replace('_', '-')}", str(getattr(args, key)))]
+
+
 def benchmark(out: Path, spec: CrowdSpec, env_kwargs: dict[str, Any], policy: str, episodes: int,
-              workers: int, seed_offset: int = TEST_SEED_OFFSET) -> None:
-    """One ``sb3-crowdnav benchmark --crowd`` run: one policy in one column."""
+              workers: int, seed_offset: int = TEST_SEED_OFFSET, lookahead: tuple[str, ...] = ()) -> None:
+    """One ``sb3-crowdnav benchmark --crowd`` run: one policy in one column (``lookahead``: its lookahead flags)."""
     args = ["benchmark", "--env", ENV, "--crowd", str(spec), "--episodes", str(episodes), "--workers", str(workers),
-            "--out", str(out), "--no-progress", "--seed-offset", str(seed_offset), "--policy", policy]
+            "--out", str(out), "--no-progress", "--seed-offset", str(seed_offset), "--policy", policy, *lookahead]
     if env_kwargs:
         args += ["--env-kwargs", repr(env_kwargs)]
     code = cli(args)
@@ -219,6 +246,11 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--keep", type=Path, metavar="CSV",
                    help="an earlier run's generalisation.csv (the same columns): its rows of the policies this run does "
                         "not run are kept in the table, so that one row can be run again")
+    p.add_argument("--planning-depth", type=positive_int, metavar="D",
+                   help="the value models' lookahead searches D steps before V (benchmark --planning-depth; default: "
+                        "each model's own)")
+    p.add_argument("--planning-width", type=positive_int, metavar="K",
+                   help="with a depth > 1, the best K actions of each step searched deeper (benchmark --planning-width)")
     p.add_argument("--markdown-into", type=Path, metavar="FILE",
                    help=f"replace the block between <!-- {BLOCK}:begin --> and <!-- {BLOCK}:end --> in FILE with the table")
     args = p.parse_args(argv)
@@ -237,6 +269,10 @@ def main(argv: list[str] | None = None) -> None:
     except (UsageError, ValueError) as exc:
         p.error(str(exc))
     policies = args.policy or list(POLICIES)
+    try:
+        check_lookahead(args, [PolicySpec.parse(policy) for policy in policies])
+    except (UsageError, ValueError) as exc:
+        p.error(str(exc))
     if not args.resume and (args.out / "cells").exists():
         p.error(f"--out {str(args.out)!r} holds cells of an earlier run: pass --resume to keep them, or give another")
 
@@ -244,10 +280,12 @@ def main(argv: list[str] | None = None) -> None:
     for policy in sorted(policies, key=lambda spec: spec not in FIRST):
         for key, (_, spec, kwargs) in planned.items():
             folder = cell(args.out, key, policy)
-            if args.resume and done(folder, args.episodes, SEEDS[args.seeds]):
+            flags = lookahead_flags(args, policy)
+            if args.resume and done(folder, args.episodes, SEEDS[args.seeds],
+                                    lookahead_settings(args) if flags else None):
                 print(f"kept {folder}")
                 continue
-            benchmark(folder, spec, kwargs, policy, args.episodes, args.workers, SEEDS[args.seeds])
+            benchmark(folder, spec, kwargs, policy, args.episodes, args.workers, SEEDS[args.seeds], tuple(flags))
     table = combine(args.out, planned, policies)
     if earlier is not None:
         table = merged(earlier, table)

@@ -282,6 +282,21 @@ def test_validation_seeds_choose_without_the_held_out_scenes_or_the_docs(tmp_pat
     assert meta["seeds"] == [2_000_000, 2_000_001]
 
 
+def test_the_lookahead_options_set_the_value_models_rows_only(tmp_path, capsys):
+    script = _script()
+    out = tmp_path / "beam"
+    base = ["--episodes", "1", "--workers", "1", "--columns", "empty", "--out", str(out)]
+    script.main([*base, "--policy", "pretrained:apg_robust", "--policy", "random:0", "--planning-depth", "2",
+                 "--planning-width", "8"])
+    meta = json.loads((out / "cells" / "empty" / "pretrained_apg_robust" / "meta.json").read_text())
+    assert meta["lookahead"] == {"planning_depth": 2, "planning_width": 8}
+    assert json.loads((out / "cells" / "empty" / "random_0" / "meta.json").read_text())["lookahead"] is None
+    with pytest.raises(SystemExit, match="lookahead settings"):  # resumed with another search: refused, not mixed
+        script.main([*base, "--policy", "pretrained:apg_robust", "--planning-depth", "3", "--resume"])
+    _refused(capsys, [*base[:-1], str(tmp_path / "o"), "--policy", "random:0", "--planning-depth", "2"],
+             "none of the policies given is one", script.main)
+
+
 def test_keep_runs_one_row_again_inside_an_earlier_table(tmp_path, capsys):
     """--keep: the earlier table's other rows stay; the row run again replaces its old one."""
     script = _script()
