@@ -26,6 +26,7 @@ import hashlib
 import json
 from pathlib import Path
 
+from sb3_crowdnav.evaluation.runner import with_lookahead
 from sb3_crowdnav.models import PRETRAINED, WEIGHTS_DIR, load_model
 from sb3_crowdnav.serialization import read_world, write_spaces
 from sb3_crowdnav.training import average_checkpoints, ensemble_models
@@ -75,18 +76,13 @@ def main() -> None:
         if not hasattr(model.policy, "set_stopping_check"):
             p.error(f"--stopping-check: {first} is not a value-lookahead model")
         model.policy.set_stopping_check(args.stopping_check)
-    if args.planning_depth is not None or args.planning_width is not None:
-        flags = " / ".join(f for f, v in (("--planning-depth", args.planning_depth),
-                                          ("--planning-width", args.planning_width)) if v is not None)
-        if not hasattr(model.policy, "set_planning"):
-            p.error(f"{flags}: {first} is not a value-lookahead model")
-        depth = args.planning_depth if args.planning_depth is not None else model.policy.planning_depth
-        width = args.planning_width if args.planning_width is not None else \
-            (model.policy.planning_width if depth != 1 else None)
+    planning = {k: v for k, v in (("planning_depth", args.planning_depth), ("planning_width", args.planning_width))
+                if v is not None}
+    if planning:  # as evaluate's options: a depth of 1 alone drops the checkpoint's width
         try:
-            model.policy.set_planning(depth, width)
+            with_lookahead(model, planning)
         except (TypeError, ValueError) as exc:
-            p.error(f"{flags}: {exc}")
+            p.error(f"{' / '.join('--' + k.replace('_', '-') for k in planning)}: {exc}")
     out = WEIGHTS_DIR / f"{args.name}.zip"
     model.save(out)
     # the world it was trained in, recorded with its spaces (a value model keeps its own in its policy_kwargs)

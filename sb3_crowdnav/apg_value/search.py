@@ -70,7 +70,7 @@ def search(policy: Any, observation: dict[str, np.ndarray], net: nn.Module,
     rows = (np.arange(b)[:, None] * n_actions + top).reshape(-1)  # their (observation, action) pairs
     rows = rows if inverse is None else inverse[rows]
     kept, where = np.unique(rows, return_inverse=True)  # each distinct state once
-    deeper = search(policy, {k: v[kept] for k, v in states.items()}, net, depth - 1)[0].max(axis=1)
+    deeper = search(policy, {key: value[kept] for key, value in states.items()}, net, depth - 1)[0].max(axis=1)
     deeper = deeper[where.reshape(-1)].reshape(top.shape)
     batch = np.arange(b)[:, None]
     q[batch, top] = prop.reward[batch, top] + prop.discount[:, None] * np.where(prop.terminal[batch, top], 0.0,

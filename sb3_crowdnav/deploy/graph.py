@@ -130,7 +130,7 @@ class LookaheadDecision(nn.Module):
             return q
         top = th.sort(q, dim=1, descending=True, stable=True).indices[:, : self.width]  # (B, k); ONNX: TopK
         rows = (th.arange(batch)[:, None] * n_actions + top).reshape(-1)
-        deeper = self.search({k: v.index_select(0, rows) for k, v in prop.observation.items()}, depth - 1)
+        deeper = self.search({key: value.index_select(0, rows) for key, value in prop.observation.items()}, depth - 1)
         deeper = deeper.amax(dim=1).reshape(batch, self.width)
         expanded = prop.reward.gather(1, top) + prop.discount[:, None] * th.where(prop.terminal.gather(1, top), 0.0,
                                                                                    deeper)
