@@ -6,11 +6,11 @@ import sys
 sys.path.insert(0, os.path.abspath(".."))
 os.environ.setdefault("MPLBACKEND", "Agg")
 
-from sb3_crowdnav.version import __version__  # noqa: E402
+from sb3_crowdnav.version import __version__
 
 project = "sb3_crowdnav"
 author = "the sb3_crowdnav developers"
-copyright = "2026, the sb3_crowdnav developers"  # noqa: A001
+copyright = "2026, the sb3_crowdnav developers"
 release = version = __version__
 
 extensions = [

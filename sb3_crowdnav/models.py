@@ -60,7 +60,7 @@ PRETRAINED_SHA256 = {
     "dqn_apg": "4002a0bdffcb70e967655d430a72a5d1f45a04918dacf247f0c87c78d7ebf94e",
     "ppo_warehouse": "e71d387a6b327616c7d26df7b92ed14f7166616286530fcc8ed31c5a293df208",
     "apg_warehouse_paper": "e1e2ae06da71b01fe614afe609866df603dda9f5a74e1f10030430387395254c",
-    "apg_robust": "3a88b62d309cecde11d0e346f27fb1f45667164e40018422aac980be403c3038",
+    "apg_robust": "1fc9d11dd9e64eb3755c95be48ebe8fcb943e02cc2c95ea67aaa05a4f7ef4c5d",
     "apg_warehouse": "f32d970eca31ea030f9e8ab92eea1e2a065d2b7a9b38e18a94c107ae32ecbdd3",
 }
 

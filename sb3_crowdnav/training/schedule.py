@@ -129,9 +129,10 @@ class ScheduleConfig:
         ``imitation_replay_buffer.npz`` beside it, env steps collected before the first gradient step
     :param lookahead_dtype: precision of the acting lookahead, ``"float32"`` or ``"bfloat16"``
     :param planning_depth: the lookahead depth of the finished run's ``best.zip`` and ``final.zip`` (``finish_depth``;
-        training, checkpoints and validations search one step); None: the variant's (``apg_warehouse``: 2, else 1)
+        training, checkpoints and validations search one step); None: the variant's (``apg_warehouse`` and
+        ``apg_robust``: 2, else 1)
     :param planning_width: with a depth > 1, how many actions of each step that search expands
-        (``ValueLookaheadPolicy.planning_width``); None: the variant's, else every one
+        (``ValueLookaheadPolicy.planning_width``); None: the variant's (``apg_robust``: 8), else every one
     :param ensemble: train this many member runs (one imitation, each member its own seed and this schedule) and
         make their best checkpoints one value ensemble (:mod:`sb3_crowdnav.training.ensemble`); 1: one run
     :param ensemble_checkpoints: the best checkpoints by validation each member gives the ensemble (more than 1 needs
