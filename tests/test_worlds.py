@@ -135,3 +135,25 @@ def test_apg_robust_short_run(tmp_path, monkeypatch):
     env = gym.make("CrowdNav-v0", num_humans=0)  # and it acts in the paper's env, the empty floor included
     obs, _ = env.reset(seed=0)
     assert 0 <= int(model.predict(obs, deterministic=True)[0]) < 80
+
+
+def test_a_recorded_world_leaves_to_its_recording_what_it_decides(tmp_path):
+    from tests.test_replay import _walkers
+
+    path = str(_walkers(tmp_path / "street.csv"))
+    recorded = {"crowd": "replay", "crowd_kwargs": {"path": path}}
+    env = gym.make("CrowdNavWorlds-v0", worlds=[{"crowd": "orca"}, recorded], num_humans=(0, 3), human_speed="measured")
+    orca, replay = env.unwrapped.envs
+    # the shared people settings reach the simulated world and not the recording, which walks its own people
+    assert orca.scene.num_humans == (0, 3) and orca.scene.human_speed == "measured"
+    assert replay.scene.crowd == "replay" and replay.scene.num_humans == 6 and replay.scene.human_speed == "fixed"
+    seen = set()
+    for seed in range(12):
+        env.reset(seed=seed)
+        seen.add(env.unwrapped.current)
+        for _ in range(5):
+            env.step(0)
+    assert seen == {0, 1}
+    # a setting that only recorded worlds would receive has no effect: refused
+    with pytest.raises(ValueError, match="num_humans=.* has no effect.*recording"):
+        gym.make("CrowdNavWorlds-v0", worlds=[recorded], num_humans=(0, 3))

@@ -23,6 +23,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from sb3_crowdnav.envs.crowd_nav import ORCA_KEYS, REPLAY_DECIDES
 from sb3_crowdnav.sim.population import MEASURED_POPULATION
 from sb3_crowdnav.sim.validation import check_choice, check_instance, check_number
 
@@ -30,6 +31,8 @@ from sb3_crowdnav.sim.validation import check_choice, check_instance, check_numb
 PEOPLE_KEYS = ("crowd", "crowd_kwargs", "human_policy", "num_humans", "human_speed", "human_v_pref",
                "stop_probability", "stop_duration", "robot_visible")
 BASE_ENVS = ("CrowdNav-v0", "CrowdNavWarehouse-v0")
+# what a recorded world's recording decides, so that it does not take these from the keyword arguments of every world
+RECORDING_DECIDES = (*REPLAY_DECIDES, *ORCA_KEYS)
 
 # the apg_robust recipe's crowds, 0 to 10 people each (num_humans given once; see docs/decisions.md, "Robust
 # training"): the paper's ORCA walkers at 1 m/s who never see the robot; the measured-speed population (ORCA, people
@@ -46,6 +49,19 @@ WAREHOUSE_WORLDS = (
     MappingProxyType({"crowd": "social_force", "human_speed": "measured", "robot_visible": True}),
 )
 PRESETS = {"robust": (ROBUST_WORLDS, "CrowdNav-v0"), "warehouse": (WAREHOUSE_WORLDS, "CrowdNavWarehouse-v0")}
+
+
+def _recorded(world: Mapping[str, Any]) -> bool:
+    return world.get("crowd") == "replay"
+
+
+def _shared(kwargs: Mapping[str, Any], world: Mapping[str, Any]) -> dict[str, Any]:
+    """The keyword arguments given for every world that this world takes: all of them, except that a recorded world
+    (``crowd="replay"``) leaves to its recording what the recording decides (:data:`RECORDING_DECIDES`), so that one
+    ``num_humans`` can serve the simulated worlds beside it."""
+    if not _recorded(world):
+        return dict(kwargs)
+    return {key: value for key, value in kwargs.items() if key not in RECORDING_DECIDES}
 
 
 def _people_free(env: gym.Env) -> tuple[Any, ...]:
@@ -77,7 +93,9 @@ class CrowdNavWorldsEnv(gym.Env):
     :param weights: the probability of each world per episode (normalised; None: equal)
     :param base_env: ``"CrowdNav-v0"`` or ``"CrowdNavWarehouse-v0"``; None: the preset's, else ``"CrowdNav-v0"``
     :param render_mode: passed to every world
-    :param kwargs: the base env's keyword arguments for every world (a world's own people keys override them)
+    :param kwargs: the base env's keyword arguments for every world (a world's own people keys override them; a
+        recorded world, ``crowd="replay"``, takes none of :data:`RECORDING_DECIDES`: its recording decides how many
+        people walk, how fast, who stops and who sees the robot)
     """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 4}
@@ -103,11 +121,12 @@ class CrowdNavWorldsEnv(gym.Env):
                                  f"other keyword arguments once, for every world")
         self.weights = self._weights(weights, len(worlds))
         self.worlds = tuple(dict(w) for w in worlds)
-        for key in sorted(set(kwargs) & set(PEOPLE_KEYS)):
-            if all(key in world for world in self.worlds):
-                raise ValueError(f"{key}={kwargs[key]!r} has no effect: every world sets its own {key}")
+        for key in sorted(set(kwargs) & {*PEOPLE_KEYS, *RECORDING_DECIDES}):
+            if all(key in world or (_recorded(world) and key in RECORDING_DECIDES) for world in self.worlds):
+                raise ValueError(f"{key}={kwargs[key]!r} has no effect: every world sets its own {key} or replays a "
+                                 "recording that decides it")
         self.base_env = base_env
-        self.envs = [gym.make(base_env, render_mode=render_mode, **{**kwargs, **world}).unwrapped
+        self.envs = [gym.make(base_env, render_mode=render_mode, **{**_shared(kwargs, world), **world}).unwrapped
                      for world in self.worlds]
         first = _people_free(self.envs[0])
         for i, env in enumerate(self.envs[1:], start=1):
@@ -191,4 +210,4 @@ class CrowdNavWorldsEnv(gym.Env):
             env.close()
 
 
-__all__ = ["BASE_ENVS", "PEOPLE_KEYS", "ROBUST_WORLDS", "WAREHOUSE_WORLDS", "CrowdNavWorldsEnv"]
+__all__ = ["BASE_ENVS", "PEOPLE_KEYS", "RECORDING_DECIDES", "ROBUST_WORLDS", "WAREHOUSE_WORLDS", "CrowdNavWorldsEnv"]
