@@ -155,5 +155,5 @@ def test_a_recorded_world_leaves_to_its_recording_what_it_decides(tmp_path):
             env.step(0)
     assert seen == {0, 1}
     # a setting that only recorded worlds would receive has no effect: refused
-    with pytest.raises(ValueError, match="num_humans=.* has no effect.*recording"):
+    with pytest.raises(ValueError, match=r"num_humans=.* has no effect.*recording"):
         gym.make("CrowdNavWorlds-v0", worlds=[recorded], num_humans=(0, 3))
