@@ -157,3 +157,51 @@ def test_a_recorded_world_leaves_to_its_recording_what_it_decides(tmp_path):
     # a setting that only recorded worlds would receive has no effect: refused
     with pytest.raises(ValueError, match=r"num_humans=.* has no effect.*recording"):
         gym.make("CrowdNavWorlds-v0", worlds=[recorded], num_humans=(0, 3))
+
+
+def test_recordings_join_the_variants_worlds_and_are_refused_elsewhere(tmp_path):
+    from tests.test_replay import _walkers
+
+    path = str(_walkers(tmp_path / "street.csv"))
+    config = ScheduleConfig(variant="apg_robust", recordings=(path, f"{path},tracked=all,crossing_length=6"))
+    worlds = config.training_env_kwargs["worlds"]
+    assert worlds[:3] == [dict(world) for world in ROBUST_WORLDS] and len(worlds) == 5
+    # the defaults of a training scene (the nearest tracked, present 1 s early), and a scene's own settings win
+    assert worlds[3] == {"crowd": "replay", "crowd_kwargs": {"tracked": "nearest", "lead_in": 1, "path": path}}
+    assert worlds[4]["crowd_kwargs"] == {"tracked": "all", "lead_in": 1, "path": path, "crossing_length": 6}
+    env = gym.make("CrowdNavWorlds-v0", **config.training_env_kwargs)
+    assert {env.unwrapped.envs[i].scene.crowd for i in (3, 4)} == {"replay"}
+    assert ScheduleConfig(variant="apg_robust").recordings == ()
+    for variant in ("apg_rl", "apg_warehouse"):
+        with pytest.raises(ValueError, match="recordings: variant"):
+            ScheduleConfig(variant=variant, recordings=(path,))
+    with pytest.raises(ValueError, match=r"recordings\[0\]"):
+        ScheduleConfig(variant="apg_robust", recordings=(f"{path},frame_rate",))
+    with pytest.raises(TypeError, match="recordings"):
+        ScheduleConfig(variant="apg_robust", recordings=path)
+
+
+def test_the_cli_refuses_a_recording_it_cannot_train_among_with_one_line(tmp_path, capsys):
+    for argv, fragment in ((["--variant", "apg_rl", "--recording", "x.txt"], "recordings: variant 'apg_rl'"),
+                           (["--variant", "apg_robust", "--recording", str(tmp_path / "none.txt")], "no file at"),
+                           (["--algo", "dqn", "--hyperparams", "zoo_hyperparams/dqn.yml", "--recording", "x.txt"],
+                            "--recording is not used with --hyperparams")):
+        with pytest.raises(SystemExit) as exc:
+            main(["train", *argv, "--out", str(tmp_path / "run")])
+        err = capsys.readouterr().err
+        assert exc.value.code == 2 and fragment in err and len(err.strip().splitlines()) == 1, err
+    assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.slow  # a training run: make slow
+def test_apg_robust_short_run_among_a_recording(tmp_path):
+    from tests.test_replay import _walkers
+
+    path = str(_walkers(tmp_path / "street.csv"))
+    out = tmp_path / "robust"
+    assert main(["train", "--variant", "apg_robust", "--recording", path, "--out", str(out), "--il-episodes", "6",
+                 "--il-epochs", "1", "--rl-episodes", "8", "--checkpoint-episodes", "8", "--eval-episodes", "4",
+                 "--overlap", "off"]) == 0
+    config = json.loads((out / "config.json").read_text())
+    assert config["recordings"] == [path] and config["training_env_kwargs"]["worlds"][-1]["crowd"] == "replay"
+    assert APGValue.load(out / "final.zip").episodes_done == 8

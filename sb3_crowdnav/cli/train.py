@@ -28,7 +28,7 @@ SCHEDULE_FLAGS = {
     "exploration_initial_eps": "--epsilon-start", "exploration_final_eps": "--epsilon-end",
     "pedestrian_model": "--pedestrian-model", "stopping_check": "--stopping-check", "ensemble": "--ensemble",
     "ensemble_checkpoints": "--ensemble-checkpoints", "planning_depth": "--planning-depth",
-    "planning_width": "--planning-width",
+    "planning_width": "--planning-width", "recordings": "--recording",
 }
 SHARED_FLAGS = ("eval_episodes",)  # schedule flags that a --hyperparams run takes too
 HYPERPARAMS_FLAGS = {"algo": "--algo", "timesteps": "--timesteps", "checkpoint_freq": "--checkpoint-freq",
@@ -118,6 +118,10 @@ def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
     g.add_argument("--planning-width", type=common.positive_int, metavar="K",
                    help="with a depth > 1, the best K actions of each step that search expands (default: the "
                         "variant's, else every one)")
+    g.add_argument("--recording", dest="recordings", action="append", metavar="PATH[,frame_rate=F]",
+                   help="a recorded scene to train among as well (repeat), the settings of --crowd replay:PATH[,...] "
+                        "(tracked=nearest and lead_in=1 unless given): one more world beside the variant's, as "
+                        "likely as each of them (apg_robust only; keep held-out scenes out)")
     g.add_argument("--ensemble", type=common.positive_int, metavar="K",
                    help="train K member runs (one imitation; member k with seed SEED + 1000 k and the schedule given) "
                         "and save their best checkpoints as one value ensemble in OUT/best.zip (default: 1, one run)")
@@ -172,6 +176,8 @@ def _variant_config(args: argparse.Namespace) -> Any:
     given = {name: getattr(args, name) for name in (*SCHEDULE_FLAGS, "imitation_episodes", "imitation_epochs",
                                                      "imitation_learning_rate", "seed")}
     given = {k: v for k, v in given.items() if v is not None and k != "from_imitation"}
+    if "recordings" in given:
+        given["recordings"] = tuple(given["recordings"])
     if given.get("overlap") == "off":
         given["overlap"] = False
     if num_humans is not None:

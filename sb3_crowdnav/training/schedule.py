@@ -56,6 +56,8 @@ from sb3_crowdnav.apg_value.checks import VALUE_TARGETS
 from sb3_crowdnav.apg_value.overlap import OVERLAP_KINDS
 from sb3_crowdnav.apg_value.policies import ValueLookaheadPolicy, check_planning
 from sb3_crowdnav.apg_value.propagation import PropagationModel, check_stopping_check
+from sb3_crowdnav.envs.worlds import PRESETS
+from sb3_crowdnav.evaluation.crowd_spec import CrowdSpec
 from sb3_crowdnav.sim.validation import check_bool, check_choice, check_instance, check_int, check_number, check_probability
 from sb3_crowdnav.training.callbacks import SELECT_BY, EpisodeCheckpoint, finish_depth
 from sb3_crowdnav.training.run_folder import (
@@ -133,6 +135,12 @@ class ScheduleConfig:
         ``apg_robust``: 2, else 1)
     :param planning_width: with a depth > 1, how many actions of each step that search expands
         (``ValueLookaheadPolicy.planning_width``); None: the variant's (``apg_robust``: 8), else every one
+    :param recordings: recorded scenes to train among as well, each a replay crowd's settings
+        ``PATH[,frame_rate=F][,key=value...]`` (``sb3-crowdnav train --recording``; the grammar of ``--crowd
+        replay:...``): each becomes one more world of ``CrowdNavWorlds-v0`` beside the variant's (``crowd="replay"``,
+        with ``tracked="nearest"`` and ``lead_in=1`` unless given), drawn with the same probability as each of
+        them. Only for a variant that trains on the open floor in ``CrowdNavWorlds-v0`` (``apg_robust``). No
+        recording ships with the package; keep held-out scenes out of training
     :param ensemble: train this many member runs (one imitation, each member its own seed and this schedule) and
         make their best checkpoints one value ensemble (:mod:`sb3_crowdnav.training.ensemble`); 1: one run
     :param ensemble_checkpoints: the best checkpoints by validation each member gives the ensemble (more than 1 needs
@@ -169,6 +177,7 @@ class ScheduleConfig:
     ensemble_checkpoints: int = 1
     planning_depth: int | None = None
     planning_width: int | None = None
+    recordings: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         for name, allowed in (("variant", tuple(VARIANTS)), ("select_by", SELECT_BY), ("optimizer", tuple(OPTIMIZERS)),
@@ -201,10 +210,34 @@ class ScheduleConfig:
         if not (isinstance(self.overlap, bool) or self.overlap in OVERLAP_KINDS):
             raise ValueError(f"overlap must be a bool or one of {OVERLAP_KINDS}, got {self.overlap!r}")
         check_instance("env_kwargs", self.env_kwargs, dict, "a dict")
+        self._check_recordings()
         reward = self.env_kwargs.get("reward", self.spec.reward)
         if reward != self.spec.reward:
             raise ValueError(f"env_kwargs['reward'] = {reward!r}: variant {self.variant!r} trains with "
                              f"reward {self.spec.reward!r}")
+
+    def _check_recordings(self) -> None:
+        check_instance("recordings", self.recordings, (tuple, list), "a sequence of replay settings 'PATH[,...]'")
+        object.__setattr__(self, "recordings", tuple(self.recordings))
+        if not self.recordings:
+            return
+        base = self.env_kwargs.get("base_env", self.spec.env_kwargs.get("base_env"))
+        worlds = self.env_kwargs.get("worlds", self.spec.env_kwargs.get("worlds"))
+        if self.spec.env_id != "CrowdNavWorlds-v0" or base not in (None, "CrowdNav-v0") or worlds == "warehouse":
+            raise ValueError(f"recordings: variant {self.variant!r} does not train among several crowds on the open "
+                             "floor; recorded scenes join a variant that trains in CrowdNavWorlds-v0 on CrowdNav-v0 "
+                             "(apg_robust)")
+        for i, text in enumerate(self.recordings):
+            check_instance(f"recordings[{i}]", text, str, "replay settings 'PATH[,frame_rate=F][,key=value...]'")
+            CrowdSpec.parse(f"replay:{text}", name=f"recordings[{i}]")
+
+    @property
+    def recorded_worlds(self) -> list[dict[str, Any]]:
+        """The worlds of :attr:`recordings`: ``crowd="replay"`` with their settings (``tracked="nearest"`` and
+        ``lead_in=1`` unless given)."""
+        return [{"crowd": "replay", "crowd_kwargs": {"tracked": "nearest", "lead_in": 1,
+                                                     **CrowdSpec.parse(f"replay:{text}").crowd_kwargs}}
+                for text in self.recordings]
 
     @property
     def spec(self) -> Variant:
@@ -213,8 +246,13 @@ class ScheduleConfig:
     @property
     def training_env_kwargs(self) -> dict[str, Any]:
         """Keyword arguments of the training and validation envs."""
-        return {"reward": self.spec.reward, "num_humans": self.num_humans, **self.spec.env_kwargs,
-                **{k: v for k, v in self.env_kwargs.items() if k != "reward"}}
+        kwargs = {"reward": self.spec.reward, "num_humans": self.num_humans, **self.spec.env_kwargs,
+                  **{k: v for k, v in self.env_kwargs.items() if k != "reward"}}
+        if self.recordings:
+            worlds = kwargs.get("worlds", "robust")
+            simulated = PRESETS[worlds][0] if isinstance(worlds, str) else worlds
+            kwargs["worlds"] = [dict(world) for world in simulated] + self.recorded_worlds
+        return kwargs
 
 
 @dataclass
