@@ -649,3 +649,20 @@ def test_the_graph_makes_the_extractors_discrete_choices(tmp_path):
     got = session.run(None, obs)
     np.testing.assert_array_equal(got[0], order.numpy())
     np.testing.assert_array_equal(got[1], occupied.numpy())
+
+
+@pytest.mark.slow  # an export: make slow
+def test_the_graph_caps_v_when_the_policy_does(tmp_path):
+    """``cap_values=True`` on the paper's open floor (an overestimating V): the exported graph caps as the policy."""
+    from sb3_crowdnav import APGValue
+    from sb3_crowdnav.deploy import OnnxPolicy, export_onnx
+
+    env = gym.make("CrowdNav-v0")
+    model = APGValue("ApgPolicy", env, imitation_episodes=0, seed=0)
+    with th.no_grad():
+        list(model.policy.value_net.parameters())[-1].add_(20.0)
+    model.policy.set_cap_values(True)
+    graph = OnnxPolicy(export_onnx(model, tmp_path / "capped.onnx", env=env), env)
+    obs = random_observations(env, 100, seed=1)
+    assert graph.run(obs)[1].max() <= 1.0 + 1e-5  # no action above the success reward
+    _assert_graph_matches(graph, model.policy, obs, atol=1e-4)

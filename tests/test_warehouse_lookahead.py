@@ -266,3 +266,79 @@ def test_the_open_floor_lookahead_evaluates_every_action():
     assert len(distinct["robot"]) == 4 * 80
     with pytest.raises(TypeError, match="distinct"):
         policy.lookahead_inputs(prop, distinct=1)
+
+
+def _near_the_goal(env: gym.Env, policy) -> dict[str, np.ndarray]:
+    """An observation of ``env`` (empty floor) from which some action reaches the goal: the ORCA robot drives there."""
+    from sb3_crowdnav.sim.orca import OrcaPolicy
+
+    robot = OrcaPolicy.from_env(env, mapping="constrained")
+    obs, _ = env.reset(seed=3)
+    for _ in range(200):
+        batch = {key: value[None] for key, value in obs.items()}
+        _, prop = policy.lookahead(batch)
+        if (prop.terminal & (prop.reward > 0.5)).any():
+            return batch
+        obs, *_ = env.step(int(robot.predict(obs, deterministic=True)[0]))
+    raise AssertionError("the ORCA robot never came within a step of its goal")
+
+
+def test_cap_values_caps_an_overestimating_v_on_the_open_floor_so_the_goal_wins(tmp_path):
+    """On the paper's open floor V is not capped by default (the shipped models act as trained): a V that
+    overestimates next to the goal outbids the success action, and the robot circles there. ``cap_values=True`` caps
+    it at the success reward, at one step and in a two-step beam; the setting is saved with the model."""
+    from sb3_crowdnav.apg_value import APGValue
+
+    env = gym.make(OPEN_FLOOR, num_humans=0)
+    model = APGValue("ApgPolicy", env, imitation_episodes=0, seed=0)
+    policy = model.policy
+    assert policy.cap_values is None and not policy.caps_values and policy.value_ceiling(np.ones(1)) is None
+    with th.no_grad():
+        list(policy.value_net.parameters())[-1].add_(20.0)  # V about 20 everywhere: far above any return
+    obs = _near_the_goal(env, policy)
+    for depth, width in ((1, None), (2, 8)):
+        policy.set_planning(depth, width)
+        policy.set_cap_values(None)
+        q, prop = policy.lookahead(obs)
+        goal = prop.terminal[0] & (prop.reward[0] > 0.5)
+        assert not goal[int(q[0].argmax())], depth  # uncapped: an action that does not arrive looks better
+        policy.set_cap_values(True)
+        q, prop = policy.lookahead(obs)
+        assert goal[int(q[0].argmax())], depth  # capped: the goal
+        discount = policy.gamma ** (policy.time_step * obs["robot"][0, Robot.V_PREF])
+        assert np.all(q[0] <= prop.reward[0] + discount * 1.0 + 1e-6)
+    model.save(tmp_path / "capped.zip")
+    assert APGValue.load(tmp_path / "capped.zip").policy.cap_values is True
+    policy.set_cap_values(None)
+    model.save(tmp_path / "rule.zip")
+    assert APGValue.load(tmp_path / "rule.zip").policy.cap_values is None
+    # False turns the warehouse's cap off; anything but None or a bool is refused
+    warehouse = APGValue("ApgPolicy", gym.make(WAREHOUSE, num_humans=1), imitation_episodes=0, seed=0).policy
+    assert warehouse.caps_values and warehouse.value_ceiling(np.ones(1)) is not None
+    warehouse.set_cap_values(False)
+    assert warehouse.value_ceiling(np.ones(1)) is None
+    for bad in ("yes", 1):
+        with pytest.raises(TypeError, match="cap_values"):
+            policy.set_cap_values(bad)
+
+
+def test_a_finished_run_gets_the_schedules_cap(tmp_path):
+    """``ScheduleConfig.cap_values`` reaches the finished run's files through ``finish_depth`` (with the search), and
+    is checked at construction."""
+    import json
+
+    from sb3_crowdnav.apg_value import APGValue
+    from sb3_crowdnav.training.callbacks import finish_depth
+    from sb3_crowdnav.training.schedule import ScheduleConfig
+
+    APGValue("ApgPolicy", gym.make(OPEN_FLOOR), imitation_episodes=0, seed=0).save(tmp_path / "best.zip")
+    (tmp_path / "best.json").write_text(json.dumps({"episodes": 1}))
+    finish_depth(tmp_path, 2, lambda _: None, 8, cap_values=True)
+    policy = APGValue.load(tmp_path / "best.zip").policy
+    assert (policy.planning_depth, policy.planning_width, policy.cap_values) == (2, 8, True)
+    assert json.loads((tmp_path / "best.json").read_text())["cap_values"] is True
+    finish_depth(tmp_path, 2, lambda _: None, 8)  # None keeps the file's cap
+    assert APGValue.load(tmp_path / "best.zip").policy.cap_values is True
+    assert ScheduleConfig(variant="apg_robust", cap_values=True).cap_values is True
+    with pytest.raises(TypeError, match="cap_values"):
+        ScheduleConfig(variant="apg_robust", cap_values="on")

@@ -25,7 +25,14 @@ from sb3_crowdnav.sim.world import World
 # how a trained model acts, each with its default: switched on a loaded model by ValueLookaheadPolicy's setters, and
 # written into the model file (APGValue.save) once it differs from the default
 LOOKAHEAD_SETTINGS = {"lookahead_dtype": "float32", "pedestrian_model": "constant_velocity", "stopping_check": False,
-                      "planning_depth": 1, "planning_width": None}
+                      "planning_depth": 1, "planning_width": None, "cap_values": None}
+
+
+def check_cap_values(cap_values: bool | None) -> bool | None:
+    """``cap_values`` None, True or False (:class:`ValueLookaheadPolicy`); back as given."""
+    if cap_values is not None and not isinstance(cap_values, bool):
+        raise TypeError(f"cap_values must be None (the world's rule), True or False, got {cap_values!r}")
+    return cap_values
 
 
 def check_planning(planning_depth: int, planning_width: int | None) -> tuple[int, int | None]:
@@ -125,6 +132,11 @@ class ValueLookaheadPolicy(BasePolicy):
         deeper, ranked by their one-step Q (a beam; :mod:`~sb3_crowdnav.apg_value.search`); None (default): every
         successor. Refused at depth 1, where nothing is searched deeper; :meth:`set_planning_width` switches a
         loaded model
+    :param cap_values: whether the lookahead (and the TD targets) take ``min(V(s'), ceiling)``, the largest return a
+        state can have (:meth:`value_ceiling`): None (default) the world's rule (``World.has_value_ceiling``: on
+        with racks or progress shaping, off on the paper's open floor, where the shipped models act as trained);
+        True also on the paper's open floor (where the ceiling is the success reward); False never.
+        :meth:`set_cap_values` switches a loaded model
     :param ensemble_size: number of value networks whose mean is V (:class:`ValueEnsemble`; 1, the paper: one
         :class:`ValueNetwork`). Each decision costs one forward pass per member. Ensembles are made of trained models
         with :func:`sb3_crowdnav.training.ensemble_models`
@@ -153,6 +165,7 @@ class ValueLookaheadPolicy(BasePolicy):
         stopping_check: bool = False,
         planning_depth: int = 1,
         planning_width: int | None = None,
+        cap_values: bool | None = None,
     ) -> None:
         schema = ObservationSchema.from_space(observation_space)
         self.history_length, self.max_humans = schema.history_length, schema.max_humans
@@ -161,6 +174,7 @@ class ValueLookaheadPolicy(BasePolicy):
         check_int("ensemble_size", ensemble_size, 1)
         self.ensemble_size = int(ensemble_size)
         self.planning_depth, self.planning_width = check_planning(planning_depth, planning_width)
+        self.cap_values = check_cap_values(cap_values)
         world = World() if world is None else World.coerce(world)
         check_stopping_check(stopping_check, world)  # before any work
         if not isinstance(action_space, spaces.Discrete) or action_space.n != world.n_actions:
@@ -245,6 +259,15 @@ class ValueLookaheadPolicy(BasePolicy):
         """Switch how many actions of each step a deeper search expands, keeping its depth."""
         self.set_planning(self.planning_depth, planning_width)
 
+    def set_cap_values(self, cap_values: bool | None) -> None:
+        """Switch whether V is capped at :meth:`value_ceiling` (see the class docstring); V is unchanged."""
+        self.cap_values = check_cap_values(cap_values)
+
+    @property
+    def caps_values(self) -> bool:
+        """Whether V is capped: :attr:`cap_values`, or the world's rule when it is None."""
+        return self.world.has_value_ceiling if self.cap_values is None else self.cap_values
+
     def make_value_net(self) -> ValueNetwork | ValueEnsemble:
         """A new V: one :class:`ValueNetwork`, or a :class:`ValueEnsemble` of ``ensemble_size`` of them."""
         members = [ValueNetwork(self.make_features_extractor(), self.net_arch, self.activation_fn)
@@ -279,6 +302,8 @@ class ValueLookaheadPolicy(BasePolicy):
             data["planning_depth"] = self.planning_depth
         if self.planning_width is not None:
             data["planning_width"] = self.planning_width
+        if self.cap_values is not None:  # likewise: the world's rule needs no entry
+            data["cap_values"] = self.cap_values
         return data
 
     # ------------------------------------------------------------------ values
@@ -288,9 +313,9 @@ class ValueLookaheadPolicy(BasePolicy):
         return net(observation)
 
     def value_ceiling(self, v_pref: Any) -> Any:
-        """The largest return any state can have, per state (numpy or torch like ``v_pref``), in the warehouse and
-        wherever progress is shaped (``world.has_value_ceiling``); None on the paper's open floor, where no ceiling
-        is applied (the shipped models act as trained).
+        """The largest return any state can have, per state (numpy or torch like ``v_pref``), where V is capped
+        (:attr:`caps_values`: by default in the warehouse and wherever progress is shaped, ``world.has_value_ceiling``);
+        None where it is not (by default the paper's open floor, where the shipped models act as trained).
 
         Every reward term is <= 0 but the success reward S and the progress shaping, and one step gains at
         most its length ``v_pref·Δt`` on any waypoint or goal: a return is at most ``max(S, k·v_pref·Δt / (1 - γ'))``
@@ -298,7 +323,7 @@ class ValueLookaheadPolicy(BasePolicy):
         ``min(V(s'), ceiling)``: V's overestimates beyond it (which, next to the goal, outbid the success action
         and kept the robot circling there) are cut, and no true value is.
         """
-        if not self.world.has_value_ceiling or self.gamma >= 1:
+        if not self.caps_values or self.gamma >= 1:
             return None
         step = self.time_step * v_pref
         shaping = self.world.progress_reward * step / (1 - self.gamma**step)

@@ -28,7 +28,7 @@ SCHEDULE_FLAGS = {
     "exploration_initial_eps": "--epsilon-start", "exploration_final_eps": "--epsilon-end",
     "pedestrian_model": "--pedestrian-model", "stopping_check": "--stopping-check", "ensemble": "--ensemble",
     "ensemble_checkpoints": "--ensemble-checkpoints", "planning_depth": "--planning-depth",
-    "planning_width": "--planning-width", "recordings": "--recording",
+    "planning_width": "--planning-width", "cap_values": "--cap-values", "recordings": "--recording",
 }
 SHARED_FLAGS = ("eval_episodes",)  # schedule flags that a --hyperparams run takes too
 HYPERPARAMS_FLAGS = {"algo": "--algo", "timesteps": "--timesteps", "checkpoint_freq": "--checkpoint-freq",
@@ -118,6 +118,10 @@ def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
     g.add_argument("--planning-width", type=common.positive_int, metavar="K",
                    help="with a depth > 1, the best K actions of each step that search expands (default: the "
                         "variant's, else every one)")
+    g.add_argument("--cap-values", action=argparse.BooleanOptionalAction, default=None,
+                   help="the finished run's best.zip and final.zip cap V at the largest return a state can have, "
+                        "also on the paper's open floor (--no-cap-values: never) (default: the variant's; apg_robust: "
+                        "on, the others the world's rule)")
     g.add_argument("--recording", dest="recordings", action="append", metavar="PATH[,frame_rate=F]",
                    help="a recorded scene to train among as well (repeat), the settings of --crowd replay:PATH[,...] "
                         "(tracked=nearest and lead_in=1 unless given): one more world beside the variant's, as "

@@ -82,7 +82,7 @@ class LookaheadDecision(nn.Module):
         self.keys = tuple(schema.shapes)  # the observation's keys in the schema's order, the value network's inputs
         self.value_net = policy.value_net
         world = policy.world
-        self.ceiling = world.has_value_ceiling and policy.gamma < 1
+        self.ceiling = policy.caps_values and policy.gamma < 1
         self.ceiling_terms = (world.time_step, world.progress_reward, policy.gamma, world.reward.success_reward)
         self.depth, self.width = policy.planning_depth, policy.planning_width
 

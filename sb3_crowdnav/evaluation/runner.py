@@ -101,13 +101,14 @@ def make_policy(spec: Any, env: gym.Env | None = None, allow_env_mismatch: bool 
     return ProtectedPolicy(policy, protective_field, env)
 
 
-LOOKAHEAD_KEYS = ("pedestrian_model", "stopping_check", "planning_depth", "planning_width")
+LOOKAHEAD_KEYS = ("pedestrian_model", "stopping_check", "planning_depth", "planning_width", "cap_values")
 
 
 def with_lookahead(policy: Any, lookahead: Mapping[str, Any]) -> Any:
     """``policy`` (a value model: APGValue) with its lookahead's ``pedestrian_model``, ``stopping_check``,
-    ``planning_depth`` and/or ``planning_width`` set (:class:`~sb3_crowdnav.apg_value.ValueLookaheadPolicy`'s setters;
-    V unchanged). A depth of 1 without a width also drops the model's width (a one-step lookahead has none).
+    ``planning_depth``, ``planning_width`` and/or ``cap_values`` set
+    (:class:`~sb3_crowdnav.apg_value.ValueLookaheadPolicy`'s setters; V unchanged). A depth of 1 without a width
+    also drops the model's width (a one-step lookahead has none).
     ``ValueError`` for another policy or another key; the setters refuse a value the model's world does not take (a
     stopping check without limits), a depth that is not an int >= 1 or a width with a depth of 1."""
     unknown = sorted(set(lookahead) - set(LOOKAHEAD_KEYS))
@@ -121,6 +122,8 @@ def with_lookahead(policy: Any, lookahead: Mapping[str, Any]) -> Any:
         value_policy.set_pedestrian_model(lookahead["pedestrian_model"])
     if "stopping_check" in lookahead:
         value_policy.set_stopping_check(bool(lookahead["stopping_check"]))
+    if "cap_values" in lookahead:
+        value_policy.set_cap_values(lookahead["cap_values"])
     if "planning_depth" in lookahead or "planning_width" in lookahead:
         depth = lookahead.get("planning_depth", value_policy.planning_depth)
         kept = value_policy.planning_width if depth != 1 else None

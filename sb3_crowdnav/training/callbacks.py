@@ -96,11 +96,13 @@ def update_best(out: Path, row: dict[str, Any], source: Path, select_by: str = "
     return True
 
 
-def finish_depth(out: Path, depth: int, log: Callable[[str], Any] = print, width: int | None = None) -> None:
+def finish_depth(out: Path, depth: int, log: Callable[[str], Any] = print, width: int | None = None,
+                 cap_values: bool | None = None) -> None:
     """Give a finished run's ``OUT/final.zip`` and ``OUT/best.zip`` the lookahead ``depth`` (and ``width``) they act
-    with (``ValueLookaheadPolicy.planning_depth`` / ``planning_width``; ``best.json`` records the new file's hash).
-    Training, its checkpoints and validations search one step: a deeper search costs several times a decision. Files
-    searching so already are left as they are, so a rerun changes nothing."""
+    with (``ValueLookaheadPolicy.planning_depth`` / ``planning_width``; ``best.json`` records the new file's hash),
+    and, when ``cap_values`` is not None, that cap of V (``ValueLookaheadPolicy.cap_values``). Training, its
+    checkpoints and validations search one step: a deeper search costs several times a decision. Files acting so
+    already are left as they are, so a rerun changes nothing."""
     from sb3_crowdnav.apg_value import APGValue
 
     for name in ("final.zip", "best.zip"):
@@ -108,14 +110,18 @@ def finish_depth(out: Path, depth: int, log: Callable[[str], Any] = print, width
         if not path.exists():
             continue
         model = APGValue.load(path)
-        if (model.policy.planning_depth, model.policy.planning_width) == (depth, width):
+        cap = model.policy.cap_values if cap_values is None else cap_values
+        if (model.policy.planning_depth, model.policy.planning_width, model.policy.cap_values) == (depth, width, cap):
             continue
         model.policy.set_planning(depth, width)
+        model.policy.set_cap_values(cap)
         atomic_write(path, model.save)
         if name == "best.zip" and (best := read_json(Path(out) / "best.json")) is not None:
             write_json(Path(out) / "best.json", {**best, "sha256": sha256(path), "planning_depth": depth,
-                                                 **({"planning_width": width} if width is not None else {})})
-        log(f"{path} acts with a lookahead of depth {depth}" + (f", width {width}" if width is not None else ""))
+                                                 **({"planning_width": width} if width is not None else {}),
+                                                 **({"cap_values": cap} if cap is not None else {})})
+        log(f"{path} acts with a lookahead of depth {depth}" + (f", width {width}" if width is not None else "")
+            + (f", V capped: {cap}" if cap is not None else ""))
 
 
 class EpisodeCheckpoint(BaseCallback):

@@ -56,6 +56,8 @@ def chosen_checkpoints(folder: Path, count: int, select_by: str) -> list[tuple[P
 def _at_depth(model: APGValue, config: Any) -> APGValue:
     """``model`` acting with the run's ``planning_depth`` (checkpoints, which the ensemble may take, search one step)."""
     model.policy.set_planning(config.planning_depth, config.planning_width)
+    if config.cap_values is not None:
+        model.policy.set_cap_values(config.cap_values)
     return model
 
 

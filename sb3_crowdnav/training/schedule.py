@@ -54,7 +54,7 @@ from stable_baselines3.common.env_util import make_vec_env
 from sb3_crowdnav.apg_value import APGValue
 from sb3_crowdnav.apg_value.checks import VALUE_TARGETS
 from sb3_crowdnav.apg_value.overlap import OVERLAP_KINDS
-from sb3_crowdnav.apg_value.policies import ValueLookaheadPolicy, check_planning
+from sb3_crowdnav.apg_value.policies import ValueLookaheadPolicy, check_cap_values, check_planning
 from sb3_crowdnav.apg_value.propagation import PropagationModel, check_stopping_check
 from sb3_crowdnav.envs.worlds import PRESETS
 from sb3_crowdnav.evaluation.crowd_spec import CrowdSpec
@@ -135,6 +135,9 @@ class ScheduleConfig:
         ``apg_robust``: 2, else 1)
     :param planning_width: with a depth > 1, how many actions of each step that search expands
         (``ValueLookaheadPolicy.planning_width``); None: the variant's (``apg_robust``: 8), else every one
+    :param cap_values: the finished run's ``best.zip`` and ``final.zip`` cap V at the largest return a state can have
+        (``ValueLookaheadPolicy.cap_values``: True also on the paper's open floor, False never; training and its
+        checkpoints keep the world's rule); None: the variant's, else the world's rule
     :param recordings: recorded scenes to train among as well, each a replay crowd's settings
         ``PATH[,frame_rate=F][,key=value...]`` (``sb3-crowdnav train --recording``; the grammar of ``--crowd
         replay:...``): each becomes one more world of ``CrowdNavWorlds-v0`` beside the variant's (``crowd="replay"``,
@@ -177,6 +180,7 @@ class ScheduleConfig:
     ensemble_checkpoints: int = 1
     planning_depth: int | None = None
     planning_width: int | None = None
+    cap_values: bool | None = None
     recordings: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
@@ -192,6 +196,7 @@ class ScheduleConfig:
                               ("refill_steps", 0), ("ensemble", 1), ("ensemble_checkpoints", 1), ("planning_depth", 1)):
             check_int(name, getattr(self, name), minimum)
         check_planning(self.planning_depth, self.planning_width)
+        check_cap_values(self.cap_values)
         validations = self.rl_episodes // self.checkpoint_episodes if self.eval_episodes else 0
         if self.ensemble_checkpoints > max(validations, 1):
             raise ValueError(f"ensemble_checkpoints must be at most the run's validations ({validations}: "
@@ -384,7 +389,7 @@ def _train(out: Path, config: ScheduleConfig, from_imitation: str | Path | None,
     if progress.get("finished") and latest is not None and latest[0] >= config.rl_episodes \
             and (out / "final.zip").exists():
         log(f"{out} has finished its {latest[0]} RL episodes: nothing to do")
-        finish_depth(out, config.planning_depth, log, config.planning_width)  # (a run killed before it was set)
+        finish_depth(out, config.planning_depth, log, config.planning_width, config.cap_values)  # (killed before)
         return ScheduleResult(APGValue.load(out / "final.zip"), None, 0.0)
     imitated = (out / "imitation.zip").exists() and (out / "imitation_replay_buffer.npz").exists()
     clock = RunClock(progress.get("wall_time_s", 0.0) if latest is not None or imitated else 0.0)
@@ -433,8 +438,10 @@ def _train(out: Path, config: ScheduleConfig, from_imitation: str | Path | None,
         write_json(out / "progress.json", {**(read_json(out / "progress.json") or {}), "finished": True,
                                            "wall_time_s": round(clock.total(), 1)})
         log(f"done: {model.episodes_done} RL episodes, {model.num_timesteps} steps, {time.time() - start:.0f} s this run")
-        finish_depth(out, config.planning_depth, log, config.planning_width)
+        finish_depth(out, config.planning_depth, log, config.planning_width, config.cap_values)
         model.policy.set_planning(config.planning_depth, config.planning_width)
+        if config.cap_values is not None:
+            model.policy.set_cap_values(config.cap_values)
     return ScheduleResult(model, callback.stopped_by, time.time() - start)
 
 
