@@ -14,7 +14,7 @@ from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 from torch import nn
 
 from sb3_crowdnav.apg_value.propagation import Propagated, PropagationModel, check_stopping_check
-from sb3_crowdnav.apg_value.search import STATIC_KEYS, search
+from sb3_crowdnav.apg_value.search import STATIC_KEYS, check_cap_values, check_planning, search
 from sb3_crowdnav.nn import ApgExtractor, CadrlExtractor, LmExtractor, LstmRlExtractor, SarlExtractor, SfExtractor
 from sb3_crowdnav.nn.layers import bfloat16_supported
 from sb3_crowdnav.sim.config import RewardConfig
@@ -26,24 +26,6 @@ from sb3_crowdnav.sim.world import World
 # written into the model file (APGValue.save) once it differs from the default
 LOOKAHEAD_SETTINGS = {"lookahead_dtype": "float32", "pedestrian_model": "constant_velocity", "stopping_check": False,
                       "planning_depth": 1, "planning_width": None, "cap_values": None}
-
-
-def check_cap_values(cap_values: bool | None) -> bool | None:
-    """``cap_values`` None, True or False (:class:`ValueLookaheadPolicy`); back as given."""
-    if cap_values is not None and not isinstance(cap_values, bool):
-        raise TypeError(f"cap_values must be None (the world's rule), True or False, got {cap_values!r}")
-    return cap_values
-
-
-def check_planning(planning_depth: int, planning_width: int | None) -> tuple[int, int | None]:
-    """``planning_depth`` an int >= 1, ``planning_width`` None or an int >= 1 and only with a depth > 1; both back."""
-    check_int("planning_depth", planning_depth, 1)
-    if planning_width is not None:
-        check_int("planning_width", planning_width, 1)
-        if planning_depth == 1:
-            raise ValueError(f"planning_width={planning_width!r} needs planning_depth > 1 (a one-step lookahead "
-                             f"searches nothing deeper); got planning_depth=1")
-    return int(planning_depth), None if planning_width is None else int(planning_width)
 
 
 class ValueNetwork(nn.Module):

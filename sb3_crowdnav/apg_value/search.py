@@ -23,8 +23,27 @@ from torch import nn
 
 from sb3_crowdnav.apg_value.propagation import Propagated
 from sb3_crowdnav.sim.observation import OBSTACLE_KEYS, WAYPOINT_KEY, Robot
+from sb3_crowdnav.sim.validation import check_int
 
 STATIC_KEYS = (*OBSTACLE_KEYS, WAYPOINT_KEY)  # the warehouse's, propagated when the observation has them
+
+
+def check_cap_values(cap_values: bool | None) -> bool | None:
+    """``cap_values`` None, True or False (:class:`ValueLookaheadPolicy`); back as given."""
+    if cap_values is not None and not isinstance(cap_values, bool):
+        raise TypeError(f"cap_values must be None (the world's rule), True or False, got {cap_values!r}")
+    return cap_values
+
+
+def check_planning(planning_depth: int, planning_width: int | None) -> tuple[int, int | None]:
+    """``planning_depth`` an int >= 1, ``planning_width`` None or an int >= 1 and only with a depth > 1; both back."""
+    check_int("planning_depth", planning_depth, 1)
+    if planning_width is not None:
+        check_int("planning_width", planning_width, 1)
+        if planning_depth == 1:
+            raise ValueError(f"planning_width={planning_width!r} needs planning_depth > 1 (a one-step lookahead "
+                             f"searches nothing deeper); got planning_depth=1")
+    return int(planning_depth), None if planning_width is None else int(planning_width)
 
 
 def best_actions(q: np.ndarray, width: int) -> np.ndarray:

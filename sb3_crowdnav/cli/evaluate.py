@@ -58,10 +58,8 @@ def _run_options(p: argparse.ArgumentParser, default_episodes: int = 500) -> Non
                         "default: each model's own)")
     g.add_argument("--planning-width", type=positive_int, metavar="K", help="with a depth > 1, search only the best K "
                    "actions of each step deeper, by their one-step Q (default: each model's own, else every one)")
-    g.add_argument("--cap-values", action=argparse.BooleanOptionalAction, default=None,
-                   help="cap V at the largest return a state can have in the lookahead of every value model "
-                        "evaluated, also on the paper's open floor (--no-cap-values: never) (default: each model's "
-                        "own, else the world's rule)")
+    g.add_argument("--cap-values", action=argparse.BooleanOptionalAction, default=None, help="cap V at the largest "
+                   "return a state can have, also on the paper's open floor (default: each model's own)")
 
 
 def _protective_field(text: str) -> Any:

@@ -54,12 +54,12 @@ from stable_baselines3.common.env_util import make_vec_env
 from sb3_crowdnav.apg_value import APGValue
 from sb3_crowdnav.apg_value.checks import VALUE_TARGETS
 from sb3_crowdnav.apg_value.overlap import OVERLAP_KINDS
-from sb3_crowdnav.apg_value.policies import ValueLookaheadPolicy, check_cap_values, check_planning
+from sb3_crowdnav.apg_value.policies import ValueLookaheadPolicy
 from sb3_crowdnav.apg_value.propagation import PropagationModel, check_stopping_check
-from sb3_crowdnav.envs.worlds import PRESETS
-from sb3_crowdnav.evaluation.crowd_spec import CrowdSpec
+from sb3_crowdnav.apg_value.search import check_cap_values, check_planning
 from sb3_crowdnav.sim.validation import check_bool, check_choice, check_instance, check_int, check_number, check_probability
 from sb3_crowdnav.training.callbacks import SELECT_BY, EpisodeCheckpoint, finish_depth
+from sb3_crowdnav.training.recordings import check_recordings, with_recordings
 from sb3_crowdnav.training.run_folder import (
     RunClock,
     RunLock,
@@ -215,34 +215,13 @@ class ScheduleConfig:
         if not (isinstance(self.overlap, bool) or self.overlap in OVERLAP_KINDS):
             raise ValueError(f"overlap must be a bool or one of {OVERLAP_KINDS}, got {self.overlap!r}")
         check_instance("env_kwargs", self.env_kwargs, dict, "a dict")
-        self._check_recordings()
+        object.__setattr__(self, "recordings", check_recordings(self.variant, self.spec.env_id,
+                                                                {**self.spec.env_kwargs, **self.env_kwargs},
+                                                                self.recordings))
         reward = self.env_kwargs.get("reward", self.spec.reward)
         if reward != self.spec.reward:
             raise ValueError(f"env_kwargs['reward'] = {reward!r}: variant {self.variant!r} trains with "
                              f"reward {self.spec.reward!r}")
-
-    def _check_recordings(self) -> None:
-        check_instance("recordings", self.recordings, (tuple, list), "a sequence of replay settings 'PATH[,...]'")
-        object.__setattr__(self, "recordings", tuple(self.recordings))
-        if not self.recordings:
-            return
-        base = self.env_kwargs.get("base_env", self.spec.env_kwargs.get("base_env"))
-        worlds = self.env_kwargs.get("worlds", self.spec.env_kwargs.get("worlds"))
-        if self.spec.env_id != "CrowdNavWorlds-v0" or base not in (None, "CrowdNav-v0") or worlds == "warehouse":
-            raise ValueError(f"recordings: variant {self.variant!r} does not train among several crowds on the open "
-                             "floor; recorded scenes join a variant that trains in CrowdNavWorlds-v0 on CrowdNav-v0 "
-                             "(apg_robust)")
-        for i, text in enumerate(self.recordings):
-            check_instance(f"recordings[{i}]", text, str, "replay settings 'PATH[,frame_rate=F][,key=value...]'")
-            CrowdSpec.parse(f"replay:{text}", name=f"recordings[{i}]")
-
-    @property
-    def recorded_worlds(self) -> list[dict[str, Any]]:
-        """The worlds of :attr:`recordings`: ``crowd="replay"`` with their settings (``tracked="nearest"`` and
-        ``lead_in=1`` unless given)."""
-        return [{"crowd": "replay", "crowd_kwargs": {"tracked": "nearest", "lead_in": 1,
-                                                     **CrowdSpec.parse(f"replay:{text}").crowd_kwargs}}
-                for text in self.recordings]
 
     @property
     def spec(self) -> Variant:
@@ -253,11 +232,7 @@ class ScheduleConfig:
         """Keyword arguments of the training and validation envs."""
         kwargs = {"reward": self.spec.reward, "num_humans": self.num_humans, **self.spec.env_kwargs,
                   **{k: v for k, v in self.env_kwargs.items() if k != "reward"}}
-        if self.recordings:
-            worlds = kwargs.get("worlds", "robust")
-            simulated = PRESETS[worlds][0] if isinstance(worlds, str) else worlds
-            kwargs["worlds"] = [dict(world) for world in simulated] + self.recorded_worlds
-        return kwargs
+        return with_recordings(kwargs, self.recordings)
 
 
 @dataclass
