@@ -120,8 +120,8 @@ def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
                         "variant's, else every one)")
     g.add_argument("--cap-values", action=argparse.BooleanOptionalAction, default=None,
                    help="the finished run's best.zip and final.zip cap V at the largest return a state can have, "
-                        "also on the paper's open floor (--no-cap-values: never) (default: the variant's; apg_robust: "
-                        "on, the others the world's rule)")
+                        "also on the paper's open floor (--no-cap-values: never) (default: the world's rule: on with "
+                        "racks or progress shaping)")
     g.add_argument("--recording", dest="recordings", action="append", metavar="PATH[,frame_rate=F]",
                    help="a recorded scene to train among as well (repeat), the settings of --crowd replay:PATH[,...] "
                         "(tracked=nearest and lead_in=1 unless given): one more world beside the variant's, as "
@@ -180,8 +180,6 @@ def _variant_config(args: argparse.Namespace) -> Any:
     given = {name: getattr(args, name) for name in (*SCHEDULE_FLAGS, "imitation_episodes", "imitation_epochs",
                                                      "imitation_learning_rate", "seed")}
     given = {k: v for k, v in given.items() if v is not None and k != "from_imitation"}
-    if "recordings" in given:
-        given["recordings"] = tuple(given["recordings"])
     if given.get("overlap") == "off":
         given["overlap"] = False
     if num_humans is not None:

@@ -96,6 +96,14 @@ def update_best(out: Path, row: dict[str, Any], source: Path, select_by: str = "
     return True
 
 
+def set_finished_lookahead(policy: Any, depth: int, width: int | None, cap_values: bool | None) -> None:
+    """``policy`` (a ``ValueLookaheadPolicy``) searching as a finished run's files do: ``depth`` and ``width``, and the
+    cap of V when ``cap_values`` is not None (None keeps the policy's)."""
+    policy.set_planning(depth, width)
+    if cap_values is not None:
+        policy.set_cap_values(cap_values)
+
+
 def finish_depth(out: Path, depth: int, log: Callable[[str], Any] = print, width: int | None = None,
                  cap_values: bool | None = None) -> None:
     """Give a finished run's ``OUT/final.zip`` and ``OUT/best.zip`` the lookahead ``depth`` (and ``width``) they act
@@ -113,8 +121,7 @@ def finish_depth(out: Path, depth: int, log: Callable[[str], Any] = print, width
         cap = model.policy.cap_values if cap_values is None else cap_values
         if (model.policy.planning_depth, model.policy.planning_width, model.policy.cap_values) == (depth, width, cap):
             continue
-        model.policy.set_planning(depth, width)
-        model.policy.set_cap_values(cap)
+        set_finished_lookahead(model.policy, depth, width, cap)
         atomic_write(path, model.save)
         if name == "best.zip" and (best := read_json(Path(out) / "best.json")) is not None:
             write_json(Path(out) / "best.json", {**best, "sha256": sha256(path), "planning_depth": depth,

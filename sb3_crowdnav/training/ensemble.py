@@ -29,7 +29,7 @@ from typing import Any
 
 from sb3_crowdnav.apg_value import APGValue
 from sb3_crowdnav.training.averaging import ensemble_models
-from sb3_crowdnav.training.callbacks import selection_score, validate_file, validation_rows
+from sb3_crowdnav.training.callbacks import selection_score, set_finished_lookahead, validate_file, validation_rows
 from sb3_crowdnav.training.run_folder import atomic_write, checkpoint_path, read_json, sha256, write_json
 
 MEMBER_SEED_STRIDE = 1000  # member k trains with seed + 1000 k: its envs (seed + i) never meet another member's
@@ -55,9 +55,7 @@ def chosen_checkpoints(folder: Path, count: int, select_by: str) -> list[tuple[P
 
 def _at_depth(model: APGValue, config: Any) -> APGValue:
     """``model`` acting with the run's ``planning_depth`` (checkpoints, which the ensemble may take, search one step)."""
-    model.policy.set_planning(config.planning_depth, config.planning_width)
-    if config.cap_values is not None:
-        model.policy.set_cap_values(config.cap_values)
+    set_finished_lookahead(model.policy, config.planning_depth, config.planning_width, config.cap_values)
     return model
 
 

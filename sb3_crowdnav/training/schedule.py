@@ -58,7 +58,7 @@ from sb3_crowdnav.apg_value.policies import ValueLookaheadPolicy
 from sb3_crowdnav.apg_value.propagation import PropagationModel, check_stopping_check
 from sb3_crowdnav.apg_value.search import check_cap_values, check_planning
 from sb3_crowdnav.sim.validation import check_bool, check_choice, check_instance, check_int, check_number, check_probability
-from sb3_crowdnav.training.callbacks import SELECT_BY, EpisodeCheckpoint, finish_depth
+from sb3_crowdnav.training.callbacks import SELECT_BY, EpisodeCheckpoint, finish_depth, set_finished_lookahead
 from sb3_crowdnav.training.recordings import check_recordings, with_recordings
 from sb3_crowdnav.training.run_folder import (
     RunClock,
@@ -137,7 +137,7 @@ class ScheduleConfig:
         (``ValueLookaheadPolicy.planning_width``); None: the variant's (``apg_robust``: 8), else every one
     :param cap_values: the finished run's ``best.zip`` and ``final.zip`` cap V at the largest return a state can have
         (``ValueLookaheadPolicy.cap_values``: True also on the paper's open floor, False never; training and its
-        checkpoints keep the world's rule); None: the variant's, else the world's rule
+        checkpoints keep the world's rule); None: the variant's if it sets one (none does), else the world's rule
     :param recordings: recorded scenes to train among as well, each a replay crowd's settings
         ``PATH[,frame_rate=F][,key=value...]`` (``sb3-crowdnav train --recording``; the grammar of ``--crowd
         replay:...``): each becomes one more world of ``CrowdNavWorlds-v0`` beside the variant's (``crowd="replay"``,
@@ -414,9 +414,7 @@ def _train(out: Path, config: ScheduleConfig, from_imitation: str | Path | None,
                                            "wall_time_s": round(clock.total(), 1)})
         log(f"done: {model.episodes_done} RL episodes, {model.num_timesteps} steps, {time.time() - start:.0f} s this run")
         finish_depth(out, config.planning_depth, log, config.planning_width, config.cap_values)
-        model.policy.set_planning(config.planning_depth, config.planning_width)
-        if config.cap_values is not None:
-            model.policy.set_cap_values(config.cap_values)
+        set_finished_lookahead(model.policy, config.planning_depth, config.planning_width, config.cap_values)
     return ScheduleResult(model, callback.stopped_by, time.time() - start)
 
 
