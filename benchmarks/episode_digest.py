@@ -12,7 +12,9 @@ statistics; floats by ``repr``, exact) go into the group's hash. The warehouse g
 (``actions="paper", max_acceleration=None, max_turn_rate=None``, the warehouse's defaults before the kinematic
 limits) among pickers who do not see it (``robot_visible=False``, the default before the pickers saw the robot), seen
 through racks at any range (``occlusion=False, people_sensor_range=None``, before the people sensor), so their digests
-are those recorded before. Prints one digest per group and the total;
+are those recorded before. Four more groups run today's defaults: the warehouse (occlusion, the stop and the limits,
+pickers of whom a share see the robot), random (60) and ORCA (10), social force pickers, random (30), and the open
+floor's measured-speed population with the stop, random (10). Prints one digest per group and the total;
 ``--save`` writes them as JSON, ``--check`` compares with such a file and exits 1 on any mismatch; ``--scale``
 multiplies every group's episodes (a stricter check; its digests differ from the default's).
 """
@@ -32,6 +34,7 @@ import numpy as np
 
 import sb3_crowdnav  # noqa: F401  (registers the envs)
 from sb3_crowdnav import OrcaPolicy
+from sb3_crowdnav.sim.population import MEASURED_POPULATION
 
 LAYOUT_FILE = Path(__file__).resolve().parent.parent / "examples" / "warehouse_layout.yaml"
 RANDOM, ORCA = "random", "orca"
@@ -49,6 +52,10 @@ GROUPS: list[tuple[str, str, dict[str, Any], str, int, int]] = [
      {"layout": str(LAYOUT_FILE), "reward": "comfort_angular", "progress_reward": 0.1, **PAPER_ROBOT}, ORCA, 5, 3),
     ("open floor random x 8", "CrowdNav-v0", {"reward": "comfort_angular"}, RANDOM, 10, 4),
     ("open floor ORCA", "CrowdNav-v0", {"reward": "comfort_angular"}, ORCA, 3, 5),
+    ("warehouse defaults random x 8", "CrowdNavWarehouse-v0", {}, RANDOM, 60, 6),
+    ("warehouse defaults ORCA", "CrowdNavWarehouse-v0", {}, ORCA, 10, 7),
+    ("warehouse social force random x 8", "CrowdNavWarehouse-v0", {"crowd": "social_force"}, RANDOM, 30, 8),
+    ("open floor measured random x 8", "CrowdNav-v0", {**MEASURED_POPULATION, "actions": "with_stop"}, RANDOM, 10, 9),
 ]
 
 
@@ -108,10 +115,10 @@ def main() -> None:
         episodes *= args.scale
         digests[name], steps = digest_group(env_id, kwargs, robot, episodes, seed)
         total.update(digests[name].encode())
-        print(f"{name:<26}{episodes:>4} episodes {steps:>6} steps  {digests[name]}  "
+        print(f"{name:<34}{episodes:>4} episodes {steps:>6} steps  {digests[name]}  "
               f"({time.process_time() - began:.1f} s CPU)")
     digests["total"] = total.hexdigest()
-    print(f"{'total':<51}{digests['total']}")
+    print(f"{'total':<59}{digests['total']}")
     if args.save:
         args.save.write_text(json.dumps(digests, indent=2) + "\n")
     if args.check:

@@ -132,6 +132,19 @@ def _move_all(position, heading, velocity, goal, speed, direction, holonomic, ti
     return out
 
 
+@njit(**JIT)
+def reachable_velocities(px, py, heading, vx0, vy0, gx, gy, speeds, directions, holonomic, time_step,
+                         max_speed_change, max_turn):  # pragma: no cover  (compiled)
+    """The velocity (vx (n,), vy (n,)) :func:`move` gives one robot under each action (``speeds``, ``directions``
+    (n,)): :func:`apply_action`'s velocities of one robot and every action, without its broadcasting."""
+    n = speeds.shape[0]
+    vx, vy = np.empty(n), np.empty(n)
+    for k in range(n):
+        _, _, _, vx[k], vy[k] = move(px, py, heading, vx0, vy0, gx, gy, speeds[k], directions[k], holonomic, time_step,
+                                     max_speed_change, max_turn)
+    return vx, vy
+
+
 def check_kinematics(kinematics: str) -> bool:
     """Whether ``kinematics`` is holonomic (else unicycle); ``ValueError`` for any other value."""
     if kinematics not in KINEMATICS:

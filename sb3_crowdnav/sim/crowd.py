@@ -118,9 +118,9 @@ class OrcaCrowdModel:
         radii = people.radii + self.settings.safety_space
         robot_agent = (np.array(robot.position), np.array(robot.velocity), robot.radius)
         self.seeing = people.sees_robot.copy()
-        seeing, blind = np.flatnonzero(self.seeing).tolist(), np.flatnonzero(~self.seeing).tolist()
+        seeing, blind = [[i for i, s in enumerate(self.seeing.tolist()) if s == side] for side in (True, False)]
         self.sides = [side for side in (blind, seeing) if side]  # the people of each simulator, in order
-        self._order = np.argsort(blind + seeing)  # the rows of both sides, blind then seeing, back in the people's order
+        self._order = sorted(range(len(self.seeing)), key=(blind + seeing).__getitem__)  # each person's row in blind + seeing
         obstacles = walls.rvo_vertices if walls is not None else None
         # each simulator computes its side's people, the other side's passive in it (OrcaCrowd)
         self.crowds = [OrcaCrowd(self.scene, people.starts, radii, people.v_prefs, robot_agent if side is seeing else None,
@@ -137,7 +137,7 @@ class OrcaCrowdModel:
         (blind, seeing), (blind_sim, seeing_sim) = self.sides, self.crowds
         blind_rows, seeing_rows = blind_sim.rows(blind), seeing_sim.rows(seeing)
         blind_sim.put(seeing, seeing_rows), seeing_sim.put(blind, blind_rows)  # the other side's new states
-        state = np.array(blind_rows + seeing_rows)[self._order]
+        state = np.array([*map((blind_rows + seeing_rows).__getitem__, self._order)])
         return state[:, :2], state[:, 2:]
 
     def move_person(self, i: int, position: np.ndarray) -> None:

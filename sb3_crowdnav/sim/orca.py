@@ -8,7 +8,7 @@ from collections.abc import Sequence
 import numpy as np
 import pyrvo
 
-from sb3_crowdnav.sim.actions import action_table, apply_action, nearest_velocity
+from sb3_crowdnav.sim.actions import action_table, check_kinematics, nearest_velocity, reachable_velocities, step_limits
 from sb3_crowdnav.sim.config import SceneConfig
 from sb3_crowdnav.sim.observation import Human, ObservationSchema, Robot
 from sb3_crowdnav.sim.validation import check_choice, check_number
@@ -198,10 +198,11 @@ class OrcaPolicy:
         if cfg.max_acceleration is None and cfg.max_turn_rate is None:
             angles = (heading if cfg.kinematics == "unicycle" else goal_direction) + self.directions
             return self.speeds * np.cos(angles), self.speeds * np.sin(angles)
-        velocity = apply_action(robot[Robot.POS], np.float64(heading), robot[Robot.GOAL], self.speeds, self.directions,
-                                cfg.kinematics, cfg.time_step, robot[Robot.VEL], cfg.max_acceleration,
-                                cfg.max_turn_rate).velocity
-        return velocity[:, 0], velocity[:, 1]
+        (px, py), (vx, vy), (gx, gy) = robot[Robot.POS].tolist(), robot[Robot.VEL].tolist(), robot[Robot.GOAL].tolist()
+        # (apply_action's velocities: the same move of every action)
+        return reachable_velocities(px, py, heading, vx, vy, gx, gy, self.speeds, self.directions,
+                                    check_kinematics(cfg.kinematics), float(cfg.time_step),
+                                    *step_limits(cfg.max_acceleration, cfg.max_turn_rate, cfg.time_step))
 
     @staticmethod
     def _allowed(sim, rid: int, vx: np.ndarray, vy: np.ndarray) -> np.ndarray | None:

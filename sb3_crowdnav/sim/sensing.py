@@ -54,9 +54,14 @@ class Occluder(Protocol):
         """One frame of this module's rules without noise: the states (M, 5) of the people of ``row`` (M, 5) seen
         from (x, y) (zeros for the others) and who is seen (M,), of those ``present`` within ``sensor_range``."""
 
+    def deliver(self, x: float, y: float, row: np.ndarray, present: np.ndarray, sensor_range: float | None,
+                history: np.ndarray, mask: np.ndarray) -> bool:
+        """:meth:`frame` delivered straight into an observed ``history`` (T, M, 5) and its ``mask`` (M,) by
+        :func:`deliver` (a sensor without latency, noise or ``"nearest"``); False when it cannot (nothing done)."""
+
 
 @njit(**JIT)
-def _deliver(history, mask, states, seen):  # pragma: no cover  (compiled)
+def deliver(history, mask, states, seen):  # pragma: no cover  (compiled)
     """Shift the observed history (T, M, 5) by one step and put the frame (``states`` (M, 5), ``seen`` (M,)) in it by
     the module's rules; ``mask`` (M,) becomes ``seen``."""
     t_len, m = history.shape[0], history.shape[1]
@@ -109,6 +114,7 @@ class PeopleSensor:
         self.latency = int(scene.people_sensor_latency)
         self.occluder = occluder
         self.nearest = scene.observed == "nearest"
+        self._direct = self.latency == 0 and self.noise == 0 and not self.nearest  # a frame is delivered as sensed
         self.history = np.zeros((scene.history_length, scene.max_humans, HUMAN_DIM))
         self.mask = np.zeros(scene.max_humans, dtype=bool)
         # the person in each slot of the history delivered last, -1: none (the identity without ``nearest``)
@@ -132,12 +138,16 @@ class PeopleSensor:
         self.people = people
 
     def step(self, x: float, y: float, row: np.ndarray, present: np.ndarray) -> None:
-        """Sense after a step (as :meth:`reset`) and deliver the frame of ``latency`` steps ago into the history."""
+        """Sense after a step (as :meth:`reset`) and deliver the frame of ``latency`` steps ago into the history (the
+        occluder delivers it itself when it can and nothing else alters the frame)."""
+        if self._direct and self.occluder is not None and \
+                self.occluder.deliver(x, y, row, present, self.range, self.history, self.mask):
+            return
         self._frames.append(self._sense(x, y, row, present))
         states, seen, entered, self.people = self._frames[0]
         if entered:  # a newcomer in a slot starts a new history, as one seen again does
             self.mask[entered] = False
-        _deliver(self.history, self.mask, states, seen)
+        deliver(self.history, self.mask, states, seen)
 
     def seen_people(self, n: int) -> np.ndarray:
         """(n,) bool: which of the crowd's first ``n`` people are in the observation delivered last."""
@@ -174,4 +184,4 @@ def open_frame(x: float, y: float, row: np.ndarray, present: np.ndarray,
     return np.where(seen[:, None], row, 0.0), seen
 
 
-__all__ = ["Occluder", "PeopleSensor", "assign_slots", "open_frame", "sensing_on"]
+__all__ = ["Occluder", "PeopleSensor", "assign_slots", "deliver", "open_frame", "sensing_on"]

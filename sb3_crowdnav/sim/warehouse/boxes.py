@@ -90,8 +90,12 @@ class BoxSpace:
 
     def edges(self) -> tuple[list[int], list[int], list[float]]:
         """Both corners and the length of every bitangent, in the order of ``np.triu_indices``."""
-        i, j, lengths = kernels.bitangent_edges(self.corners, self.sides, 4, self.opened)
+        i, j, lengths = self.edge_arrays()
         return i.tolist(), j.tolist(), lengths.tolist()
+
+    def edge_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`edges` as arrays: i (E,) and j (E,) int64, the lengths (E,)."""
+        return kernels.bitangent_edges(self.corners, self.sides, 4, self.opened)
 
     def free_points(self, points: np.ndarray) -> list[bool]:
         """:meth:`is_free` of each of ``points`` (n, 2)."""
@@ -122,7 +126,8 @@ class BoxSpace:
     def query(self, start: Sequence[float], goal: Sequence[float]) -> kernels.RouteQuery:
         """What a route from ``start`` to ``goal`` asks before its search, in one kernel call."""
         (sx, sy), (gx, gy) = start, goal
-        return kernels.route_query(sx, sy, gx, gy, self.corners, self.sides, 4, self.opened, self.hall)
+        return kernels.RouteQuery(*kernels.route_query_fields(sx, sy, gx, gy, self.corners, self.sides, 4, self.opened,
+                                                              self.hall))
 
 
 __all__ = ["BAND", "BoxSpace", "in_free_space", "rack_boxes"]

@@ -212,10 +212,10 @@ class PickerCrowd:
         progress = (self.dwell, self.waypoint, self._route_array, self._route_lengths, dt, self.slot_arrival)
         if self._grown is not None:  # (one kernel for both when no picker is pressed)
             (w, h), radius = self._hall, self.scene.human_radius - 1e-6
-            after = kernels.picker_after_step(positions, self._room, self._grown, self._layout.boxes, w, h, radius,
-                                              *progress)
-            pressed = after.pressed.tolist() if after.pressed.shape[0] else []
-            events = zip(after.which.tolist(), after.what.tolist(), strict=True) if after.which.shape[0] else ()
+            pressed, which, what = kernels.picker_after_step_fields(positions, self._room, self._grown,
+                                                                    self._layout.boxes, w, h, radius, *progress)
+            pressed = pressed.tolist() if pressed.shape[0] else []
+            events = zip(which.tolist(), what.tolist(), strict=True) if which.shape[0] else ()
         else:
             pressed, events = self._pressed_indices(positions), None
         if self._place is None:

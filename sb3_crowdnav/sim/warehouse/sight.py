@@ -45,6 +45,17 @@ class RackSight:
             states[~seen] = 0.0
         return states, seen
 
+    def deliver(self, x: float, y: float, row: np.ndarray, present: np.ndarray, sensor_range: float | None,
+                history: np.ndarray, mask: np.ndarray) -> bool:
+        """:meth:`frame` delivered into the observed ``history`` and ``mask`` in one compiled call with boxes for racks
+        (:func:`~sb3_crowdnav.sim.warehouse.kernels.people_deliver`; :class:`~sb3_crowdnav.sim.sensing.Occluder`);
+        False for other racks."""
+        if self._boxes is None:
+            return False
+        kernels.people_deliver(x, y, row, present, -1.0 if sensor_range is None else sensor_range, self._boxes,
+                               history, mask)
+        return True
+
     def in_sight(self, x: float, y: float, positions: np.ndarray, radii: np.ndarray) -> np.ndarray:
         """(n,) bool: whether a line of sight from (x, y) reaches each disc past the racks."""
         if self._boxes is not None:

@@ -249,12 +249,13 @@ class WarehouseSimulator(CrowdSimulator):
         (x0, y0), (x1, y1), radius, cfg = p0, p1, self.scene.robot_radius, self.config
         # the sensing of the step (the candidates of the swept test: the segments closer than the radius + the step)
         # and the route's bookkeeping at p1, applied below unless the step ends the episode
-        hit, *self._observed, index, off, blocked = kernels.sense_and_follow(
+        # (kernels.sense_and_follow, then kernels.swept_segment_distance: the smallest distance of the step's path)
+        hit, observed, mask, index, off, blocked, swept = kernels.step_sensing(
             self.segments, x0, y0, x1, y1, radius + math.dist(p0, p1), radius, cfg.sensor_range,
             cfg.max_obstacles, self._seg_dist, self._seg_order, self.route, self.route_index, cfg.waypoint_radius,
             cfg.replan_distance, self._boxes, self.layout.width / 2, self.layout.height / 2)
-        self.min_clearance = min(self.min_clearance, kernels.swept_segment_distance(
-            self.segments, x0, y0, x1, y1, self._seg_dist, self._seg_order) - radius)
+        self._observed = [observed, mask]
+        self.min_clearance = min(self.min_clearance, swept - radius)
         if hit:  # (without a hit, with_obstacle_collision returns the terms unchanged)
             terms = with_obstacle_collision(terms, np.bool_(hit), self.config.obstacle_collision_penalty)
         self.hit_obstacle = hit and not bool(terms.min_distance < 0)

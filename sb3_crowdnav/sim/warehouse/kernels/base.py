@@ -8,6 +8,7 @@ import numpy as np
 from numba import njit
 
 from sb3_crowdnav.sim.geometry import JIT, point_to_segment
+from sb3_crowdnav.sim.sensing import deliver
 
 
 @njit(**JIT)
@@ -128,3 +129,12 @@ def people_frame(ox, oy, row, present, sensor_range, boxes, states, seen):  # pr
         seen[i] = s
         for k in range(row.shape[1]):
             states[i, k] = row[i, k] if s else 0.0
+
+
+@njit(**JIT)
+def people_deliver(ox, oy, row, present, sensor_range, boxes, history, mask):  # pragma: no cover  (compiled)
+    """:func:`people_frame`, then the frame delivered into the observed ``history`` (T, M, 5) and ``mask`` (M,) by
+    :func:`~sb3_crowdnav.sim.sensing.deliver`, in one call (a sensor without latency, noise or ``"nearest"``)."""
+    states, seen = np.empty_like(row), np.empty(row.shape[0], np.bool_)
+    people_frame(ox, oy, row, present, sensor_range, boxes, states, seen)
+    deliver(history, mask, states, seen)

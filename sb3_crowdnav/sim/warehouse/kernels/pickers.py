@@ -172,3 +172,12 @@ def picker_after_step(state, room, grown, boxes, w, h, radius, dwell, waypoint, 
         return AfterStep(out, none, none)
     which, what = picker_progress(state, dwell, waypoint, routes, lengths, dt, arrival)
     return AfterStep(out, which, what)
+
+
+@njit(**JIT)
+def picker_after_step_fields(state, room, grown, boxes, w, h, radius, dwell, waypoint, routes, lengths, dt,
+                             arrival):  # pragma: no cover  (compiled)
+    """:func:`picker_after_step`'s fields ``(pressed, which, what)`` as a plain tuple (numba builds a named tuple's
+    Python object slower): the per-step call."""
+    after = picker_after_step(state, room, grown, boxes, w, h, radius, dwell, waypoint, routes, lengths, dt, arrival)
+    return after.pressed, after.which, after.what

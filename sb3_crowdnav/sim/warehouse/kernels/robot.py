@@ -151,6 +151,17 @@ def swept_segment_distance(segments, p0x, p0y, p1x, p1y, dist, order):  # pragma
 
 
 @njit(**JIT)
+def step_sensing(segments, p0x, p0y, p1x, p1y, reach, radius, sensor_range, max_count, dist, order, route, index,
+                 waypoint_radius, replan_distance, boxes, w, h):  # pragma: no cover  (compiled)
+    """A step's :func:`sense_and_follow` and :func:`swept_segment_distance` in one call, as a plain tuple (numba
+    builds a named tuple's Python object slower): ``(hit, observed, mask, index, off, blocked, swept distance)``."""
+    step = sense_and_follow(segments, p0x, p0y, p1x, p1y, reach, radius, sensor_range, max_count, dist, order, route,
+                            index, waypoint_radius, replan_distance, boxes, w, h)
+    swept = swept_segment_distance(segments, p0x, p0y, p1x, p1y, dist, order)
+    return step.hit, step.observed, step.mask, step.index, step.off, step.blocked, swept
+
+
+@njit(**JIT)
 def bitangent_edges(corners, sides, first, boxes):  # pragma: no cover  (compiled)
     """The edges of a box roadmap's visibility graph: every pair of corners i < j from ``first`` on, in the order of
     ``np.triu_indices``, that passes both ends on the outside of their racks
@@ -217,6 +228,14 @@ def route_query(sx, sy, gx, gy, corners, sides, first, boxes, hall):  # pragma: 
     heuristic[n] = math.sqrt((sx - gx) * (sx - gx) + (sy - gy) * (sy - gy))
     heuristic[n + 1] = 0.0
     return RouteQuery(False, start_joins, goal_joins, start_lengths, goal_lengths, heuristic)
+
+
+@njit(**JIT)
+def route_query_fields(sx, sy, gx, gy, corners, sides, first, boxes, hall):  # pragma: no cover  (compiled)
+    """:func:`route_query`'s fields as a plain tuple (the caller makes the :class:`RouteQuery`: numba builds a named
+    tuple's Python object slower)."""
+    q = route_query(sx, sy, gx, gy, corners, sides, first, boxes, hall)
+    return q.direct, q.start_joins, q.goal_joins, q.start_lengths, q.goal_lengths, q.heuristic
 
 
 @njit(**JIT)
