@@ -30,6 +30,8 @@ episode CSV and its ``meta.json``. The rows run one after the other over every c
 ``--resume`` keeps the finished cells of an interrupted run; ``--keep CSV`` (an earlier run's
 ``generalisation.csv``) keeps its rows of the policies this run does not run, so that one model's row can be run
 again (``--policy pretrained:apg_robust --keep paper_results/generalisation/generalisation.csv``).
+A shipped model's row runs its own robot in every column (:func:`~sb3_crowdnav.models.pretrained_env`, e.g. a model
+trained with ``actions="with_stop"`` keeps its stop), stated under the table.
 ``--planning-depth D`` / ``--planning-width K`` set the lookahead of the value-model rows (``benchmark``'s options;
 the other rows act as they are; refused when no row is a value model), recorded in each cell's ``meta.json``; a
 resumed cell run with other settings is refused. With two or more scenes, ``OUT/pooled.md`` also pools each row's
@@ -62,6 +64,7 @@ from sb3_crowdnav.evaluation.metrics import wilson_interval
 from sb3_crowdnav.evaluation.policy_spec import PolicySpec
 from sb3_crowdnav.evaluation.runner import TEST_SEED_OFFSET
 from sb3_crowdnav.evaluation.tables import CrowdTable
+from sb3_crowdnav.models import pretrained_env
 from sb3_crowdnav.sim.crowd import CROWD_MODELS
 from sb3_crowdnav.sim.population import MEASURED_POPULATION
 from sb3_crowdnav.training import VALIDATION_SEED_OFFSET
@@ -155,6 +158,18 @@ def lookahead_flags(args: argparse.Namespace, policy: str) -> list[str]:
             for item in (f"--{key.replace('_', '-')}", str(getattr(args, key)))]
 
 
+def robot_kwargs(policy: str) -> dict[str, Any]:
+    """The env keyword arguments of a shipped model's own robot (``pretrained:NAME``: :func:`~sb3_crowdnav.models.
+    pretrained_env`, e.g. ``actions="with_stop"``), added to every column of its row; none for another policy."""
+    spec = PolicySpec.parse(policy)
+    if spec.kind != "pretrained":
+        return {}
+    env_id, kwargs = pretrained_env(str(spec.argument))
+    if env_id != ENV:
+        raise UsageError(f"--policy {policy}: the model was trained in {env_id}, the table is of {ENV}")
+    return kwargs
+
+
 def benchmark(out: Path, spec: CrowdSpec, env_kwargs: dict[str, Any], policy: str, episodes: int,
               workers: int, seed_offset: int = TEST_SEED_OFFSET, lookahead: tuple[str, ...] = ()) -> None:
     """One ``sb3-crowdnav benchmark --crowd`` run: one policy in one column (``lookahead``: its lookahead flags)."""
@@ -212,8 +227,9 @@ def pooled_scenes(table: CrowdTable, scenes: list[str], titles: dict[str, str]) 
     return "\n".join(lines) + "\n\nEach cell: success [95 % interval] / collision [95 % interval], pooled over the scenes.\n"
 
 
-def markdown_block(table: CrowdTable, planned, episodes: int) -> str:
-    """The docs' block: the table, then what each column is."""
+def markdown_block(table: CrowdTable, planned, episodes: int, robots: dict[str, dict[str, Any]] | None = None) -> str:
+    """The docs' block: the table, then what each column is and the rows whose robot differs (``robots``: policy ->
+    :func:`robot_kwargs`)."""
     titles = {key: title for key, (title, _, _) in planned.items()}
     lines = [f"{episodes} test episodes per cell (seeds 1,000,000 + i, the same in every column), `{ENV}` otherwise; "
              "written by `examples/generalisation.py`.", "", table.to_markdown(titles).rstrip(), "", "Columns:", ""]
@@ -224,6 +240,10 @@ def markdown_block(table: CrowdTable, planned, episodes: int) -> str:
         if path:  # the recording's folder is this machine's: DATA, as in the command above the table
             text = text.replace(str(path), f"DATA/{Path(str(path)).name}")
         lines.append(f"- {title} (`{key}`): `--crowd {text}`" + (f" with {setting}" if setting else ""))
+    for policy, kwargs in (robots or {}).items():
+        if kwargs:
+            setting = ", ".join(f"`{k}={v!r}`" for k, v in kwargs.items())
+            lines.append(f"- the row of `{policy}` runs its model's robot in every column: {setting}")
     return "\n".join(lines) + "\n"
 
 
@@ -271,6 +291,7 @@ def main(argv: list[str] | None = None) -> None:
     policies = args.policy or list(POLICIES)
     try:
         check_lookahead(args, [PolicySpec.parse(policy) for policy in policies])
+        robots = {policy: robot_kwargs(policy) for policy in policies}
     except (UsageError, ValueError) as exc:
         p.error(str(exc))
     if not args.resume and (args.out / "cells").exists():
@@ -285,7 +306,8 @@ def main(argv: list[str] | None = None) -> None:
                                     lookahead_settings(args) if flags else None):
                 print(f"kept {folder}")
                 continue
-            benchmark(folder, spec, kwargs, policy, args.episodes, args.workers, SEEDS[args.seeds], tuple(flags))
+            benchmark(folder, spec, {**kwargs, **robots[policy]}, policy, args.episodes, args.workers,
+                      SEEDS[args.seeds], tuple(flags))
     table = combine(args.out, planned, policies)
     if earlier is not None:
         table = merged(earlier, table)
@@ -294,7 +316,7 @@ def main(argv: list[str] | None = None) -> None:
     (args.out / "columns.json").write_text(json.dumps(
         {key: {"title": title, "crowd": str(spec), "env_kwargs": kwargs, "held_out": key in HELD_OUT}
          for key, (title, spec, kwargs) in planned.items()}, indent=1, default=list) + "\n")
-    block = markdown_block(table, planned, args.episodes)
+    block = markdown_block(table, planned, args.episodes, robots)
     print(block)
     scenes = [key for key, (_, spec, _) in planned.items() if spec.model == "replay"]
     if len(scenes) > 1:

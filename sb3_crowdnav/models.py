@@ -42,7 +42,7 @@ PRETRAINED = {
     "apg_warehouse": "apg_value",
 }
 # name -> the env a shipped model was trained for: its id and the keyword arguments that differ from its defaults
-# (the warehouse models of the paper's world: sim.warehouse.config.PAPER_WAREHOUSE)
+# (None: none; the warehouse models of the paper's world: sim.warehouse.config.PAPER_WAREHOUSE; else a dict of them)
 PAPER_WORLD = "paper_warehouse"
 PRETRAINED_ENV = {name: ("CrowdNav-v0", None) for name in PRETRAINED}
 PRETRAINED_ENV.update({"apg_warehouse_paper": ("CrowdNavWarehouse-v0", PAPER_WORLD),
@@ -259,7 +259,7 @@ def pretrained_env(name: str) -> tuple[str, dict[str, Any]]:
         from sb3_crowdnav.sim.warehouse.config import PAPER_WAREHOUSE
 
         return env_id, dict(PAPER_WAREHOUSE)
-    return env_id, {}
+    return env_id, dict(world or {})
 
 
 def pretrained(name: str, env: Any = None, **kwargs: Any):

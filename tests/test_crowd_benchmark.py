@@ -17,7 +17,7 @@ from example_scripts import load_example
 from gymnasium.utils.env_checker import check_env as gym_check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
-import sb3_crowdnav  # noqa: F401  (registers the envs)
+import sb3_crowdnav  # (registers the envs)
 from sb3_crowdnav.cli import main
 from sb3_crowdnav.evaluation.crowd_spec import CrowdSpec
 from sb3_crowdnav.evaluation.metrics import summarize
@@ -295,6 +295,27 @@ def test_the_lookahead_options_set_the_value_models_rows_only(tmp_path, capsys):
         script.main([*base, "--policy", "pretrained:apg_robust", "--planning-depth", "3", "--resume"])
     _refused(capsys, [*base[:-1], str(tmp_path / "o"), "--policy", "random:0", "--planning-depth", "2"],
              "none of the policies given is one", script.main)
+
+
+def test_a_shipped_models_row_runs_its_own_robot_in_every_column(tmp_path, capsys, monkeypatch):
+    script = _script()
+    calls = []
+    monkeypatch.setattr(script, "benchmark", lambda out, spec, kwargs, policy, *rest: calls.append((policy, kwargs)))
+    monkeypatch.setattr(script, "combine", lambda *a: (_ for _ in ()).throw(KeyboardInterrupt))  # stop there
+    monkeypatch.setitem(sb3_crowdnav.models.PRETRAINED_ENV, "apg_rl", ("CrowdNav-v0", {"actions": "with_stop"}))
+    with pytest.raises(KeyboardInterrupt):
+        script.main(["--episodes", "1", "--columns", "orca10", "empty", "--policy", "pretrained:apg_rl", "--policy",
+                     "random:0", "--out", str(tmp_path / "o")])
+    assert sorted(calls, key=str) == sorted([
+        ("pretrained:apg_rl", {"num_humans": 10, "actions": "with_stop"}), ("pretrained:apg_rl", {"num_humans": 0,
+        "actions": "with_stop"}), ("random:0", {"num_humans": 10}), ("random:0", {"num_humans": 0})], key=str)
+    table = type("Table", (), {"to_markdown": lambda self, titles: ""})()
+    block = script.markdown_block(table, script.plan(["empty"], []), 1, {"pretrained:apg_rl": {"actions": "with_stop"},
+                                                                         "random:0": {}})
+    assert block.count("runs its model's robot") == 1
+    assert "the row of `pretrained:apg_rl` runs its model's robot in every column: `actions='with_stop'`" in block
+    _refused(capsys, ["--columns", "empty", "--policy", "pretrained:apg_warehouse", "--out", str(tmp_path / "w")],
+             "trained in CrowdNavWarehouse-v0", script.main)
 
 
 def test_keep_runs_one_row_again_inside_an_earlier_table(tmp_path, capsys):
