@@ -47,7 +47,8 @@ PAPER_WORLD = "paper_warehouse"
 PRETRAINED_ENV = {name: ("CrowdNav-v0", None) for name in PRETRAINED}
 PRETRAINED_ENV.update({"apg_warehouse_paper": ("CrowdNavWarehouse-v0", PAPER_WORLD),
                        "ppo_warehouse": ("CrowdNavWarehouse-v0", PAPER_WORLD),
-                       "apg_warehouse": ("CrowdNavWarehouse-v0", None)})
+                       "apg_warehouse": ("CrowdNavWarehouse-v0", None),
+                       "apg_robust": ("CrowdNav-v0", {"actions": "with_stop"})})
 # name -> SHA-256 of weights/<name>.zip, checked before every load (examples/ship_model.py prints it)
 PRETRAINED_SHA256 = {
     "apg_rl": "d747a15de9b4354ffd41c032889e955333d2153387d60e750719e83d3289ab8a",
@@ -60,7 +61,7 @@ PRETRAINED_SHA256 = {
     "dqn_apg": "4002a0bdffcb70e967655d430a72a5d1f45a04918dacf247f0c87c78d7ebf94e",
     "ppo_warehouse": "e71d387a6b327616c7d26df7b92ed14f7166616286530fcc8ed31c5a293df208",
     "apg_warehouse_paper": "e1e2ae06da71b01fe614afe609866df603dda9f5a74e1f10030430387395254c",
-    "apg_robust": "1fc9d11dd9e64eb3755c95be48ebe8fcb943e02cc2c95ea67aaa05a4f7ef4c5d",
+    "apg_robust": "8f556413c267faab168307eaca56f647b677774298f3aff28844f0b6e33f2a86",
     "apg_warehouse": "f32d970eca31ea030f9e8ab92eea1e2a065d2b7a9b38e18a94c107ae32ecbdd3",
 }
 

@@ -140,7 +140,8 @@ def test_the_same_seed_gives_the_same_episode_and_the_checkers_pass():
 
 def test_a_model_trained_with_ten_slots_acts_among_more_people():
     model = sb3_crowdnav.pretrained("apg_robust")
-    env = EpisodeRecorder(gym.make("CrowdNav-v0", num_humans=14, max_humans=10, observed="nearest"))
+    env = EpisodeRecorder(gym.make("CrowdNav-v0", num_humans=14, max_humans=10, observed="nearest",
+                                         actions="with_stop"))
     record = run_episode(env, model, 7, keep_trajectory=True)
     log = env.log(record.trajectory)
     assert log.seen.shape[1] == 14 and log.seen.sum(axis=1).max() == 10  # per person, never more than the slots

@@ -154,12 +154,13 @@ def test_the_graph_contract_records_the_width_and_reads_older_formats_as_every_s
 
 def test_the_cli_refuses_a_width_without_a_deeper_search_with_one_line():
     # apg_rl acts with one step; apg_robust ships searching two, so a width is refused once --planning-depth 1 is asked
-    for args in (["--policy", "pretrained:apg_rl"], ["--policy", "pretrained:apg_robust", "--planning-depth", "1"]):
+    stop = ["--env-kwargs", "{'actions': 'with_stop'}"]  # apg_robust's robot
+    for args in (["--policy", "pretrained:apg_rl"], ["--policy", "pretrained:apg_robust", "--planning-depth", "1", *stop]):
         out = subprocess.run([sys.executable, "-m", "sb3_crowdnav.cli", "evaluate", *args, "--episodes", "1",
                               "--planning-width", "8"], capture_output=True, text=True)
         assert out.returncode == 2, args
         assert len(out.stderr.strip().splitlines()) == 1 and "planning_width=8 needs planning_depth > 1" in out.stderr
     out = subprocess.run([sys.executable, "-m", "sb3_crowdnav.cli", "evaluate", "--policy", "pretrained:apg_robust",
-                          "--episodes", "1", "--planning-depth", "2", "--planning-width", "0"],
+                          "--episodes", "1", "--planning-depth", "2", "--planning-width", "0", *stop],
                          capture_output=True, text=True)
     assert out.returncode == 2 and "--planning-width" in out.stderr and "positive integer" in out.stderr

@@ -21,10 +21,11 @@ from sb3_crowdnav.sim.warehouse.config import PAPER_WAREHOUSE
 RECORD = Path(__file__).parent / "data" / "pretrained_actions.npz"
 # env id, observations: the open floor, the paper-world warehouse and today's warehouse (its defaults)
 ENVS = {"crowdnav": ("CrowdNav-v0", 300), "warehouse": ("CrowdNavWarehouse-v0", 200),
-        "warehouse_today": ("CrowdNavWarehouse-v0", 200)}
+        "warehouse_today": ("CrowdNavWarehouse-v0", 200), "crowdnav_stop": ("CrowdNav-v0", 300)}
 # the world the paper-world warehouse models were trained in: the paper's robot, pickers who do not see it (the
-# recorded observations are of that world); today's warehouse is the env's defaults
-ENV_KWARGS = {"warehouse": PAPER_WAREHOUSE}
+# recorded observations are of that world); today's warehouse is the env's defaults; the open floor's robot with a
+# stop (apg_robust)
+ENV_KWARGS = {"warehouse": PAPER_WAREHOUSE, "crowdnav_stop": {"actions": "with_stop"}}
 
 
 def env_key(name: str) -> str:

@@ -112,6 +112,11 @@ def test_apg_robust_brings_its_worlds_and_people_and_a_run_overrides_them():
     robust = ScheduleConfig(variant="apg_robust")
     assert robust.num_humans == (0, 10) and ScheduleConfig(variant="apg_rl").num_humans == 6
     assert robust.training_env_kwargs["worlds"] == "robust" and robust.train_freq == 8
+    # a robot that can stop, and a finished model that caps V; the paper's variants keep the 80 actions
+    assert robust.training_env_kwargs["actions"] == "with_stop" and robust.cap_values is True
+    assert "actions" not in ScheduleConfig(variant="apg_rl").training_env_kwargs
+    assert ScheduleConfig(variant="apg_rl").cap_values is None
+    assert ScheduleConfig(variant="apg_robust", env_kwargs={"actions": "paper"}).training_env_kwargs["actions"] == "paper"
     # the schedule that fits an hour on 2 cores; the paper's variants keep theirs, and a run's own value wins
     assert (robust.rl_episodes, robust.exploration_episodes, robust.imitation_epochs, robust.checkpoint_episodes) \
         == (3_000, 1_500, 3, 750)
@@ -131,10 +136,10 @@ def test_apg_robust_short_run(tmp_path, monkeypatch):
     config = json.loads((out / "config.json").read_text())
     assert config["env_id"] == "CrowdNavWorlds-v0" and config["training_env_kwargs"]["num_humans"] == [0, 10]
     model = APGValue.load(out / "final.zip")
-    assert model.episodes_done == 3 and model.policy.world == gym.make("CrowdNav-v0").unwrapped.world
-    env = gym.make("CrowdNav-v0", num_humans=0)  # and it acts in the paper's env, the empty floor included
+    assert model.episodes_done == 3 and model.policy.world == gym.make("CrowdNav-v0", actions="with_stop").unwrapped.world
+    env = gym.make("CrowdNav-v0", num_humans=0, actions="with_stop")  # and it acts on the open floor, empty included
     obs, _ = env.reset(seed=0)
-    assert 0 <= int(model.predict(obs, deterministic=True)[0]) < 80
+    assert 0 <= int(model.predict(obs, deterministic=True)[0]) < 81
 
 
 def test_a_recorded_world_leaves_to_its_recording_what_it_decides(tmp_path):

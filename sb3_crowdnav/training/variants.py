@@ -51,11 +51,12 @@ VARIANTS = {
     "apg_warehouse_paper": Variant("ApgPolicy", env_id="CrowdNavWarehouse-v0",
                                    env_kwargs={"progress_reward": 0.1, **PAPER_WAREHOUSE},
                                    schedule={"rl_episodes": 6_000, "exploration_episodes": 3_000}),
-    # the paper's method for people it never met: one of several crowds per episode, 0 to 10 people (docs/decisions.md,
-    # "Robust training"); 3 imitation epochs and 4 validations to fit an hour on 2 cores of an AVX2 machine; the
-    # finished model searches two steps, the best 8 actions deeper ("A narrower deeper search")
-    "apg_robust": Variant("ApgPolicy", env_id="CrowdNavWorlds-v0", env_kwargs={"worlds": "robust"},
+    # the paper's method for people it never met: one of several crowds per episode, 0 to 10 people, a robot that can
+    # stop (docs/decisions.md, "Robust training", "A stop for the open-floor robot"); 3 imitation epochs and 4
+    # validations to fit an hour on 2 cores of an AVX2 machine; the finished model searches two steps, the best 8
+    # actions deeper ("A narrower deeper search"), with V capped
+    "apg_robust": Variant("ApgPolicy", env_id="CrowdNavWorlds-v0", env_kwargs={"worlds": "robust", "actions": "with_stop"},
                           schedule={"train_freq": 8, "num_humans": (0, 10), "rl_episodes": 3_000,
                                     "exploration_episodes": 1_500, "imitation_epochs": 3, "checkpoint_episodes": 750,
-                                    "planning_depth": 2, "planning_width": 8}),
+                                    "planning_depth": 2, "planning_width": 8, "cap_values": True}),
 }
