@@ -90,8 +90,12 @@ class BoxSpace:
 
     def edges(self) -> tuple[list[int], list[int], list[float]]:
         """Both corners and the length of every bitangent, in the order of ``np.triu_indices``."""
-        i, j, lengths = kernels.bitangent_edges(self.corners, self.sides, 4, self.opened)
+        i, j, lengths = self.edge_arrays()
         return i.tolist(), j.tolist(), lengths.tolist()
+
+    def edge_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`edges` as arrays: i (E,) and j (E,) int64, the lengths (E,)."""
+        return kernels.bitangent_edges(self.corners, self.sides, 4, self.opened)
 
     def free_points(self, points: np.ndarray) -> list[bool]:
         """:meth:`is_free` of each of ``points`` (n, 2)."""

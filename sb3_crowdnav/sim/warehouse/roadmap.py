@@ -53,11 +53,16 @@ class PolygonSpace:
     def edges(self) -> tuple[list[int], list[int], list[float]]:
         """Both corners and the length of every pair of corners that see each other, in the order of
         ``np.triu_indices``."""
+        i, j, lengths = self.edge_arrays()
+        return i.tolist(), j.tolist(), lengths.tolist()
+
+    def edge_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`edges` as arrays: i (E,) and j (E,) int64, the lengths (E,)."""
         i, j = np.triu_indices(len(self.nodes), k=1)
         a, b = self.corners[i], self.corners[j]
         visible = self._visible(a, b)
         lengths = np.linalg.norm((b - a)[visible], axis=1)
-        return i[visible].tolist(), j[visible].tolist(), lengths.tolist()
+        return i[visible].astype(np.int64), j[visible].astype(np.int64), lengths
 
     def free_points(self, points: np.ndarray) -> list[bool]:
         """:meth:`is_free` of each of ``points`` (n, 2)."""
@@ -139,9 +144,7 @@ class Roadmap:
     def adjacency(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The visibility graph as compressed rows (:func:`~sb3_crowdnav.sim.warehouse.kernels.adjacency`), built
         when a route first needs it (a route's ends that see each other need none)."""
-        i, j, lengths = self.space.edges()
-        return kernels.adjacency(len(self.corners), np.array(i, dtype=np.int64), np.array(j, dtype=np.int64),
-                                 np.array(lengths, dtype=np.float64))
+        return kernels.adjacency(len(self.corners), *self.space.edge_arrays())
 
     @functools.cached_property
     def free(self) -> Any:
@@ -169,7 +172,7 @@ class Roadmap:
         query = self.space.query(start, goal)
         if query.direct:
             return [start, goal]
-        from_start, to_goal = query.start_joins.tolist(), query.goal_joins.tolist()
+        from_start, to_goal = query.start_joins.shape[0], query.goal_joins.shape[0]
         if len(self.corners) and not (from_start and to_goal):  # an end outside the free space: via its nearest corner
             if not from_start:
                 nearest = self.corners[np.argmin(np.linalg.norm(self.corners - start, axis=1))].tolist()
@@ -180,8 +183,9 @@ class Roadmap:
                                    query.goal_lengths, query.heuristic).tolist()
         if not path:
             raise ValueError(f"no route from {tuple(start)} to {tuple(goal)} in the free space")
-        points = [*self._corner_list, start, goal]
-        return [[*points[k]] for k in path]  # (copies: the corners' lists stay the roadmap's)
+        corners, ends = self._corner_list, (start, goal)  # the nodes: the corners, then the start and the goal
+        n = len(corners)
+        return [[*(corners[k] if k < n else ends[k - n])] for k in path]  # (copies: the corners' lists stay the roadmap's)
 
     @staticmethod
     def route_length(route: np.ndarray | list[list[float]]) -> float:
