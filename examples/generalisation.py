@@ -27,7 +27,8 @@ refused with a message, never skipped. ``OUT/generalisation.md`` / ``.csv`` hold
 policy and column, with every metric and interval), ``OUT/headline.md`` the README's rows (``apg_rl`` and the ORCA
 robot), ``OUT/columns.json`` what each column is, and ``OUT/cells/COLUMN/POLICY/`` each cell's own table, its
 episode CSV and its ``meta.json``. The rows run one after the other over every column (the README's first), and
-``--resume`` keeps the finished cells of an interrupted run; ``--keep CSV`` (an earlier run's
+``--resume`` keeps the finished cells of an interrupted run (refusing a cell of other settings or, by its SHA-256,
+of another model file of the same name); ``--keep CSV`` (an earlier run's
 ``generalisation.csv``) keeps its rows of the policies this run does not run, so that one model's row can be run
 again (``--policy pretrained:apg_robust --keep paper_results/generalisation/generalisation.csv``).
 A shipped model's row runs its own robot in every column (:func:`~sb3_crowdnav.models.pretrained_env`, e.g. a model
@@ -132,10 +133,11 @@ def cell(out: Path, key: str, policy: str) -> Path:
 
 
 def done(folder: Path, episodes: int, seed_offset: int = TEST_SEED_OFFSET,
-         lookahead: dict[str, Any] | None = None) -> bool:
-    """Whether the cell in ``folder`` is finished with ``episodes`` episodes from ``seed_offset`` and the lookahead
-    settings ``lookahead`` (``--resume`` keeps it); a finished cell with other episodes, seeds or settings is refused,
-    not mixed into the table."""
+         lookahead: dict[str, Any] | None = None, policy: str = "orca") -> bool:
+    """Whether the cell in ``folder`` is finished with ``episodes`` episodes from ``seed_offset``, the lookahead
+    settings ``lookahead`` and the file ``policy`` plays, by its SHA-256 (``--resume`` keeps it); a finished cell with
+    other episodes, seeds, settings or another file of that name is refused, not mixed into the table (a cell written
+    before its meta.json recorded the file's SHA-256 is taken as it is)."""
     if not (folder / "crowds.csv").is_file():
         return False
     meta = json.loads((folder / "meta.json").read_text())
@@ -146,6 +148,11 @@ def done(folder: Path, episodes: int, seed_offset: int = TEST_SEED_OFFSET,
     if meta.get("lookahead") != lookahead:
         raise SystemExit(f"{folder} was run with the lookahead settings {meta.get('lookahead')}, not {lookahead}: "
                          "give another --out")
+    if "policy_sha256" in meta:
+        (recorded,), digest = meta["policy_sha256"].values(), PolicySpec.parse(policy).file_sha256()
+        if recorded != digest:
+            raise SystemExit(f"{folder} was run with another file of {policy} (SHA-256 {str(recorded)[:16]}...), not "
+                             f"this one ({str(digest)[:16]}...): give another --out")
     return True
 
 
@@ -303,7 +310,7 @@ def main(argv: list[str] | None = None) -> None:
             folder = cell(args.out, key, policy)
             flags = lookahead_flags(args, policy)
             if args.resume and done(folder, args.episodes, SEEDS[args.seeds],
-                                    lookahead_settings(args) if flags else None):
+                                    lookahead_settings(args) if flags else None, policy):
                 print(f"kept {folder}")
                 continue
             benchmark(folder, spec, {**kwargs, **robots[policy]}, policy, args.episodes, args.workers,

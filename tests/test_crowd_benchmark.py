@@ -21,6 +21,7 @@ import sb3_crowdnav  # (registers the envs)
 from sb3_crowdnav.cli import main
 from sb3_crowdnav.evaluation.crowd_spec import CrowdSpec
 from sb3_crowdnav.evaluation.metrics import summarize
+from sb3_crowdnav.evaluation.policy_spec import PolicySpec
 from sb3_crowdnav.evaluation.runner import run_episodes
 from sb3_crowdnav.evaluation.tables import CSV_COLUMNS, CrowdTable, crowd_table
 from sb3_crowdnav.sim import CROWD_MODELS
@@ -365,3 +366,25 @@ def test_kept_rows_take_a_full_runs_order():
                                         for m in methods])
     table = script.merged(rows("APG_RL", "LM_RL", "ORCA-constrained", "X"), rows("APG_ROBUST", "Y"))
     assert table.policies == ["APG_RL", "APG_ROBUST", "LM_RL", "ORCA-constrained", "X", "Y"]
+
+
+def test_a_resumed_cell_of_another_model_file_of_the_same_name_is_refused(tmp_path, capsys):
+    from sb3_crowdnav.models import pretrained_path
+
+    model = tmp_path / "model.zip"
+    shutil.copyfile(pretrained_path("apg_rl"), model)
+    base = ["--episodes", "1", "--workers", "1", "--columns", "empty", "--policy", str(model), "--out",
+            str(tmp_path / "out")]
+    _script().main(base)
+    meta = json.loads((_script().cell(tmp_path / "out", "empty", str(model)) / "meta.json").read_text())
+    assert meta["policy_sha256"] == {"model": PolicySpec("file", str(model)).file_sha256()}
+    _script().main([*base, "--resume"])  # the same file: kept
+    assert "kept " in capsys.readouterr().out
+    shutil.copyfile(pretrained_path("apg_crl"), model)  # another network under the same name: never mixed in
+    with pytest.raises(SystemExit, match=r"another file of .*model\.zip"):
+        _script().main([*base, "--resume"])
+
+
+def test_meta_records_each_policys_file_hash_and_none_for_orca(tmp_path):
+    main(["evaluate", "--policy", "orca", "--episodes", "1", "--out", str(tmp_path / "o")])
+    assert json.loads((tmp_path / "o" / "meta.json").read_text())["policy_sha256"] == {"ORCA": None}

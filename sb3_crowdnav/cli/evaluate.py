@@ -235,14 +235,15 @@ def _run(args: argparse.Namespace, spec: PolicySpec, env_kwargs: dict[str, Any],
                         torch_threads=args.threads, **kwargs)
 
 
-def _write_meta(out: Path, args: argparse.Namespace, env_kwargs: dict[str, Any], **extra: Any) -> None:
+def _write_meta(out: Path, args: argparse.Namespace, env_kwargs: dict, specs: dict[str, PolicySpec], **extra) -> None:
     from sb3_crowdnav.version import __version__
 
     meta = {"command": args.command, "env": args.env, "env_kwargs": env_kwargs, "episodes": args.episodes,
             "seeds": [args.seed_offset, args.seed_offset + args.episodes - 1], "deterministic": not args.stochastic,
             "confidence_intervals": "Wilson score, 95 %", "sb3_crowdnav": __version__,
             "protective_field": str(args.protective_field) if args.protective_field else None,
-            "lookahead": lookahead_settings(args), **extra}
+            "lookahead": lookahead_settings(args), "policies": {label: str(spec) for label, spec in specs.items()},
+            "policy_sha256": {label: spec.file_sha256() for label, spec in specs.items()}, **extra}
     (out / "meta.json").write_text(json.dumps(meta, indent=2, default=str) + "\n")
 
 
@@ -270,7 +271,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     if args.out is not None:
         table.save(args.out / "results")
         write_records_csv(records, args.out / "episodes.csv")
-        _write_meta(args.out, args, env_kwargs, policies={label: str(spec)})
+        _write_meta(args.out, args, env_kwargs, {label: spec})
     return 0
 
 
@@ -374,8 +375,7 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
         print(f"\nnumber of pedestrians, {labels[idx]} (Table 4):\n")
         print(stable.to_markdown(), end="")
         written += [out / "sweep.md", out / "sweep.csv"]
-    policies = {label: str(spec) for label, spec in zip(labels, specs, strict=True)}
-    _write_meta(out, args, env_kwargs, policies=policies, figure_seed=seed, sweep=args.sweep)
+    _write_meta(out, args, env_kwargs, dict(zip(labels, specs, strict=True)), figure_seed=seed, sweep=args.sweep)
     print(f"\nwrote {', '.join(p.name for p in written)} and meta.json in {out}")
     return 0
 
@@ -417,7 +417,7 @@ def _crowd_benchmark(args: argparse.Namespace) -> int:
           f"{args.seed_offset + args.episodes - 1}) in {time.perf_counter() - start:.1f} s")
     if args.protective_field is not None:
         print(f"every policy behind a {args.protective_field}")
-    _write_meta(out, args, env_kwargs, policies=dict(zip(labels, map(str, specs), strict=True)),
+    _write_meta(out, args, env_kwargs, dict(zip(labels, specs, strict=True)),
                 crowds={label: str(crowd) for label, crowd in zip(crowd_kwargs, crowds, strict=True)})
     print(f"\nwrote {', '.join(p.name for p in written)} and meta.json in {out}")
     return 0

@@ -9,6 +9,7 @@ without unpickling it, the runner loads it).
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
@@ -89,6 +90,16 @@ class PolicySpec:
     def is_onnx(self) -> bool:
         """True for a file ending in ``.onnx``: a decision graph exported by :func:`sb3_crowdnav.deploy.export_onnx`."""
         return self.kind == "file" and Path(str(self.argument)).suffix.lower() == ".onnx"
+
+    def file_sha256(self) -> str | None:
+        """The SHA-256 of the file this spec plays (a shipped model's or the file itself), None for ORCA and random:
+        what a results folder records, so that a resumed run never mixes the episodes of two files of one name."""
+        if not self.is_model:
+            return None
+        from sb3_crowdnav.models import pretrained_path
+
+        path = pretrained_path(str(self.argument)) if self.kind == "pretrained" else Path(str(self.argument))
+        return hashlib.sha256(path.read_bytes()).hexdigest()
 
     @property
     def label(self) -> str:
