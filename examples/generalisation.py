@@ -133,7 +133,7 @@ def cell(out: Path, key: str, policy: str) -> Path:
 
 
 def done(folder: Path, episodes: int, seed_offset: int = TEST_SEED_OFFSET,
-         lookahead: dict[str, Any] | None = None, policy: str = "orca") -> bool:
+         lookahead: dict[str, Any] | None = None, *, policy: str) -> bool:
     """Whether the cell in ``folder`` is finished with ``episodes`` episodes from ``seed_offset``, the lookahead
     settings ``lookahead`` and the file ``policy`` plays, by its SHA-256 (``--resume`` keeps it); a finished cell with
     other episodes, seeds, settings or another file of that name is refused, not mixed into the table (a cell written
@@ -310,7 +310,7 @@ def main(argv: list[str] | None = None) -> None:
             folder = cell(args.out, key, policy)
             flags = lookahead_flags(args, policy)
             if args.resume and done(folder, args.episodes, SEEDS[args.seeds],
-                                    lookahead_settings(args) if flags else None, policy):
+                                    lookahead_settings(args) if flags else None, policy=policy):
                 print(f"kept {folder}")
                 continue
             benchmark(folder, spec, {**kwargs, **robots[policy]}, policy, args.episodes, args.workers,
