@@ -31,8 +31,10 @@ episode CSV and its ``meta.json``. The rows run one after the other over every c
 of another model file of the same name); ``--keep CSV`` (an earlier run's
 ``generalisation.csv``) keeps its rows of the policies this run does not run, so that one model's row can be run
 again (``--policy pretrained:apg_robust --keep paper_results/generalisation/generalisation.csv``).
-A shipped model's row runs its own robot in every column (:func:`~sb3_crowdnav.models.pretrained_env`, e.g. a model
-trained with ``actions="with_stop"`` keeps its stop), stated under the table.
+A model's row runs its own robot in every column, stated under the table: a shipped model's
+(:func:`~sb3_crowdnav.models.pretrained_env`, e.g. a model trained with ``actions="with_stop"`` keeps its stop), and
+a model file's where the world its file records differs from ``CrowdNav-v0``'s (the step, the robot's actions and
+limits; :func:`~sb3_crowdnav.serialization.read_world`).
 ``--planning-depth D`` / ``--planning-width K`` set the lookahead of the value-model rows (``benchmark``'s options;
 the other rows act as they are; refused when no row is a value model), recorded in each cell's ``meta.json``; a
 resumed cell run with other settings is refused. With two or more scenes, ``OUT/pooled.md`` also pools each row's
@@ -46,8 +48,11 @@ from __future__ import annotations
 import argparse
 import json
 import re
+import zipfile
 from pathlib import Path
 from typing import Any
+
+import gymnasium as gym
 
 from sb3_crowdnav.cli import main as cli
 from sb3_crowdnav.cli.common import (
@@ -66,8 +71,10 @@ from sb3_crowdnav.evaluation.policy_spec import PolicySpec
 from sb3_crowdnav.evaluation.runner import TEST_SEED_OFFSET
 from sb3_crowdnav.evaluation.tables import CrowdTable
 from sb3_crowdnav.models import pretrained_env
+from sb3_crowdnav.serialization import read_world, world_of
 from sb3_crowdnav.sim.crowd import CROWD_MODELS
 from sb3_crowdnav.sim.population import MEASURED_POPULATION
+from sb3_crowdnav.sim.world import PREDICTION_FIELDS, env_keywords
 from sb3_crowdnav.training import VALIDATION_SEED_OFFSET
 
 ENV = "CrowdNav-v0"
@@ -166,9 +173,17 @@ def lookahead_flags(args: argparse.Namespace, policy: str) -> list[str]:
 
 
 def robot_kwargs(policy: str) -> dict[str, Any]:
-    """The env keyword arguments of a shipped model's own robot (``pretrained:NAME``: :func:`~sb3_crowdnav.models.
-    pretrained_env`, e.g. ``actions="with_stop"``), added to every column of its row; none for another policy."""
+    """The env keyword arguments of a model's own robot, added to every column of its row: a shipped model's
+    (``pretrained:NAME``: :func:`~sb3_crowdnav.models.pretrained_env`, e.g. ``actions="with_stop"``), or those in
+    which a model file's world differs from ``CrowdNav-v0``'s (:func:`~sb3_crowdnav.serialization.read_world`: the
+    step and the robot's actions and limits); none for another policy."""
     spec = PolicySpec.parse(policy)
+    if spec.kind == "file":
+        try:
+            world = read_world(str(spec.argument))
+        except (OSError, KeyError, zipfile.BadZipFile, json.JSONDecodeError) as exc:
+            raise UsageError(f"--policy {policy}: not a model file this package reads ({exc})") from None
+        return {} if world is None else env_keywords(world, world_of(gym.make(ENV)), PREDICTION_FIELDS)
     if spec.kind != "pretrained":
         return {}
     env_id, kwargs = pretrained_env(str(spec.argument))

@@ -319,6 +319,31 @@ def test_a_shipped_models_row_runs_its_own_robot_in_every_column(tmp_path, capsy
              "trained in CrowdNavWarehouse-v0", script.main)
 
 
+def test_a_model_files_row_runs_the_robot_its_file_records(tmp_path, capsys, monkeypatch):
+    """--policy FILE: a model trained with the stop runs with it in every column; a paper-robot file adds nothing;
+    a file that is no model is refused before any episode."""
+    from sb3_crowdnav import APGValue
+
+    script = _script()
+    paths = {}
+    for actions in ("with_stop", "paper"):
+        model = APGValue("ApgPolicy", gym.make("CrowdNav-v0", actions=actions), imitation_episodes=0, seed=0)
+        paths[actions] = str(tmp_path / f"{actions}.zip")
+        model.save(paths[actions])
+    calls = []
+    monkeypatch.setattr(script, "benchmark", lambda out, spec, kwargs, policy, *rest: calls.append((policy, kwargs)))
+    monkeypatch.setattr(script, "combine", lambda *a: (_ for _ in ()).throw(KeyboardInterrupt))  # stop there
+    with pytest.raises(KeyboardInterrupt):
+        script.main(["--episodes", "1", "--columns", "empty", "--policy", paths["with_stop"], "--policy",
+                     paths["paper"], "--out", str(tmp_path / "o")])
+    assert sorted(calls, key=str) == sorted([(paths["with_stop"], {"num_humans": 0, "actions": "with_stop"}),
+                                            (paths["paper"], {"num_humans": 0})], key=str)
+    junk = tmp_path / "junk.zip"
+    junk.write_text("not a zip")
+    _refused(capsys, ["--columns", "empty", "--policy", str(junk), "--out", str(tmp_path / "j")],
+             "not a model file", script.main)
+
+
 def test_keep_runs_one_row_again_inside_an_earlier_table(tmp_path, capsys):
     """--keep: the earlier table's other rows stay; the row run again replaces its old one."""
     script = _script()
