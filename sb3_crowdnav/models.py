@@ -239,10 +239,16 @@ def pretrained_path(name: str) -> Path:
     return path
 
 
+def file_sha256(path: str | Path) -> str:
+    """The SHA-256 of a file's bytes (hex): what a shipped model is pinned by, a run's ``best.json`` and a results
+    folder's ``meta.json`` record."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
 def check_pretrained(name: str) -> Path:
     """The path of a shipped model after checking its SHA-256 against the pinned one; ``ValueError`` naming the file."""
     path = pretrained_path(name)
-    digest = hashlib.sha256(path.read_bytes()).hexdigest()
+    digest = file_sha256(path)
     if digest != PRETRAINED_SHA256[name]:
         raise ValueError(f"{path} does not match the SHA-256 pinned for {name!r} (has {digest[:16]}..., expected "
                          f"{PRETRAINED_SHA256[name][:16]}...): the file was changed; reinstall sb3_crowdnav")
@@ -277,6 +283,7 @@ __all__ = [
     "available_pretrained",
     "check_pretrained",
     "detect_algorithm",
+    "file_sha256",
     "load_model",
     "pretrained",
     "pretrained_env",

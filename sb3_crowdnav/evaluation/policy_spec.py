@@ -9,7 +9,6 @@ without unpickling it, the runner loads it).
 
 from __future__ import annotations
 
-import hashlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
@@ -96,10 +95,9 @@ class PolicySpec:
         what a results folder records, so that a resumed run never mixes the episodes of two files of one name."""
         if not self.is_model:
             return None
-        from sb3_crowdnav.models import pretrained_path
+        from sb3_crowdnav.models import file_sha256, pretrained_path
 
-        path = pretrained_path(str(self.argument)) if self.kind == "pretrained" else Path(str(self.argument))
-        return hashlib.sha256(path.read_bytes()).hexdigest()
+        return file_sha256(pretrained_path(str(self.argument)) if self.kind == "pretrained" else str(self.argument))
 
     @property
     def label(self) -> str:

@@ -18,7 +18,6 @@ the process was killed before ``progress.json`` caught up. Nothing but the unfin
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import re
@@ -28,6 +27,8 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
+
+from sb3_crowdnav.models import file_sha256
 
 CHECKPOINT = re.compile(r"checkpoint_(\d+)\.zip")
 LOCK = "run.lock"
@@ -63,8 +64,7 @@ def read_json(path: Path) -> Any:
     return json.loads(path.read_text()) if path.exists() else None
 
 
-def sha256(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
+sha256 = file_sha256  # the run folder's records use the package's one file hash
 
 
 def checkpoint_path(out: Path, episodes: int) -> Path:
