@@ -30,6 +30,14 @@ from sb3_crowdnav.nn.extractors import ApgExtractor
 VALUE_HEAD_ARCH = [150, 100, 100]  # ψ_M of Table 2 without its scalar output
 
 
+def _q_head(net_arch: list[int] | None, activation_fn: type[nn.Module],
+            features_extractor_class: type[BaseFeaturesExtractor],
+            features_extractor_kwargs: dict[str, Any] | None) -> dict[str, Any]:
+    """The keywords of a Q-network policy (DQN's, QR-DQN's): a [150, 100, 100] head unless ``net_arch`` is given."""
+    return {"net_arch": list(VALUE_HEAD_ARCH) if net_arch is None else net_arch, "activation_fn": activation_fn,
+            "features_extractor_class": features_extractor_class, "features_extractor_kwargs": features_extractor_kwargs}
+
+
 class ApgDQNPolicy(DQNMultiInputPolicy):
     """DQN ``MultiInputPolicy`` with the APG extractor and a [150, 100, 100] Q-head by default.
 
@@ -47,25 +55,18 @@ class ApgDQNPolicy(DQNMultiInputPolicy):
         features_extractor_kwargs: dict[str, Any] | None = None,
         **kwargs: Any,
     ) -> None:
-        super().__init__(
-            observation_space,
-            action_space,
-            lr_schedule,
-            net_arch=list(VALUE_HEAD_ARCH) if net_arch is None else net_arch,
-            activation_fn=activation_fn,
-            features_extractor_class=features_extractor_class,
-            features_extractor_kwargs=features_extractor_kwargs,
-            **kwargs,
-        )
+        super().__init__(observation_space, action_space, lr_schedule,
+                         **_q_head(net_arch, activation_fn, features_extractor_class, features_extractor_kwargs), **kwargs)
 
 
-class ApgActorCriticPolicy(MultiInputActorCriticPolicy):
-    """``MultiInputActorCriticPolicy`` (PPO, A2C) with the APG extractor by default.
+def _actor_critic_arch(net_arch: list[int] | dict[str, list[int]] | None) -> list[int] | dict[str, list[int]]:
+    """Separate [150, 100, 100] policy and value heads unless ``net_arch`` is given."""
+    return {"pi": list(VALUE_HEAD_ARCH), "vf": list(VALUE_HEAD_ARCH)} if net_arch is None else net_arch
 
-    Defaults differing from SB3: ReLU activations (the paper's) and separate [150, 100, 100]
-    policy and value heads. Same arguments as
-    :class:`stable_baselines3.common.policies.MultiInputActorCriticPolicy`.
-    """
+
+class _ApgActorCriticDefaults:
+    """The APG defaults of an actor-critic policy class, put before SB3's or sb3-contrib's class in the bases: the
+    APG extractor, ReLU activations (the paper's) and separate [150, 100, 100] policy and value heads."""
 
     def __init__(
         self,
@@ -78,18 +79,17 @@ class ApgActorCriticPolicy(MultiInputActorCriticPolicy):
         features_extractor_class: type[BaseFeaturesExtractor] = ApgExtractor,
         **kwargs: Any,
     ) -> None:
-        if net_arch is None:
-            net_arch = {"pi": list(VALUE_HEAD_ARCH), "vf": list(VALUE_HEAD_ARCH)}
-        super().__init__(
-            observation_space,
-            action_space,
-            lr_schedule,
-            net_arch,
-            activation_fn,
-            *args,
-            features_extractor_class=features_extractor_class,
-            **kwargs,
-        )
+        super().__init__(observation_space, action_space, lr_schedule, _actor_critic_arch(net_arch),
+                         activation_fn, *args, features_extractor_class=features_extractor_class, **kwargs)
+
+
+class ApgActorCriticPolicy(_ApgActorCriticDefaults, MultiInputActorCriticPolicy):
+    """``MultiInputActorCriticPolicy`` (PPO, A2C) with the APG extractor by default.
+
+    Defaults differing from SB3: ReLU activations (the paper's) and separate [150, 100, 100]
+    policy and value heads. Same arguments as
+    :class:`stable_baselines3.common.policies.MultiInputActorCriticPolicy`.
+    """
 
 
 class ApgQRDQNPolicy(QRDQNMultiInputPolicy):
@@ -110,25 +110,11 @@ class ApgQRDQNPolicy(QRDQNMultiInputPolicy):
         features_extractor_kwargs: dict[str, Any] | None = None,
         **kwargs: Any,
     ) -> None:
-        super().__init__(
-            observation_space,
-            action_space,
-            lr_schedule,
-            n_quantiles=n_quantiles,
-            net_arch=list(VALUE_HEAD_ARCH) if net_arch is None else net_arch,
-            activation_fn=activation_fn,
-            features_extractor_class=features_extractor_class,
-            features_extractor_kwargs=features_extractor_kwargs,
-            **kwargs,
-        )
+        super().__init__(observation_space, action_space, lr_schedule, n_quantiles=n_quantiles,
+                         **_q_head(net_arch, activation_fn, features_extractor_class, features_extractor_kwargs), **kwargs)
 
 
-def _actor_critic_arch(net_arch: list[int] | dict[str, list[int]] | None) -> list[int] | dict[str, list[int]]:
-    """Separate [150, 100, 100] policy and value heads unless ``net_arch`` is given."""
-    return {"pi": list(VALUE_HEAD_ARCH), "vf": list(VALUE_HEAD_ARCH)} if net_arch is None else net_arch
-
-
-class ApgRecurrentPolicy(RecurrentMultiInputActorCriticPolicy):
+class ApgRecurrentPolicy(_ApgActorCriticDefaults, RecurrentMultiInputActorCriticPolicy):
     """sb3-contrib ``MultiInputLstmPolicy`` (RecurrentPPO) with the APG extractor by default.
 
     The APG features of each step go through sb3-contrib's LSTM (``lstm_hidden_size``, 256 by default), which carries
@@ -137,40 +123,12 @@ class ApgRecurrentPolicy(RecurrentMultiInputActorCriticPolicy):
     :class:`sb3_contrib.common.recurrent.policies.RecurrentMultiInputActorCriticPolicy`.
     """
 
-    def __init__(
-        self,
-        observation_space: spaces.Dict,
-        action_space: spaces.Space,
-        lr_schedule: Schedule,
-        net_arch: list[int] | dict[str, list[int]] | None = None,
-        activation_fn: type[nn.Module] = nn.ReLU,
-        *args: Any,
-        features_extractor_class: type[BaseFeaturesExtractor] = ApgExtractor,
-        **kwargs: Any,
-    ) -> None:
-        super().__init__(observation_space, action_space, lr_schedule, _actor_critic_arch(net_arch), activation_fn,
-                         *args, features_extractor_class=features_extractor_class, **kwargs)
 
-
-class ApgMaskablePolicy(MaskableMultiInputActorCriticPolicy):
+class ApgMaskablePolicy(_ApgActorCriticDefaults, MaskableMultiInputActorCriticPolicy):
     """sb3-contrib ``MultiInputPolicy`` of MaskablePPO with the APG extractor by default (ReLU, [150, 100, 100] heads
     as :class:`ApgActorCriticPolicy`). Same arguments as
     :class:`sb3_contrib.common.maskable.policies.MaskableMultiInputActorCriticPolicy`.
     """
-
-    def __init__(
-        self,
-        observation_space: spaces.Dict,
-        action_space: spaces.Space,
-        lr_schedule: Schedule,
-        net_arch: list[int] | dict[str, list[int]] | None = None,
-        activation_fn: type[nn.Module] = nn.ReLU,
-        *args: Any,
-        features_extractor_class: type[BaseFeaturesExtractor] = ApgExtractor,
-        **kwargs: Any,
-    ) -> None:
-        super().__init__(observation_space, action_space, lr_schedule, _actor_critic_arch(net_arch), activation_fn,
-                         *args, features_extractor_class=features_extractor_class, **kwargs)
 
 
 # what "ApgPolicy" names under each algorithm (this package's algorithm names)
