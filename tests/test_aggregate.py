@@ -208,6 +208,21 @@ def test_budgets_read_from_runs_and_records_and_stated_per_method(tmp_path):
     assert "RL env steps" not in aggregate(scores, reps=REPS).wide_markdown()  # no budgets, no columns
 
 
+def test_a_record_without_env_steps_states_none(tmp_path):
+    """A hand-written budget.json of a lost run folder may say its steps are unknown (the key present, null): the
+    tables say "–" for that method's steps, never a number made up from the other seeds."""
+    lost = _budget(tmp_path / "budget.json", env_steps=None, wall_time_s=1932.0)
+    assert read_budget(lost, "A", 0) == TrainingBudget("A", 0, None, 1932.0)
+    budgets = [read_budget(lost, "A", 0), TrainingBudget("A", 1, 143_161, 2415.9), TrainingBudget("B", 0, 1000, 60.0)]
+    assert budget.summary(budgets, "A") == ("–", "36.2 min (32.2–40.3)")
+    assert budget.summary(budgets, "B") == ("1000", "1.0 min")
+    result = aggregate(_scores("A", [0.9, 0.8]) + _scores("B", [0.5]), reps=REPS, budgets=budgets)
+    assert "| A | 0 | – | 32.2 |" in result.to_markdown() and "| A | 1 | 143,161 | 40.3 |" in result.to_markdown()
+    assert result.to_csv()["budget"].splitlines()[1] == "A,0,,1932.0"
+    with pytest.raises(ValueError, match="no env step count"):  # a run's progress.json always counts its steps
+        read_budget(_budget(tmp_path / "run" / "progress.json", timesteps=None, wall_time_s=1.0), "A", 0)
+
+
 @pytest.mark.parametrize("budgets, fragment", [
     ([("A", 0), ("A", 1)], "no budget for A seed 2"),
     ([("A", 0), ("A", 1), ("A", 2), ("B", 0)], "a budget for B seed 0, which has no results"),

@@ -11,7 +11,10 @@ A comparison between methods is fair only at equal budgets, so a table over seed
 
 The env steps are those of the RL phase (an imitation phase's demonstrations are the ORCA robot's episodes, the same
 for every method that imitates). A run that recorded no wall time (APGValue runs before the field existed) gives
-``None``; ``examples/record_seed.py --wall-time`` records one measured outside the run (``/usr/bin/time``).
+``None``; ``examples/record_seed.py --wall-time`` records one measured outside the run (``/usr/bin/time``). A
+budget.json written by hand for a seed whose run folder was lost may say ``"env_steps": null`` (the key present): its
+steps are not known, and the tables say "–" for them rather than a guess (a run's ``progress.json`` always counts its
+steps).
 """
 
 from __future__ import annotations
@@ -29,11 +32,11 @@ PROGRESS = "progress.json"
 
 @dataclass(frozen=True)
 class TrainingBudget:
-    """What one training seed of a method used: RL env steps, and wall time [s] (None: not recorded)."""
+    """What one training seed of a method used: RL env steps and wall time [s] (either None: not recorded)."""
 
     method: str
     seed: int
-    env_steps: int
+    env_steps: int | None
     wall_time_s: float | None
 
 
@@ -50,7 +53,8 @@ def read_budget(path: str | Path, method: str, seed: int) -> TrainingBudget:
     except json.JSONDecodeError as exc:
         raise ValueError(f"{str(file)!r} is not JSON: {exc}") from None
     steps = data.get("env_steps", data.get("timesteps")) if isinstance(data, dict) else None
-    if isinstance(steps, bool) or not isinstance(steps, int) or steps < 0:
+    unknown = isinstance(data, dict) and "env_steps" in data and steps is None  # a record that says it is not known
+    if not unknown and (isinstance(steps, bool) or not isinstance(steps, int) or steps < 0):
         raise ValueError(f"{str(file)!r} has no env step count ('timesteps' of a run's {PROGRESS}, 'env_steps' of a "
                          f"budget.json), got {steps!r}")
     wall = data.get("wall_time_s")
@@ -83,13 +87,16 @@ def _steps(n: float) -> str:
 
 def summary(budgets: Sequence[TrainingBudget], method: str) -> tuple[str, str]:
     """``method``'s env steps and wall time over its seeds, as table cells: the median, then the range over the
-    seeds when they differ (``"145 k (145-148 k)"``, ``"68.2 min (50.9-68.7)"``); ``"–"`` for the wall time when
-    a seed did not record one."""
+    seeds when they differ (``"145 k (145-148 k)"``, ``"68.2 min (50.9-68.7)"``); ``"–"`` for either when a seed
+    did not record it."""
     own = [b for b in budgets if b.method == method]
     steps = [b.env_steps for b in own]
-    steps_cell = _steps(float(np.median(steps)))
-    if min(steps) != max(steps):
-        steps_cell += f" ({_steps(min(steps))}–{_steps(max(steps))})"
+    if any(n is None for n in steps):
+        steps_cell = "–"
+    else:
+        steps_cell = _steps(float(np.median(steps)))
+        if min(steps) != max(steps):
+            steps_cell += f" ({_steps(min(steps))}–{_steps(max(steps))})"
     if any(b.wall_time_s is None for b in own):
         return steps_cell, "–"
     walls = [b.wall_time_s / 60 for b in own]
@@ -99,7 +106,7 @@ def summary(budgets: Sequence[TrainingBudget], method: str) -> tuple[str, str]:
 
 def per_seed_markdown(budgets: Sequence[TrainingBudget]) -> str:
     lines = ["| method | seed | RL env steps | wall time [min] |", "|---|---|---|---|"]
-    lines += [f"| {b.method} | {b.seed} | {b.env_steps:,} | "
+    lines += [f"| {b.method} | {b.seed} | {'–' if b.env_steps is None else f'{b.env_steps:,}'} | "
               f"{'–' if b.wall_time_s is None else f'{b.wall_time_s / 60:.1f}'} |" for b in budgets]
     return "\n".join(lines) + "\n"
 
