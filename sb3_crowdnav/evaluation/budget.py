@@ -85,23 +85,22 @@ def _steps(n: float) -> str:
     return f"{n / 1e6:.2f} M" if n >= 1e6 else f"{n / 1e3:.0f} k" if n >= 1e4 else f"{n:.0f}"
 
 
+def _median_and_range(values: Sequence[float | None], fmt, unit: str = "") -> str:
+    """The median of ``values`` by ``fmt`` with ``unit``, then their range when they differ; "–" when one is None."""
+    if any(v is None for v in values):
+        return "–"
+    low, high = min(values), max(values)
+    return fmt(float(np.median(values))) + unit + (f" ({fmt(low)}–{fmt(high)})" if low != high else "")
+
+
 def summary(budgets: Sequence[TrainingBudget], method: str) -> tuple[str, str]:
     """``method``'s env steps and wall time over its seeds, as table cells: the median, then the range over the
     seeds when they differ (``"145 k (145-148 k)"``, ``"68.2 min (50.9-68.7)"``); ``"–"`` for either when a seed
     did not record it."""
     own = [b for b in budgets if b.method == method]
-    steps = [b.env_steps for b in own]
-    if any(n is None for n in steps):
-        steps_cell = "–"
-    else:
-        steps_cell = _steps(float(np.median(steps)))
-        if min(steps) != max(steps):
-            steps_cell += f" ({_steps(min(steps))}–{_steps(max(steps))})"
-    if any(b.wall_time_s is None for b in own):
-        return steps_cell, "–"
-    walls = [b.wall_time_s / 60 for b in own]
-    spread = f" ({min(walls):.1f}–{max(walls):.1f})" if min(walls) != max(walls) else ""
-    return steps_cell, f"{float(np.median(walls)):.1f} min{spread}"
+    walls = [None if b.wall_time_s is None else b.wall_time_s / 60 for b in own]
+    return (_median_and_range([b.env_steps for b in own], _steps),
+            _median_and_range(walls, lambda minutes: f"{minutes:.1f}", " min"))
 
 
 def per_seed_markdown(budgets: Sequence[TrainingBudget]) -> str:
