@@ -431,3 +431,29 @@ def test_the_validation_is_of_the_saved_checkpoint(tmp_path, monkeypatch, overla
     saved = APGValue.load(out / "checkpoint_2.zip").policy.value_net.state_dict()
     assert len(acted) == 1 and acted[0].keys() == saved.keys()
     assert all(th.equal(acted[0][k], saved[k]) for k in saved)
+
+
+@pytest.mark.parametrize("flag, key", [("--imitation-epochs", "imitation_epochs"), ("--rl-episodes", "rl_episodes"),
+                                       ("--train-freq", "train_freq"), ("--checkpoint-episodes", "checkpoint_episodes"),
+                                       ("--exploration-episodes", "exploration_episodes"),
+                                       ("--planning-depth", "planning_depth")])
+def test_train_help_states_every_variants_default(flag, key, capsys):
+    """The help's "default: the variant's: X; name, name: Y" is what a run of each variant gets."""
+    import re
+
+    from sb3_crowdnav.training.schedule import VARIANTS
+
+    with pytest.raises(SystemExit):
+        main(["train", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    start = re.search(rf"(?<!\[){flag} [A-Z_]+[ ,]", text).start()  # the flag's entry, not the usage line's
+    stated = re.search(r"default: the variant's: ([^;)]+)((?:; [a-z_, ]+: [^;)]+)*)", text[start:])
+    assert stated is not None, text[start:start + 300]
+    per_name = {name: stated.group(1) for name in VARIANTS}
+    for part in filter(None, stated.group(2).split("; ")):
+        names, value = part.split(": ")
+        for name in names.split(", "):
+            assert name in VARIANTS, part
+            per_name[name] = value
+    for name in VARIANTS:
+        assert per_name[name] == str(getattr(ScheduleConfig(variant=name), key)), (flag, name)

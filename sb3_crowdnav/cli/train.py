@@ -41,6 +41,7 @@ def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
     from sb3_crowdnav.apg_value.overlap import OVERLAP_KINDS
     from sb3_crowdnav.training.callbacks import SELECT_BY
     from sb3_crowdnav.training.schedule import LOOKAHEAD_DTYPES, OPTIMIZERS, PEDESTRIAN_MODELS, VARIANTS
+    from sb3_crowdnav.training.variants import describe_default
 
     p = sub.add_parser(
         "train", parents=parents, help="train a paper variant (--variant) or from an rl-zoo3 YAML (--hyperparams)",
@@ -59,23 +60,22 @@ def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
                    help="ORCA-robot episodes imitated first (default: 3000 with --variant; 0 with --hyperparams, "
                         "where it is for ppo, a2c, maskableppo, dqn, qrdqn and dqfd)")
     p.add_argument("--imitation-epochs", "--il-epochs", dest="imitation_epochs", type=common.nonneg_int,
-                   help="passes over the demonstrations (default: the variant's: 10, apg_warehouse 5, apg_robust 3; 10 "
-                        "with --hyperparams)")
+                   help=f"passes over the demonstrations (default: {describe_default('imitation_epochs')}; 10 with "
+                        "--hyperparams)")
     p.add_argument("--imitation-learning-rate", "--il-learning-rate", dest="imitation_learning_rate",
                    type=common.positive_float,
                    help="learning rate of the imitation (default: 0.01 with --variant, Table 1; 0.001 with --hyperparams)")
 
     g = p.add_argument_group("the paper's schedule (--variant)")
     g.add_argument("--rl-episodes", type=common.positive_int,
-                   help="RL episodes in total (default: the variant's: 10000, apg_warehouse 7000, apg_robust 3000, "
-                        "apg_warehouse_paper 6000)")
+                   help=f"RL episodes in total (default: {describe_default('rl_episodes')})")
     g.add_argument("--n-envs", type=common.positive_int, help="training envs, one batched lookahead (default: 1)")
     g.add_argument("--learning-rate", type=common.positive_float, help="RL learning rate (default: 0.001, Table 1)")
     g.add_argument("--train-freq", type=common.positive_int,
-                   help="one gradient step every this many env steps (default: the variant's: apg_rl 8, the others 4)")
+                   help=f"one gradient step every this many env steps (default: {describe_default('train_freq')})")
     g.add_argument("--buffer-size", type=common.positive_int, help="replay capacity [transitions] (default: 100000)")
     g.add_argument("--checkpoint-episodes", type=common.positive_int,
-                   help="checkpoint and validate every N RL episodes (default: the variant's: 500, apg_robust 750)")
+                   help=f"checkpoint and validate every N RL episodes (default: {describe_default('checkpoint_episodes')})")
     g.add_argument("--eval-episodes", type=common.nonneg_int,
                    help="greedy validation episodes per checkpoint, 0: none (default: 100; with --hyperparams "
                         "and --checkpoint-freq it validates every checkpoint and keeps the best as OUT/best.zip, "
@@ -83,7 +83,7 @@ def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
     g.add_argument("--no-bootstrap-timeouts", dest="bootstrap_timeouts", action="store_const", const=False,
                    help="end timed-out episodes with zero future value (the field's reference code)")
     g.add_argument("--exploration-episodes", type=common.positive_int,
-                   help="RL episodes of the ε decay (default: the variant's: 5000, apg_warehouse 3000)")
+                   help=f"RL episodes of the ε decay (default: {describe_default('exploration_episodes')})")
     g.add_argument("--epsilon-start", dest="exploration_initial_eps", type=common.probability, metavar="EPS",
                    help="ε at the first RL episode (default: 0.5, the paper; lower it to fine-tune a model given "
                         "with --from-imitation)")
@@ -114,7 +114,7 @@ def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
                         "for a new one)")
     g.add_argument("--planning-depth", type=common.positive_int, metavar="D",
                    help="the lookahead depth the finished run's best.zip and final.zip act with (training and its "
-                        "validations search one step) (default: the variant's; apg_warehouse: 2, the others 1)")
+                        f"validations search one step) (default: {describe_default('planning_depth')})")
     g.add_argument("--planning-width", type=common.positive_int, metavar="K",
                    help="with a depth > 1, the best K actions of each step that search expands (default: the "
                         "variant's, else every one)")

@@ -60,3 +60,23 @@ VARIANTS = {
                                     "exploration_episodes": 1_500, "imitation_epochs": 3, "checkpoint_episodes": 750,
                                     "planning_depth": 2, "planning_width": 8, "cap_values": True}),
 }
+
+
+def describe_default(key: str) -> str:
+    """The default of schedule setting ``key`` for the command line's help, read from :data:`PAPER_SCHEDULE` and
+    :data:`VARIANTS`: ``"the variant's: 4; apg_rl, apg_warehouse, apg_robust: 8"`` (so the help cannot drift from the
+    recipes)."""
+    base = PAPER_SCHEDULE[key]
+    others: dict[Any, list[str]] = {}
+    for name, variant in VARIANTS.items():
+        value = variant.schedule.get(key, base)
+        if value != base:
+            others.setdefault(value, []).append(name)
+    parts = [f"{', '.join(names)}: {_text(value)}" for value, names in others.items()]
+    return "; ".join([f"the variant's: {_text(base)}", *parts])
+
+
+def _text(value: Any) -> str:
+    if isinstance(value, tuple):
+        return "-".join(map(str, value))
+    return str(value)
