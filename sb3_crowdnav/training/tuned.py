@@ -6,8 +6,8 @@
 It takes the study's best trial, turns its sampled values into hyperparameters with rl-zoo3's converter (as
 ``rl_zoo3.train --trial-id`` does), puts them over the file the study started from (``policy_kwargs`` over its
 ``policy_kwargs``, as the trials ran them) and writes the result, headed by comments that state what the choice
-cost: the study's command, its trials (complete, pruned, failed), the env steps of a trial, the evaluations that
-scored it and the best trial's score. The values come from the study's database and are written as plain YAML
+cost: the study's command, its trials (complete, pruned, failed) and their wall time, the env steps of a trial, the
+evaluations that scored it and the best trial's score. The values come from the study's database and are written as plain YAML
 (``policy_kwargs`` as the ``dict(...)`` string the package's files use, read back by ``safe_eval``).
 """
 
@@ -46,7 +46,8 @@ def _literal(value: Any) -> str:
 
 
 def study_budget(study: Any) -> dict[str, Any]:
-    """The trials of ``study`` by state and the settings its recorded command gave (None where not given)."""
+    """The trials of ``study`` by state, the settings its recorded command gave (None where not given) and the wall
+    time of its finished trials (``trial_hours``: start to end of each complete, pruned or failed trial, summed)."""
     from optuna.trial import TrialState
 
     states = {name: len(study.get_trials(deepcopy=False, states=(state,)))
@@ -59,7 +60,9 @@ def study_budget(study: Any) -> dict[str, Any]:
         words = []
     given = {key: next((words[i + 1] for i, w in enumerate(words[:-1]) if w in flags), None)
              for key, flags in FLAGS.items()}
-    return {**states, **given, "command": command}
+    finished = [t for t in study.get_trials(deepcopy=False) if t.datetime_start and t.datetime_complete]
+    hours = sum((t.datetime_complete - t.datetime_start).total_seconds() for t in finished) / 3600
+    return {**states, **given, "command": command, "trial_hours": hours}
 
 
 def tuned_hyperparams(algo: str, base: dict[str, Any], storage: str, study_name: str) -> tuple[dict[str, Any], Any]:
@@ -100,7 +103,8 @@ def header(algo: str, env_id: str, conf: str, study_name: str, study: Any, argv:
     lines = [
         f"{algo} on {env_id}, tuned with Optuna through rl-zoo3 (sb3-crowdnav-zoo train -optimize) from {conf}:",
         f"the best of {budget['complete']} complete trials of study {study_name!r} ({budget['pruned']} pruned, "
-        f"{budget['failed']} failed), each trial {per_trial}, {scored};",
+        f"{budget['failed']} failed), each trial {per_trial}, {scored}; the finished trials' wall time "
+        f"{budget['trial_hours']:.1f} h in all;",
         f"best trial #{study.best_trial.number}, mean episode reward {study.best_trial.value:.4f}.",
         f"The study's command: {budget['command'] or 'not recorded'}",
         f"Written {datetime.date.today().isoformat()} by: sb3-crowdnav-zoo tuned {shlex.join(argv)}",
