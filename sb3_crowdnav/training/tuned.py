@@ -7,8 +7,8 @@ It takes the study's best trial, turns its sampled values into hyperparameters w
 ``rl_zoo3.train --trial-id`` does), puts them over the file the study started from (``policy_kwargs`` over its
 ``policy_kwargs``, as the trials ran them) and writes the result, headed by comments that state what the choice
 cost: the study's command, its trials (complete, pruned, failed) and their wall time, the env steps of a trial, the
-evaluations that scored it and the best trial's score. The values come from the study's database and are written as plain YAML
-(``policy_kwargs`` as the ``dict(...)`` string the package's files use, read back by ``safe_eval``).
+evaluations that scored it and the best trial's score. The values come from the study's database and are written as
+plain YAML (``policy_kwargs`` as the ``dict(...)`` string the package's files use, read back by ``safe_eval``).
 """
 
 from __future__ import annotations
@@ -50,7 +50,8 @@ def study_budget(study: Any) -> dict[str, Any]:
     time of its finished trials (``trial_hours``: start to end of each complete, pruned or failed trial, summed)."""
     from optuna.trial import TrialState
 
-    states = {name: len(study.get_trials(deepcopy=False, states=(state,)))
+    trials = study.get_trials(deepcopy=False)
+    states = {name: sum(t.state == state for t in trials)
               for name, state in (("complete", TrialState.COMPLETE), ("pruned", TrialState.PRUNED),
                                   ("failed", TrialState.FAIL))}
     command = study.user_attrs.get("command")
@@ -60,8 +61,8 @@ def study_budget(study: Any) -> dict[str, Any]:
         words = []
     given = {key: next((words[i + 1] for i, w in enumerate(words[:-1]) if w in flags), None)
              for key, flags in FLAGS.items()}
-    finished = [t for t in study.get_trials(deepcopy=False) if t.datetime_start and t.datetime_complete]
-    hours = sum((t.datetime_complete - t.datetime_start).total_seconds() for t in finished) / 3600
+    hours = sum((t.datetime_complete - t.datetime_start).total_seconds()
+                for t in trials if t.datetime_start and t.datetime_complete) / 3600
     return {**states, **given, "command": command, "trial_hours": hours}
 
 

@@ -72,11 +72,5 @@ def describe_default(key: str) -> str:
         value = variant.schedule.get(key, base)
         if value != base:
             others.setdefault(value, []).append(name)
-    parts = [f"{', '.join(names)}: {_text(value)}" for value, names in others.items()]
-    return "; ".join([f"the variant's: {_text(base)}", *parts])
-
-
-def _text(value: Any) -> str:
-    if isinstance(value, tuple):
-        return "-".join(map(str, value))
-    return str(value)
+    parts = [f"{', '.join(names)}: {value}" for value, names in others.items()]
+    return "; ".join([f"the variant's: {base}", *parts])
