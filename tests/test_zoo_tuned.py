@@ -110,3 +110,77 @@ def test_the_header_states_the_finished_trials_wall_time(tmp_path):
     assert study_budget(study)["trial_hours"] == pytest.approx(1.5)
     text = " ".join(line[2:] for line in header("dqn", "CrowdNav-v0", "b.yml", "t", study, []).splitlines())
     assert "the finished trials' wall time 1.5 h in all" in text
+
+
+def _journal_study(tmp_path):
+    """A study in a journal file (``.log``): trial 0 complete, trial 1 left RUNNING (as a killed tuning process leaves
+    it)."""
+    register()
+    path = str(tmp_path / "tune.log")
+    storage = optuna.storages.JournalStorage(optuna.storages.journal.JournalFileBackend(path))
+    study = optuna.create_study(storage=storage, study_name="dqn", direction="maximize",
+                                sampler=optuna.samplers.RandomSampler(seed=0))
+    study.set_user_attr("command", COMMAND)
+    study.optimize(lambda t: sample_dqn_params(t, 81, 1, {"using_her_replay_buffer": False, "her_kwargs": {}})
+                   ["learning_rate"], n_trials=1)
+    study.ask()
+    return path
+
+
+def test_a_killed_study_resumes_with_its_running_trials_failed(tmp_path, monkeypatch, capsys):
+    """--fail-running marks the RUNNING trial FAIL (so --max-total-trials no longer counts it), leaves the complete one,
+    and is taken out of the line rl-zoo3 parses."""
+    from optuna.trial import TrialState
+    from rl_zoo3 import train as zoo_train
+
+    path = _journal_study(tmp_path)
+    seen = {}
+
+    def fake_train():
+        import sys
+
+        seen["argv"] = list(sys.argv)
+        study = optuna.load_study(study_name="dqn", storage=optuna.storages.JournalStorage(
+            optuna.storages.journal.JournalFileBackend(path)))
+        seen["states"] = [t.state for t in study.trials]
+
+    monkeypatch.setattr(zoo_train, "train", fake_train)
+    zoo_main(["train", "--algo", "dqn", "--env", "CrowdNav-v0", "-optimize", "--storage", path, "--study-name", "dqn",
+              "--fail-running"])
+    assert seen["states"] == [TrialState.COMPLETE, TrialState.FAIL]
+    assert "--fail-running" not in seen["argv"] and "-optimize" in seen["argv"]
+    assert "trial 1 of study 'dqn' was left running: marked FAIL" in capsys.readouterr().err
+    zoo_main(["train", "--algo", "dqn", "--env", "CrowdNav-v0", "-optimize", f"--storage={path}", "--study-name", "dqn",
+              "--fail-running"])  # nothing left running: nothing changes
+    assert seen["states"] == [TrialState.COMPLETE, TrialState.FAIL]
+    assert "marked FAIL" not in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv", [
+    ["train", "--algo", "dqn", "--env", "CrowdNav-v0", "--storage", "x.log", "--study-name", "s", "--fail-running"],
+    ["train", "--algo", "dqn", "--env", "CrowdNav-v0", "-optimize", "--study-name", "s", "--fail-running"],
+    ["enjoy", "--algo", "dqn", "--env", "CrowdNav-v0", "--fail-running"],
+])
+def test_fail_running_outside_a_resumed_study_exits_2(argv, capsys):
+    with pytest.raises(SystemExit) as exc:
+        zoo_main(argv)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--fail-running" in err[0]
+
+
+def test_tuned_reads_a_journal_file(tmp_path, capsys):
+    path = _journal_study(tmp_path)
+    (tmp_path / "base.yml").write_text(BASE)
+    argv = ["tuned", "--algo", "dqn", "--env", "CrowdNav-v0", "-conf", str(tmp_path / "base.yml"),
+            "--study-name", "dqn", "--out", str(tmp_path / "t.yml")]
+    zoo_main([*argv, "--storage", path])
+    text = (tmp_path / "t.yml").read_text()
+    assert "the best of 1 complete trials" in " ".join(line.lstrip("# ") for line in text.splitlines())
+    learning_rate = load_hyperparams(str(tmp_path / "t.yml"), "CrowdNav-v0")["learning_rate"]
+    best = optuna.load_study(study_name="dqn", storage=optuna.storages.JournalStorage(
+        optuna.storages.journal.JournalFileBackend(path))).best_trial.params["learning_rate"]
+    assert learning_rate == pytest.approx(best)
+    with pytest.raises(SystemExit) as exc:
+        zoo_main([*argv, "--storage", str(tmp_path / "missing.log")])
+    assert exc.value.code == 2 and "no journal file" in capsys.readouterr().err

@@ -3,6 +3,9 @@
     sb3-crowdnav-zoo tuned --algo qrdqn --env CrowdNav-v0 -conf zoo_hyperparams/qrdqn.yml \\
         --storage sqlite:///tune.db --study-name qrdqn --out zoo_hyperparams/qrdqn.yml
 
+``--storage`` is what rl-zoo3's takes: a database URL, or a path ending in ``.log``, an Optuna journal file (plain
+text that a study can be carried in from machine to machine, :func:`open_storage`).
+
 It takes the study's best trial, turns its sampled values into hyperparameters with rl-zoo3's converter (as
 ``rl_zoo3.train --trial-id`` does), puts them over the file the study started from (``policy_kwargs`` over its
 ``policy_kwargs``, as the trials ran them) and writes the result, headed by comments that state what the choice
@@ -45,6 +48,38 @@ def _literal(value: Any) -> str:
     raise ValueError(f"cannot write {type(value).__name__} {value!r} into a hyperparameter file")
 
 
+def open_storage(storage: str) -> Any:
+    """The Optuna storage ``storage`` names, by rl-zoo3's rule: a path ending in ``.log`` is a journal file
+    (``JournalStorage``: one JSON line per change of the study, appended), anything else a database URL."""
+    import optuna
+
+    if not storage.endswith(".log"):
+        return storage
+    if not Path(storage).is_file():
+        raise ValueError(f"--storage: no journal file {storage!r}")
+    return optuna.storages.JournalStorage(optuna.storages.journal.JournalFileBackend(storage))
+
+
+def fail_running_trials(storage: str, study_name: str) -> list[int]:
+    """Mark the trials of study ``study_name`` that are still RUNNING as FAIL; their numbers. For a study whose
+    tuning process was killed (a stopped machine leaves its trial RUNNING, and rl-zoo3's ``--max-total-trials``
+    counts it as one to come): never while another worker tunes the same study. A study not yet in ``storage`` has
+    none."""
+    import optuna
+    from optuna.trial import TrialState
+
+    if storage.endswith(".log") and not Path(storage).is_file():
+        return []
+    try:
+        study = optuna.load_study(study_name=study_name, storage=open_storage(storage))
+    except KeyError:
+        return []
+    running = study.get_trials(deepcopy=False, states=(TrialState.RUNNING,))
+    for trial in running:
+        study.tell(trial.number, state=TrialState.FAIL)
+    return [t.number for t in running]
+
+
 def study_budget(study: Any) -> dict[str, Any]:
     """The trials of ``study`` by state, the settings its recorded command gave (None where not given) and the wall
     time of its finished trials (``trial_hours``: start to end of each complete, pruned or failed trial, summed)."""
@@ -79,7 +114,7 @@ def tuned_hyperparams(algo: str, base: dict[str, Any], storage: str, study_name:
         raise ValueError(f"--algo: rl-zoo3 has no converter for {algo!r}; "
                          f"known: {sorted(hyperparams_opt.HYPERPARAMS_CONVERTER)}")
     try:
-        study = optuna.load_study(study_name=study_name, storage=storage)
+        study = optuna.load_study(study_name=study_name, storage=open_storage(storage))
     except KeyError:
         raise ValueError(f"--study-name: no study {study_name!r} in {storage}") from None
     if not study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.COMPLETE,)):
@@ -120,7 +155,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--algo", required=True)
     parser.add_argument("--env", required=True, help="the env id: the file's top-level key")
     parser.add_argument("-conf", "--conf-file", dest="conf", required=True, help="the YAML file the study started from")
-    parser.add_argument("--storage", required=True, help="the study's Optuna storage, e.g. sqlite:///tune.db")
+    parser.add_argument("--storage", required=True, help="the study's Optuna storage: a database URL (sqlite:///tune.db) or a "
+                        "journal file (PATH.log)")
     parser.add_argument("--study-name", required=True)
     parser.add_argument("--out", required=True, help="the tuned YAML file to write (may be -conf itself)")
     args = parser.parse_args(argv)

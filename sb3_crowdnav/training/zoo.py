@@ -5,7 +5,9 @@ rl-zoo3's documented way of adding an algorithm is to add it to ``rl_zoo3.utils.
 for Optuna tuning, a sampler to ``rl_zoo3.hyperparams_opt.HYPERPARAMS_SAMPLER``); this module
 does exactly that and then hands the command line to rl-zoo3 unchanged, so every rl-zoo3 flag
 works (``--storage sqlite:///tune.db --study-name apg -optimize`` spreads tuning over machines
-through a shared database). ``--gym-packages sb3_crowdnav`` is added when missing, and ``--num-threads 1`` (one torch
+through a shared database; ``--storage PATH.log``, a journal file, carries a study from machine to machine, and
+``--fail-running`` marks the trials a killed tuning process left running as failed before it resumes).
+``--gym-packages sb3_crowdnav`` is added when missing, and ``--num-threads 1`` (one torch
 thread, the package's training floor; rl-zoo3 leaves torch its default of every core) unless the command gives one.
 
 Its evaluations (``--eval-freq``, which keeps ``best_model.zip``, and every Optuna trial's, which scores the trial)
@@ -233,6 +235,32 @@ def _over_policy_kwargs(sampler: Any, own: dict[str, Any], *args: Any) -> dict[s
     return params
 
 
+def _option(argv: list[str], name: str) -> str | None:
+    """The value of ``name VALUE`` or ``name=VALUE`` in ``argv`` (None when absent)."""
+    for i, arg in enumerate(argv):
+        if arg == name and i + 1 < len(argv):
+            return argv[i + 1]
+        if arg.startswith(name + "="):
+            return arg[len(name) + 1:]
+    return None
+
+
+def _fail_running(command: str, rest: list[str]) -> None:
+    """``--fail-running`` (the package's flag, taken out before rl-zoo3 reads the line): the study's RUNNING trials,
+    left so by a tuning process that was killed, are marked FAIL before the study resumes
+    (:func:`~sb3_crowdnav.training.tuned.fail_running_trials`)."""
+    storage, study_name = _option(rest, "--storage"), _option(rest, "--study-name")
+    optimize = "-optimize" in rest or "--optimize-hyperparameters" in rest
+    if command != "train" or not optimize or storage is None or study_name is None:
+        print("sb3-crowdnav-zoo: error: --fail-running: resumes a study: give it to train with -optimize, --storage "
+              "and --study-name", file=sys.stderr)
+        raise SystemExit(2)
+    from sb3_crowdnav.training.tuned import fail_running_trials
+
+    for number in fail_running_trials(storage, study_name):
+        print(f"sb3-crowdnav-zoo: trial {number} of study {study_name!r} was left running: marked FAIL", file=sys.stderr)
+
+
 def main(argv: list[str] | None = None) -> None:
     argv = list(sys.argv[1:] if argv is None else argv)
     if not argv or argv[0] not in COMMANDS:
@@ -244,6 +272,9 @@ def main(argv: list[str] | None = None) -> None:
 
         register()  # (the converters of the package's algorithms)
         return tuned_main(rest)
+    if "--fail-running" in rest:
+        rest = [arg for arg in rest if arg != "--fail-running"]
+        _fail_running(command, rest)
     if "--gym-packages" not in rest:
         rest += ["--gym-packages", "sb3_crowdnav"]
     if not any(arg == "--num-threads" or arg.startswith("--num-threads=") for arg in rest):
