@@ -124,7 +124,7 @@ def detect_algorithm(path: str | Path) -> str | None:
     data = _read_data(resolve_model_path(path))
     policy_class = data.get("policy_class")
     module = policy_class.get("__module__", "") if isinstance(policy_class, dict) else ""
-    if "apg_value" in module or "imitation_episodes" in data:
+    if "apg_value" in module:  # (not "imitation_episodes" in data: the zoo's PPO, DQN, MaskablePPO... save it too)
         return "apg_value"
     if (contrib := _contrib_algorithm(policy_class)) is not None:  # before PPO's and DQN's keys, which they share
         return contrib

@@ -297,3 +297,18 @@ def test_the_cautious_lookahead_changes_decisions_in_a_crossing(tmp_path):
     assert read["plain"] != read["cautious"]
     assert json.loads((outs["cautious"] / "meta.json").read_text())["lookahead"] == {"pedestrian_model": "cautious"}
     assert json.loads((outs["plain"] / "meta.json").read_text())["lookahead"] is None
+
+
+@pytest.mark.parametrize("algo", ["ppo", "dqn", "maskableppo"])
+def test_a_zoo_model_that_imitated_is_detected_as_its_own_algorithm(tmp_path, algo):
+    """The zoo's algorithms save imitation_episodes too (ImitationMixin): it does not make a file APGValue's."""
+    from sb3_contrib import MaskablePPO
+
+    from sb3_crowdnav.training.zoo import ZOO_ALGOS
+
+    base = {"ppo": PPO, "dqn": DQN, "maskableppo": MaskablePPO}[algo]
+    env = gym.make("CrowdNavWarehouse-v0", num_humans=2) if algo == "maskableppo" else gym.make("CrowdNav-v0", **FAST)
+    kw = {} if algo == "dqn" else {"n_steps": 32, "batch_size": 32}
+    ZOO_ALGOS[algo]("ApgPolicy", env, imitation_episodes=3, seed=0, **kw).save(tmp_path / algo)
+    assert detect_algorithm(tmp_path / f"{algo}.zip") == algo
+    assert isinstance(load_model(tmp_path / f"{algo}.zip", spaces_from=env), base)
