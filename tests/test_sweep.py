@@ -218,3 +218,22 @@ def test_a_sweep_on_ray_resumes_killed_cells_and_skips_finished_ones(tmp_path, c
         assert "0 todo, 0 partial, 4 done" in capsys.readouterr().out
     finally:
         ray.shutdown()
+
+
+def test_cells_selects_what_runs(tmp_path, capsys, monkeypatch):
+    """--cells runs only the matching cells (shell-style patterns over METHOD/ENV/seed_S); one matching nothing is
+    refused before any work."""
+    import sb3_crowdnav.cli.sweep as sweep
+
+    ran = []
+    monkeypatch.setattr(sweep, "run_on_ray", lambda todo, *args: ran.extend(c.name for c in todo) or [])
+    grid = str(_grid(tmp_path))
+    assert main(["sweep", grid, "--out", str(tmp_path / "out"), "--dry-run", "--cells", "PPO/*", "*/seed_1"]) == 0
+    assert capsys.readouterr().out.splitlines() == [
+        "todo     APG_RL/few/seed_1", "todo     PPO/few/seed_0", "todo     PPO/few/seed_1",
+        "3 todo, 0 partial, 0 done (--cells: 3 of the grid's 4 cells)"]
+    assert main(["sweep", grid, "--out", str(tmp_path / "out"), "--cells", "APG_RL/few/seed_[0]"]) == 0
+    assert ran == ["APG_RL/few/seed_0"]
+    err = _refused(capsys, ["sweep", grid, "--out", str(tmp_path / "o2"), "--cells", "PPO/*", "LM_RL/*"])
+    assert "--cells: 'LM_RL/*' matches none of the grid's cells (APG_RL/few/seed_0, " in err
+    assert not (tmp_path / "o2").exists()

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import fnmatch
 import json
 import os
 import shlex
@@ -50,6 +51,10 @@ def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
                         "a method's 'cpus' in the grid overrides it for its cells")
     p.add_argument("--retries", type=int, choices=range(0, 11), default=1, metavar="N",
                    help="times Ray runs a cell again whose worker died (default: 1); the retry resumes the cell")
+    p.add_argument("--cells", nargs="+", metavar="PATTERN",
+                   help="run only the cells whose name METHOD/ENV/seed_S matches one of these shell-style patterns "
+                        "(e.g. 'LM_RL/*/seed_[12]' 'SF_RL/*'; quote them); the aggregate still covers every finished "
+                        "cell in OUT (default: every cell)")
     p.add_argument("--reps", type=positive_int, default=2000, help="bootstrap resamples per interval (default: 2000)")
     p.set_defaults(func=cmd_sweep)
 
@@ -78,6 +83,18 @@ def check_grid(grid: Grid, all_cells: list[Cell]) -> None:
         grids.cell_state(cell, grid)  # a folder of other settings is refused here
 
 
+def select_cells(all_cells: list[Cell], patterns: list[str] | None) -> list[Cell]:
+    """The cells whose name (``METHOD/ENV/seed_S``) matches one of the shell-style ``patterns`` (:mod:`fnmatch`, case
+    sensitive), in the grid's order; every cell without patterns. A pattern that matches no cell is refused."""
+    if not patterns:
+        return all_cells
+    for pattern in patterns:
+        if not any(fnmatch.fnmatchcase(cell.name, pattern) for cell in all_cells):
+            names = ", ".join(cell.name for cell in all_cells[:4]) + (", ..." if len(all_cells) > 4 else "")
+            raise UsageError(f"--cells: {pattern!r} matches none of the grid's cells ({names})")
+    return [cell for cell in all_cells if any(fnmatch.fnmatchcase(cell.name, p) for p in patterns)]
+
+
 def cmd_sweep(args: argparse.Namespace) -> int:
     if args.address is not None and args.num_cpus is not None:
         raise UsageError("--num-cpus sets the local Ray instance's CPUs; a cluster (--address) has its own")
@@ -92,16 +109,18 @@ def cmd_sweep(args: argparse.Namespace) -> int:
                 source = f"methods.{method.name}.cpus" if method.cpus else "--cpus-per-cell"
                 raise UsageError(f"{source}: each {method.name} cell reserves {needed} CPUs, more than the local Ray "
                                  f"instance's {available} (--num-cpus); it would never start")
+    selected = select_cells(all_cells, args.cells)
     states = {cell.name: grids.cell_state(cell, grid) for cell in all_cells}
-    for cell in all_cells:
+    for cell in selected:
         state, detail = states[cell.name]
         print(f"{state:8s} {cell.name}{f' ({detail})' if detail else ''}")
-    counts = {state: sum(s == state for s, _ in states.values()) for state in grids.STATES}
-    print(", ".join(f"{n} {state}" for state, n in counts.items()))
+    counts = {state: sum(states[cell.name][0] == state for cell in selected) for state in grids.STATES}
+    print(", ".join(f"{n} {state}" for state, n in counts.items())
+          + (f" (--cells: {len(selected)} of the grid's {len(all_cells)} cells)" if args.cells else ""))
     if args.dry_run:
         return 0
     check_out(args.out)
-    todo = [cell for cell in all_cells if states[cell.name][0] != "done"]
+    todo = [cell for cell in selected if states[cell.name][0] != "done"]
     failed = run_on_ray(todo, grid, args.address, args.num_cpus, args.cpus_per_cell, args.threads, args.retries) \
         if todo else []
     done = [cell for cell in all_cells if cell.name not in {c.name for c in failed}
