@@ -93,6 +93,7 @@ def test_sigterm_writes_a_checkpoint_and_the_run_resumes(tmp_path, monkeypatch, 
     # the resumed segment adds its time to what the run had used (a large stand-in, to tell a sum from a restart)
     (out / "progress.json").write_text(json.dumps({**progress, "wall_time_s": 1e6}))
     capsys.readouterr()
+    before = signal.getsignal(signal.SIGTERM)  # (not always SIG_DFL: ray.init, in an earlier test, leaves its own)
     began = time.perf_counter()
     _run(monkeypatch, *common, "--rl-episodes", str(progress["episodes"] + 2))
     segment = time.perf_counter() - began
@@ -101,7 +102,7 @@ def test_sigterm_writes_a_checkpoint_and_the_run_resumes(tmp_path, monkeypatch, 
     assert APGValue.load(out / "final.zip")._episode_num == progress["episodes"] + 2
     finished = json.loads((out / "progress.json").read_text())
     assert finished["finished"] and 1e6 < finished["wall_time_s"] <= 1e6 + segment + 0.1
-    assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL  # handlers restored after training
+    assert signal.getsignal(signal.SIGTERM) is before  # the handler the process had is restored after training
 
 
 @pytest.mark.slow  # a training run or a full CLI run: make slow
