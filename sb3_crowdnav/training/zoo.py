@@ -257,7 +257,13 @@ def _fail_running(command: str, rest: list[str]) -> None:
         raise SystemExit(2)
     from sb3_crowdnav.training.tuned import fail_running_trials
 
-    for number in fail_running_trials(storage, study_name):
+    try:
+        failed = fail_running_trials(storage, study_name)
+    except Exception as exc:  # (an unreadable storage: Optuna's and SQLAlchemy's errors alike, said in one line)
+        print(f"sb3-crowdnav-zoo: error: --storage {storage!r}: {type(exc).__name__}: {' '.join(str(exc).split())}",
+              file=sys.stderr)
+        raise SystemExit(2) from None
+    for number in failed:
         print(f"sb3-crowdnav-zoo: trial {number} of study {study_name!r} was left running: marked FAIL", file=sys.stderr)
 
 
