@@ -168,3 +168,29 @@ def test_records_with_nan_separations_compare_equal():
     assert a != replace(a, discomfort_separation=0.1)
     assert a != replace(a, steps=41)
     assert a.__eq__("not a record") is NotImplemented
+
+
+def test_a_record_from_the_envs_stats_takes_every_field_and_its_type():
+    import gymnasium as gym
+
+    from sb3_crowdnav.evaluation.records import RECORD_FIELDS, STATS_OPTIONAL
+
+    env = gym.make("CrowdNav-v0")
+    env.reset(seed=3)
+    steps, total = 0, 0.0
+    while True:
+        _, reward, terminated, truncated, info = env.step(4 * 16)
+        steps, total = steps + 1, total + float(reward)
+        if terminated or truncated:
+            break
+    stats = info["episode_stats"]
+    rec = EpisodeRecord.from_stats(3, steps, total, stats)
+    for name in RECORD_FIELDS:
+        if name not in ("seed", "steps", "episode_return") and name in stats:
+            assert getattr(rec, name) == pytest.approx(stats[name], nan_ok=True) or getattr(rec, name) == stats[name]
+    assert type(rec.num_humans) is int and type(rec.navigation_time) is float and type(rec.outcome) is str
+    assert (rec.seed, rec.steps, rec.episode_return) == (3, steps, total)
+    optional = {k: v for k, v in stats.items() if k not in STATS_OPTIONAL}  # the open floor's envs leave them out
+    assert math.isnan(EpisodeRecord.from_stats(3, steps, total, optional).min_clearance)
+    with pytest.raises(KeyError, match="near_misses"):  # a statistic every env reports is not made up
+        EpisodeRecord.from_stats(3, steps, total, {k: v for k, v in stats.items() if k != "near_misses"})

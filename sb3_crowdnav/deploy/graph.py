@@ -138,16 +138,20 @@ class LookaheadDecision(nn.Module):
 
 
 class QDecision(nn.Module):
-    """SB3 DQN: ``argmax Q(s, ·)``."""
+    """SB3 DQN: ``argmax Q(s, ·)``; a subclass says how its policy's network gives Q (:meth:`q_values`)."""
 
     kind = "q_values"
 
-    def __init__(self, policy: DQNPolicy) -> None:
+    def __init__(self, policy: DQNPolicy | QRDQNPolicy) -> None:
         super().__init__()
-        self.q_net = policy.q_net
+        self.net = policy.q_net if isinstance(policy, DQNPolicy) else policy.quantile_net
+
+    def q_values(self, observation: dict[str, th.Tensor]) -> th.Tensor:
+        """Q of every action, (B, A)."""
+        return self.net(observation)
 
     def forward(self, observation: dict[str, th.Tensor]) -> tuple[th.Tensor, th.Tensor]:
-        q = self.q_net(observation)
+        q = self.q_values(observation)
         return q.argmax(dim=1), q
 
 
@@ -170,18 +174,11 @@ class ActorDecision(nn.Module):
         return logits.argmax(dim=1), logits
 
 
-class QuantileDecision(nn.Module):
+class QuantileDecision(QDecision):
     """sb3-contrib QR-DQN: ``argmax`` of the mean over the quantiles (``QuantileNetwork._predict``)."""
 
-    kind = "q_values"
-
-    def __init__(self, policy: QRDQNPolicy) -> None:
-        super().__init__()
-        self.quantile_net = policy.quantile_net
-
-    def forward(self, observation: dict[str, th.Tensor]) -> tuple[th.Tensor, th.Tensor]:
-        q = self.quantile_net(observation).mean(dim=1)  # (B, n_quantiles, A) -> (B, A)
-        return q.argmax(dim=1), q
+    def q_values(self, observation: dict[str, th.Tensor]) -> th.Tensor:
+        return self.net(observation).mean(dim=1)  # (B, n_quantiles, A) -> (B, A)
 
 
 class MaskedActorDecision(ActorDecision):

@@ -170,19 +170,7 @@ class CrowdNavWorldsEnv(gym.Env):
         """The world contract, one for every world."""
         return self.envs[0].world
 
-    @property
-    def sim(self):
-        return self.env.sim
-
-    @property
-    def trajectory(self):
-        return self.env.trajectory
-
-    @property
-    def max_steps(self) -> int:
-        return self.env.max_steps
-
-    def __getattr__(self, name: str) -> Any:  # what a world adds (the warehouse's config, layout...): the current's
+    def __getattr__(self, name: str) -> Any:  # the rest (sim, trajectory, max_steps, a warehouse's layout...): the current's
         if name.startswith("_") or name in ("envs", "current", "episode_seed"):
             raise AttributeError(name)
         return getattr(self.envs[self.current], name)

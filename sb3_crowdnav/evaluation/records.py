@@ -99,6 +99,21 @@ class EpisodeRecord:
     min_clearance: float = math.nan  # [m] to racks and walls (the warehouse; nan on the open floor)
     trajectory: Trajectory | None = field(default=None, repr=False)
 
+    @classmethod
+    def from_stats(cls, seed: int, steps: int, episode_return: float, stats: dict[str, Any],
+                   trajectory: Trajectory | None = None) -> EpisodeRecord:
+        """The record of an episode from the env's ``info["episode_stats"]`` at its end: every other field is read
+        from ``stats`` and converted to its declared type; only :data:`STATS_OPTIONAL` may be missing (the default)."""
+        values: dict[str, Any] = {}
+        for f in fields(cls):
+            if f.name in ("seed", "steps", "episode_return", "trajectory"):
+                continue
+            if f.name not in stats and f.name in STATS_OPTIONAL:
+                continue
+            values[f.name] = _CONVERT[f.type](stats[f.name])
+        return cls(seed=int(seed), steps=int(steps), episode_return=float(episode_return), trajectory=trajectory,
+                   **values)
+
     def to_dict(self) -> dict[str, Any]:
         """The scalar fields (no trajectory), e.g. for a CSV row."""
         return {f.name: getattr(self, f.name) for f in fields(self) if f.name != "trajectory"}
@@ -110,6 +125,10 @@ class EpisodeRecord:
         return all(_same(getattr(self, f.name), getattr(other, f.name)) for f in fields(self))
 
 
+STATS_OPTIONAL = ("collision_with", "route_length", "min_clearance")  # episode stats only some envs report
+_CONVERT = {"int": int, "float": float, "str": str}
+
+
 def _same(a: Any, b: Any) -> bool:
     if isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b):
         return True
@@ -119,4 +138,4 @@ def _same(a: Any, b: Any) -> bool:
 RECORD_FIELDS = tuple(f.name for f in fields(EpisodeRecord) if f.name != "trajectory")
 
 
-__all__ = ["RECORD_FIELDS", "EpisodeRecord", "Trajectory"]
+__all__ = ["RECORD_FIELDS", "STATS_OPTIONAL", "EpisodeRecord", "Trajectory"]

@@ -18,7 +18,6 @@ path of a saved model ``.zip`` (APGValue, DQN, PPO, ... detected by :func:`~sb3_
 
 from __future__ import annotations
 
-import math
 import multiprocessing as mp
 import sys
 from collections.abc import Iterable, Mapping, Sequence
@@ -239,34 +238,8 @@ def run_episode(env: gym.Env, policy: Any, seed: int, deterministic: bool = True
         steps += 1
         if terminated or truncated:
             break
-    stats = info["episode_stats"]
-    return EpisodeRecord(
-        seed=int(seed),
-        outcome=str(stats["outcome"]),
-        steps=steps,
-        navigation_time=float(stats["navigation_time"]),
-        path_length=float(stats["path_length"]),
-        episode_return=total,
-        discounted_return=float(stats["discounted_return"]),
-        min_separation=float(stats["min_separation"]),
-        discomfort_frequency=float(stats["discomfort_frequency"]),
-        comfort_zone_time=float(stats["comfort_zone_time"]),
-        heading_change=float(stats["heading_change"]),
-        num_humans=int(stats["num_humans"]),
-        discomfort_separation=float(stats["discomfort_separation"]),
-        comfort_zone_separation=float(stats["comfort_zone_separation"]),
-        sharp_turns=int(stats["sharp_turns"]),
-        collision_with=str(stats.get("collision_with", "")),
-        route_length=float(stats.get("route_length", math.nan)),
-        min_time_to_collision=float(stats["min_time_to_collision"]),
-        near_misses=int(stats["near_misses"]),
-        steps_near_people=int(stats["steps_near_people"]),
-        speed_near_people=float(stats["speed_near_people"]),
-        peak_acceleration=float(stats["peak_acceleration"]),
-        peak_turn_rate=float(stats["peak_turn_rate"]),
-        min_clearance=float(stats.get("min_clearance", math.nan)),
-        trajectory=_trajectory(env) if keep_trajectory else None,
-    )
+    return EpisodeRecord.from_stats(seed, steps, total, info["episode_stats"],
+                                    trajectory=_trajectory(env) if keep_trajectory else None)
 
 
 # ---------------------------------------------------------------- worker processes
