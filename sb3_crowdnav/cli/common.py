@@ -206,6 +206,30 @@ def check_out(path: Path, option: str = "--out", is_file: bool = False) -> None:
         raise UsageError(f"{option} {str(folder)!r} cannot be written: {exc.strerror or exc}") from None
 
 
+def add_lookahead_options(group: Any, acting: str, finished: str, defaults: dict[str, str]) -> None:
+    """The five options of a value model's lookahead (APGValue), the same flags, types and choices in every command
+    that sets them: ``acting`` names the lookahead that ``--pedestrian-model`` and ``--stopping-check`` set,
+    ``finished`` the one that ``--planning-depth``, ``--planning-width`` and ``--cap-values`` set, and ``defaults``
+    what each keeps when not given (by its ``LOOKAHEAD_KEYS`` name), as the help says it."""
+    from sb3_crowdnav.training.schedule import PEDESTRIAN_MODELS
+
+    group.add_argument("--pedestrian-model", choices=PEDESTRIAN_MODELS,
+                       help=f"the pedestrians in the reward of {acting}: constant_velocity, or cautious (the worse of "
+                            f"moving on and standing still) (default: {defaults['pedestrian_model']})")
+    group.add_argument("--stopping-check", action=argparse.BooleanOptionalAction, default=None,
+                       help=f"{acting} also charges the actions the robot cannot brake from at its max_acceleration "
+                            f"(a world with an acceleration limit only) (default: {defaults['stopping_check']})")
+    group.add_argument("--planning-depth", type=positive_int, metavar="D",
+                       help=f"the steps {finished} searches before V (1: the paper's one-step lookahead; the cost "
+                            f"grows as the distinct successors to the power D) (default: {defaults['planning_depth']})")
+    group.add_argument("--planning-width", type=positive_int, metavar="K",
+                       help=f"with a depth > 1, {finished} searches only the best K actions of each step deeper, by "
+                            f"their one-step Q (default: {defaults['planning_width']})")
+    group.add_argument("--cap-values", action=argparse.BooleanOptionalAction, default=None,
+                       help=f"{finished} caps V at the largest return a state can have, also on the paper's open floor "
+                            f"(--no-cap-values: never) (default: {defaults['cap_values']})")
+
+
 def lookahead_settings(args: argparse.Namespace, spec: PolicySpec | None = None) -> dict[str, Any] | None:
     """The lookahead settings ``evaluate`` / ``benchmark`` were given (``--pedestrian-model``, ``--stopping-check``,
     ``--planning-depth``; None: none), or those ``spec`` acts with: the settings for a value model (APGValue, shipped

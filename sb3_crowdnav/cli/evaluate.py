@@ -11,6 +11,7 @@ from typing import Any
 
 from sb3_crowdnav.cli.common import (
     UsageError,
+    add_lookahead_options,
     check_crowd,
     check_env,
     check_lookahead,
@@ -24,7 +25,7 @@ from sb3_crowdnav.cli.common import (
     single_crowd,
 )
 from sb3_crowdnav.evaluation.policy_spec import GRAMMAR, PolicySpec
-from sb3_crowdnav.evaluation.runner import TEST_SEED_OFFSET
+from sb3_crowdnav.evaluation.runner import LOOKAHEAD_KEYS, TEST_SEED_OFFSET
 
 SAFETY_TITLE = "safety (the people's true state; min TTC capped at 10 s; see docs/evaluation.md):"
 
@@ -44,22 +45,20 @@ def _run_options(p: argparse.ArgumentParser, default_episodes: int = 500) -> Non
                    help="wrap every policy in a protective field: while an observed person's disc is within D m of the "
                         "robot's (within DEG degrees of its heading; default all around), commands faster than CAP m/s "
                         "are capped (sb3_crowdnav.safety)")
-    from sb3_crowdnav.training.schedule import PEDESTRIAN_MODELS
+    add_lookahead_options(g, "the lookahead of every value model (APGValue) evaluated",
+                          "the lookahead of every value model evaluated",
+                          {**dict.fromkeys(LOOKAHEAD_KEYS, "each model's own"),
+                           "pedestrian_model": "each model's own; refused when no policy is a value model"})
 
-    g.add_argument("--pedestrian-model", choices=PEDESTRIAN_MODELS,
-                   help="the lookahead's pedestrian model of every value model (APGValue) evaluated (default: each "
-                        "model's own); refused when no policy is one")
-    g.add_argument("--stopping-check", action=argparse.BooleanOptionalAction, default=None,
-                   help="the lookahead's stopping-distance check of every value model evaluated on or off (default: "
-                        "each model's own; on needs limits in the env's world)")
-    g.add_argument("--planning-depth", type=positive_int, metavar="D",
-                   help="the number of steps the lookahead of every value model evaluated searches before V (1: the "
-                        "paper's one-step lookahead; the cost grows as the distinct successors to the power D; "
-                        "default: each model's own)")
-    g.add_argument("--planning-width", type=positive_int, metavar="K", help="with a depth > 1, search only the best K "
-                   "actions of each step deeper, by their one-step Q (default: each model's own, else every one)")
-    g.add_argument("--cap-values", action=argparse.BooleanOptionalAction, default=None, help="cap V at the largest "
-                   "return a state can have, also on the paper's open floor (default: each model's own)")
+
+def _print_table(args: argparse.Namespace, table: Any, start: float, episodes: str) -> None:
+    """Print the results and safety tables of ``evaluate`` / ``benchmark``, then the episodes, seeds and time."""
+    print(table.to_markdown(), end="")
+    print(f"\n{SAFETY_TITLE}\n\n{table.to_safety_markdown()}", end="")
+    print(f"\n{args.episodes} {episodes} (seeds {args.seed_offset}-{args.seed_offset + args.episodes - 1}) "
+          f"in {time.perf_counter() - start:.1f} s")
+    if args.protective_field is not None:
+        print(f"every policy behind a {args.protective_field}")
 
 
 def _protective_field(text: str) -> Any:
@@ -262,12 +261,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     records = _run(args, spec, env_kwargs)
     table = results_table({label: summarize(records)})
-    print(table.to_markdown(), end="")
-    print(f"\n{SAFETY_TITLE}\n\n{table.to_safety_markdown()}", end="")
-    print(f"\n{args.episodes} episodes (seeds {args.seed_offset}-{args.seed_offset + args.episodes - 1}) "
-          f"in {time.perf_counter() - start:.1f} s")
-    if args.protective_field is not None:
-        print(f"every policy behind a {args.protective_field}")
+    _print_table(args, table, start, "episodes")
     if args.out is not None:
         table.save(args.out / "results")
         write_records_csv(records, args.out / "episodes.csv")
@@ -342,12 +336,7 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
         write_records_csv(records, out / f"episodes_{_slug(label)}.csv")
     table = results_table(summaries)
     table.save(out / "results")
-    print(table.to_markdown(), end="")
-    print(f"\n{SAFETY_TITLE}\n\n{table.to_safety_markdown()}", end="")
-    print(f"\n{args.episodes} episodes per policy (seeds {args.seed_offset}-{args.seed_offset + args.episodes - 1}) "
-          f"in {time.perf_counter() - start:.1f} s")
-    if args.protective_field is not None:
-        print(f"every policy behind a {args.protective_field}")
+    _print_table(args, table, start, "episodes per policy")
 
     written = [out / "results.md", out / "results.csv", out / "results_safety.md",
                *(out / f"episodes_{_slug(label)}.csv" for label in labels)]

@@ -40,7 +40,7 @@ def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
     from sb3_crowdnav.apg_value.checks import VALUE_TARGETS
     from sb3_crowdnav.apg_value.overlap import OVERLAP_KINDS
     from sb3_crowdnav.training.callbacks import SELECT_BY
-    from sb3_crowdnav.training.schedule import LOOKAHEAD_DTYPES, OPTIMIZERS, PEDESTRIAN_MODELS, VARIANTS
+    from sb3_crowdnav.training.schedule import LOOKAHEAD_DTYPES, OPTIMIZERS, VARIANTS
     from sb3_crowdnav.training.variants import describe_default
 
     p = sub.add_parser(
@@ -105,23 +105,13 @@ def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
                    help="resuming without OUT/replay_buffer_<N>.npz, or --from-imitation without "
                         "imitation_replay_buffer.npz beside it: env steps collected before training (default: 5000)")
     g.add_argument("--lookahead-dtype", choices=LOOKAHEAD_DTYPES, help="precision of the acting lookahead (default: float32)")
-    g.add_argument("--pedestrian-model", choices=PEDESTRIAN_MODELS,
-                   help="pedestrians in the acting lookahead's reward: constant_velocity, or cautious (the worse of "
-                        "moving on and standing still) (default: the model's own; constant_velocity for a new one)")
-    g.add_argument("--stopping-check", action=argparse.BooleanOptionalAction, default=None,
-                   help="the acting lookahead also charges the actions the robot cannot brake from at its "
-                        "max_acceleration (a world with an acceleration limit only) (default: the model's own; off "
-                        "for a new one)")
-    g.add_argument("--planning-depth", type=common.positive_int, metavar="D",
-                   help="the lookahead depth the finished run's best.zip and final.zip act with (training and its "
-                        f"validations search one step) (default: {describe_default('planning_depth')})")
-    g.add_argument("--planning-width", type=common.positive_int, metavar="K",
-                   help="with a depth > 1, the best K actions of each step that search expands (default: the "
-                        "variant's, else every one)")
-    g.add_argument("--cap-values", action=argparse.BooleanOptionalAction, default=None,
-                   help="the finished run's best.zip and final.zip cap V at the largest return a state can have, "
-                        "also on the paper's open floor (--no-cap-values: never) (default: the world's rule: on with "
-                        "racks or progress shaping)")
+    common.add_lookahead_options(
+        g, "the acting lookahead", "the lookahead of the finished run's best.zip and final.zip",
+        {"pedestrian_model": "the model's own; constant_velocity for a new one",
+         "stopping_check": "the model's own; off for a new one",
+         "planning_depth": f"{describe_default('planning_depth')}; training and its validations search one step",
+         "planning_width": "the variant's, else every one",
+         "cap_values": "the world's rule: on with racks or progress shaping"})
     g.add_argument("--recording", dest="recordings", action="append", metavar="PATH[,frame_rate=F]",
                    help="a recorded scene to train among as well (repeat), the settings of --crowd replay:PATH[,...] "
                         "(tracked=nearest and lead_in=1 unless given): one more world beside the variant's, as "
