@@ -210,14 +210,22 @@ def load_grid(path: str | Path) -> Grid:
 
 @dataclass(frozen=True)
 class Cell:
-    """One method in one env with one seed, in its folder."""
+    """One method in one env with one seed, in its folder.
+
+    :param method: the grid's method (its ``train`` options)
+    :param env: the env id the cell trains and evaluates in
+    :param env_kwargs: that env's keyword arguments (the grid's env entry)
+    :param seed: the training seed
+    :param folder: ``OUT/cells/METHOD/ENV/seed_S``, which holds the run (``train/``) and its evaluations (``eval/COLUMN``)
+    :param label: the method's name in the aggregated tables (METHOD, or METHOD@ENV with several envs)
+    """
 
     method: Method
     env: str
     env_kwargs: dict[str, Any]
     seed: int
     folder: Path
-    label: str  # the method's name in the aggregated tables (METHOD, or METHOD@ENV with several envs)
+    label: str
 
     @property
     def name(self) -> str:
