@@ -138,13 +138,15 @@ class LookaheadDecision(nn.Module):
 
 
 class QDecision(nn.Module):
-    """SB3 DQN: ``argmax Q(s, ·)``; a subclass says how its policy's network gives Q (:meth:`q_values`)."""
+    """SB3 DQN: ``argmax Q(s, ·)``; a subclass names its policy's network (``network``) and how it gives Q
+    (:meth:`q_values`)."""
 
     kind = "q_values"
+    network = "q_net"  # the policy's attribute that holds the network
 
     def __init__(self, policy: DQNPolicy | QRDQNPolicy) -> None:
         super().__init__()
-        self.net = policy.q_net if isinstance(policy, DQNPolicy) else policy.quantile_net
+        self.net = getattr(policy, self.network)
 
     def q_values(self, observation: dict[str, th.Tensor]) -> th.Tensor:
         """Q of every action, (B, A)."""
@@ -176,6 +178,8 @@ class ActorDecision(nn.Module):
 
 class QuantileDecision(QDecision):
     """sb3-contrib QR-DQN: ``argmax`` of the mean over the quantiles (``QuantileNetwork._predict``)."""
+
+    network = "quantile_net"
 
     def q_values(self, observation: dict[str, th.Tensor]) -> th.Tensor:
         return self.net(observation).mean(dim=1)  # (B, n_quantiles, A) -> (B, A)
