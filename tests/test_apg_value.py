@@ -126,7 +126,7 @@ def test_learn_two_envs_and_save_load(tmp_path):
     np.testing.assert_array_equal(before, after)
     np.testing.assert_allclose(q_before, loaded.policy.action_values(obs), rtol=0, atol=1e-7)
     assert loaded.imitation_done and loaded.policy.gamma == model.policy.gamma
-    assert loaded.policy.reward_config == model.policy.reward_config
+    assert loaded.policy.world.reward == model.policy.world.reward
     # a loaded model keeps learning without repeating imitation
     loaded.learn(20, reset_num_timesteps=False)
     assert 100 <= loaded.num_timesteps < 100 + 8  # rollouts come in train_freq (4) x n_envs (2) steps

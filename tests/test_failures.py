@@ -232,9 +232,16 @@ def test_the_side_is_the_bearing_from_the_robots_heading(bearing, expected):
     assert side_of(bearing) == expected
 
 
+def test_the_side_angles_move_the_bounds():
+    rules = FailureRules(side_angles=(30.0, 150.0))
+    assert [side_of(b, rules) for b in (40.0, 140.0, 151.0)] == ["side", "side", "behind"]
+    assert side_of(40.0) == "front"
+
+
 @pytest.mark.parametrize(("kwargs", "error"), [
-    ({"both_tolerance": 0.5}, ValueError), ({"behind_angle": 30.0}, ValueError), ({"warning": 0.0}, ValueError),
-    ({"blind_window": "5"}, TypeError), ({"clip": -1.0}, ValueError)])
+    ({"both_tolerance": 0.5}, ValueError), ({"side_angles": (45.0, 30.0)}, ValueError), ({"side_angles": 45.0}, TypeError),
+    ({"side_angles": (-1.0, 90.0)}, ValueError), ({"warning": 0.0}, ValueError), ({"blind_window": "5"}, TypeError),
+    ({"clip": -1.0}, ValueError)])
 def test_bad_rules_are_refused_naming_the_parameter(kwargs, error):
     with pytest.raises(error, match=next(iter(kwargs))):
         FailureRules(**kwargs)

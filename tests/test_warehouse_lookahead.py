@@ -141,7 +141,7 @@ def test_value_ceiling_bounds_every_return_and_caps_the_lookahead(env_id, k):
     env = gym.make(env_id, num_humans=2, progress_reward=k)
     model = APGValue("ApgPolicy", env, imitation_episodes=0, seed=0)
     policy = model.policy
-    gamma, dt = policy.gamma, policy.time_step
+    gamma, dt = policy.gamma, policy.world.time_step
     ceiling = float(policy.value_ceiling(np.array([1.0]))[0])
     assert ceiling == pytest.approx(max(1.0, k * dt / (1 - gamma**dt)))
     rng = np.random.default_rng(0)
@@ -305,7 +305,7 @@ def test_cap_values_caps_an_overestimating_v_on_the_open_floor_so_the_goal_wins(
         policy.set_cap_values(True)
         q, prop = policy.lookahead(obs)
         assert goal[int(q[0].argmax())], depth  # capped: the goal
-        discount = policy.gamma ** (policy.time_step * obs["robot"][0, Robot.V_PREF])
+        discount = policy.gamma ** (policy.world.time_step * obs["robot"][0, Robot.V_PREF])
         assert np.all(q[0] <= prop.reward[0] + discount * 1.0 + 1e-6)
     model.save(tmp_path / "capped.zip")
     assert APGValue.load(tmp_path / "capped.zip").policy.cap_values is True

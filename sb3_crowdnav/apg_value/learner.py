@@ -52,7 +52,7 @@ class ValueLearner:
             ceiling = self.policy.value_ceiling(obs["robot"][:, Robot.V_PREF])
             if ceiling is not None:  # no return exceeds it (ValueLookaheadPolicy.value_ceiling)
                 v_next = th.minimum(v_next, ceiling)
-            discount = self.gamma ** (self.policy.time_step * obs["robot"][:, Robot.V_PREF])
+            discount = self.gamma ** (self.policy.world.time_step * obs["robot"][:, Robot.V_PREF])
             return rewards + discount * (1.0 - dones) * v_next
 
     def batch_target(self, data: Any) -> tuple[th.Tensor, th.Tensor | None]:

@@ -17,7 +17,6 @@ from sb3_crowdnav.apg_value.propagation import Propagated, PropagationModel, che
 from sb3_crowdnav.apg_value.search import STATIC_KEYS, check_cap_values, check_planning, search
 from sb3_crowdnav.nn import ApgExtractor, CadrlExtractor, LmExtractor, LstmRlExtractor, SarlExtractor, SfExtractor
 from sb3_crowdnav.nn.layers import bfloat16_supported
-from sb3_crowdnav.sim.config import RewardConfig
 from sb3_crowdnav.sim.observation import OBS_KEYS, ObservationSchema
 from sb3_crowdnav.sim.validation import check_choice, check_int, check_range
 from sb3_crowdnav.sim.world import World
@@ -200,16 +199,6 @@ class ValueLookaheadPolicy(BasePolicy):
         self.lookahead_dtype = dtype
 
     @property
-    def time_step(self) -> float:
-        """Δt of the world [s] (the lookahead discount is γ^(Δt·v_pref))."""
-        return self.world.time_step
-
-    @property
-    def reward_config(self) -> RewardConfig:
-        """The world's reward, the R(s, a) of the lookahead."""
-        return self.world.reward
-
-    @property
     def pedestrian_model(self) -> str:
         """``"constant_velocity"`` or ``"cautious"`` (see the class docstring)."""
         return self.propagation.pedestrian_model
@@ -307,9 +296,9 @@ class ValueLookaheadPolicy(BasePolicy):
         """
         if not self.caps_values or self.gamma >= 1:
             return None
-        step = self.time_step * v_pref
+        step = self.world.time_step * v_pref
         shaping = self.world.progress_reward * step / (1 - self.gamma**step)
-        success = self.reward_config.success_reward
+        success = self.world.reward.success_reward
         return shaping.clamp(min=success) if isinstance(shaping, th.Tensor) else np.maximum(shaping, success)
 
     def lookahead(self, observation: dict[str, np.ndarray], net: nn.Module | None = None) -> tuple[np.ndarray, Propagated]:

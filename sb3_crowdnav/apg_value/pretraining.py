@@ -81,7 +81,7 @@ def pretrain_from_orca(model: Any, progress_bar: bool = False) -> list[float]:
         model.logger.record(f"imitation/{key}_rate", count / max(demos.episodes, 1))
     collect_time = time.time() - start
     # γ is per second at v_pref = 1: a step from state s is discounted by γ^(Δt·v_pref(s))
-    exponents = model.policy.time_step * demos.observations["robot"][:, Robot.V_PREF].astype(np.float64)
+    exponents = model.policy.world.time_step * demos.observations["robot"][:, Robot.V_PREF].astype(np.float64)
     order = last_step_first(demos.episode_end)
     returns = demos.discounted_returns(model.gamma, exponents)[order]
     observations = {k: v[order] for k, v in demos.observations.items()}

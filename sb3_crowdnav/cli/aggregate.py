@@ -1,4 +1,11 @@
-"""``sb3-crowdnav aggregate``: evaluations of several training seeds per method, aggregated with rliable."""
+"""``sb3-crowdnav aggregate``: evaluations of several training seeds per method, aggregated with rliable.
+
+It reads one episodes CSV per method, column and training seed (what ``sb3-crowdnav evaluate --out DIR`` writes as
+``DIR/episodes.csv``) and prints per-seed rows, the interquartile mean of success and return per method and column with
+stratified bootstrap confidence intervals, and the probability of improvement between methods, all computed with
+rliable (install: ``pip install 'sb3_crowdnav[results]'``). Every seed of every method needs the same columns and test
+episodes.
+"""
 
 from __future__ import annotations
 
@@ -7,7 +14,7 @@ import re
 from pathlib import Path
 from typing import Any
 
-from sb3_crowdnav.cli.common import UsageError, check_out, nonneg_int, positive_int
+from sb3_crowdnav.cli.common import UsageError, add_command, check_out, nonneg_int, positive_int
 
 RESULT = re.compile(r"(?P<method>[^/@=]+)(?:/(?P<column>[^/@=]+))?@(?P<seed>\d+)=(?P<path>.+)")
 RESULT_GRAMMAR = "METHOD[/COLUMN]@SEED=PATH"
@@ -29,13 +36,8 @@ def _confidence(text: str) -> float:
 
 def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
     """Add ``aggregate`` to the subcommands ``sub``."""
-    p = sub.add_parser(
-        "aggregate", parents=parents, help="aggregate evaluations over training seeds with rliable (IQM, intervals)",
-        description="Read one episodes CSV per method, column and training seed (what 'sb3-crowdnav evaluate --out DIR' "
-                    "writes as DIR/episodes.csv) and print per-seed rows, the interquartile mean of success and return "
-                    "per method and column with stratified bootstrap confidence intervals, and the probability of "
-                    "improvement between methods, all computed with rliable (install: pip install "
-                    "'sb3_crowdnav[results]'). Every seed of every method needs the same columns and test episodes.")
+    p = add_command(sub, "aggregate", parents, __doc__,
+                    "aggregate evaluations over training seeds with rliable (IQM, intervals)")
     p.add_argument("results", nargs="+", metavar=RESULT_GRAMMAR,
                    help=f"one evaluation: the method, the column (default: {DEFAULT_COLUMN}), the training seed and the "
                         "episodes CSV or the folder holding episodes.csv, e.g. APG_RL@0=runs/apg_rl_0/eval")

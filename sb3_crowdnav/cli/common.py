@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -21,6 +22,13 @@ class Parser(argparse.ArgumentParser):
 
     def error(self, message: str) -> NoReturn:
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def add_command(sub: Any, name: str, parents: list[argparse.ArgumentParser], doc: str, summary: str) -> Any:
+    """Add the subcommand ``name`` to ``sub``: ``summary`` in the command list, and its ``--help`` description the
+    command module's docstring ``doc`` as plain text (the reStructuredText markup of the API docs taken out)."""
+    text = re.sub(r":[a-z]+:`~?([^`]+)`", r"\1", doc).replace("``", "")
+    return sub.add_parser(name, parents=parents, help=summary, description=" ".join(text.split()))
 
 
 def _argument_type(convert: Callable[[str], Any], check: Callable[[str, Any], None], allowed: str):

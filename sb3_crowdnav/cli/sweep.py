@@ -8,6 +8,10 @@ resumes the others from their folders, from their newest checkpoints (a ``--hype
 exits with 1 at the end if any failed. Then the evaluations of the finished cells are aggregated with rliable
 (:mod:`sb3_crowdnav.evaluation.aggregate`) into ``OUT/aggregate.md`` and its CSVs, which state each cell's training
 budget (RL env steps and wall time, from its run's ``progress.json``).
+
+A cell's folder is ``OUT/cells/METHOD/ENV/seed_S`` (the grid's format: docs/training.md, "Sweeps and seeds"). The
+sweep starts a local Ray instance by default (loopback only); ``--address`` joins a cluster, with OUT and the grid's
+files on storage that every node sees.
 """
 
 from __future__ import annotations
@@ -26,7 +30,7 @@ from pathlib import Path
 from typing import Any
 
 from sb3_crowdnav.cli import grid as grids
-from sb3_crowdnav.cli.common import UsageError, check_env, check_out, env_kwargs_from_args, positive_int
+from sb3_crowdnav.cli.common import UsageError, add_command, check_env, check_out, env_kwargs_from_args, positive_int
 from sb3_crowdnav.cli.grid import Cell, Grid
 
 INSTALL_HINT = "sb3-crowdnav sweep runs on Ray: pip install 'sb3_crowdnav[cluster]'"
@@ -34,13 +38,8 @@ INSTALL_HINT = "sb3-crowdnav sweep runs on Ray: pip install 'sb3_crowdnav[cluste
 
 def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
     """Add ``sweep`` to the subcommands ``sub``."""
-    p = sub.add_parser(
-        "sweep", parents=parents, help="run a grid of train runs and their evaluations on Ray, then aggregate them",
-        description="Run every cell of GRID.yaml (methods x envs x seeds; see docs/training.md, 'Sweeps and seeds') as "
-                    "one Ray task: 'sb3-crowdnav train' into OUT/cells/METHOD/ENV/seed_S/train, then 'sb3-crowdnav "
-                    "evaluate' per column; then aggregate the evaluations with rliable into OUT/aggregate.md. Run it "
-                    "again to skip the finished cells and resume the others. A local Ray instance by default "
-                    "(loopback only); --address joins a cluster (OUT and the grid's files on storage every node sees).")
+    p = add_command(sub, "sweep", parents, __doc__,
+                    "run a grid of train runs and their evaluations on Ray, then aggregate them")
     p.add_argument("grid", type=Path, metavar="GRID.yaml", help="the grid file")
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="the sweep's folder")
     p.add_argument("--dry-run", action="store_true", help="check the grid, list the cells and their state, run nothing")

@@ -1,5 +1,11 @@
 """``sb3-crowdnav train``: the paper's schedule (``--variant NAME``) or an rl-zoo3 hyperparameter file (``--hyperparams``).
 
+A ``--variant`` run is the paper's schedule of that variant: ORCA imitation, then RL by episodes, checkpoints,
+validation and the best model; run it again to resume. A ``--hyperparams FILE --algo ALGO`` run reads an
+rl-zoo3-format file (top-level key = env id; ``n_timesteps``, ``policy``, ``policy_kwargs``, ``env_kwargs``,
+``n_envs`` and the algorithm's arguments). Both write ``DIR/config.json`` and TensorBoard logs in ``DIR/tb``. Env
+options given on the command line override the file's ``env_kwargs``.
+
 ``examples/train_paper.py`` of earlier versions took the same flags as ``--variant`` runs do here; its
 spellings ``--il-episodes``, ``--il-epochs``, ``--il-learning-rate`` and ``--num-humans`` are kept as
 aliases of ``--imitation-episodes``, ``--imitation-epochs``, ``--imitation-learning-rate`` and ``--humans``.
@@ -43,13 +49,8 @@ def add_parser(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
     from sb3_crowdnav.training.schedule import LOOKAHEAD_DTYPES, OPTIMIZERS, VARIANTS
     from sb3_crowdnav.training.variants import describe_default
 
-    p = sub.add_parser(
-        "train", parents=parents, help="train a paper variant (--variant) or from an rl-zoo3 YAML (--hyperparams)",
-        description="Either the paper's schedule of a variant (--variant NAME: ORCA imitation, then RL by episodes, "
-                    "checkpoints, validation, best model; run it again to resume) or an rl-zoo3-format hyperparameter "
-                    "file (--hyperparams FILE --algo ALGO; top-level key = env id; n_timesteps, policy, policy_kwargs, "
-                    "env_kwargs, n_envs, and the algorithm's arguments). Both write DIR/config.json and TensorBoard "
-                    "logs in DIR/tb. Env options given here override the file's env_kwargs.")
+    p = common.add_command(sub, "train", parents, __doc__,
+                           "train a paper variant (--variant) or from an rl-zoo3 YAML (--hyperparams)")
     mode = p.add_mutually_exclusive_group(required=True)
     mode.add_argument("--variant", choices=sorted(VARIANTS), help="a variant of the paper's tables, trained with its schedule")
     mode.add_argument("--hyperparams", type=Path, metavar="YAML", help="rl-zoo3 hyperparameter file (give --algo)")

@@ -13,7 +13,7 @@ Wilson 95 % intervals. The rules (parameters: :class:`FailureRules`):
   recorded one). The person's share of the sum above 0.5 + ``both_tolerance`` (0.1) is ``"person"``, below 0.5 -
   ``both_tolerance`` ``"robot"``, else ``"both"``; ``"none"`` when not closing or overlapping at the start (a replay).
 * **Side**: the person's bearing from the robot's heading at the start of the step [deg, left positive]:
-  ``"front"`` below ``front_angle`` (45°), ``"behind"`` above ``behind_angle`` (135°), else ``"side"``.
+  ``"front"`` below the first of ``side_angles`` (45°), ``"behind"`` above the second (135°), else ``"side"``.
 * **Sees the robot**: the person is one who sees the robot (``robot_visible``: the robot is one of the agents their
   crowd model avoids), drawn for the episode; a recording's people never do.
 * **Seen**: the person's slot is set in the ``humans_mask`` the policy acted on (and no new person took it in the
@@ -59,27 +59,26 @@ NEAR_CLIP = 4.0  # [m] a clip keeps the people whose surface comes this close to
 
 @dataclass(frozen=True)
 class FailureRules:
-    """The parameters of the module's rules.
-
-    :param both_tolerance: both close on each other when the person's share of the closing speed is within 0.5 ± this
-    :param front_angle: [deg] a person's bearing below this is in front
-    :param behind_angle: [deg] a bearing above this is behind
-    :param warning: [s] the second avoidability test starts this long before the collision (whole steps, >= 1)
-    :param blind_window: [s] a timeout with no one observed for at least this long is "nobody in view"
-    :param clip: [s] the end of a collision episode kept for figures (:attr:`FailureRecord.clip`)
-    """
+    """The parameters of the module's rules (module docstring), each checked at construction."""
 
     both_tolerance: float = 0.1
-    front_angle: float = 45.0
-    behind_angle: float = 135.0
+    """Both close on each other when the person's share of the closing speed is within 0.5 ± this."""
+    side_angles: tuple[float, float] = (45.0, 135.0)
+    """[deg] A person's bearing below the first is in front, above the second behind, else at the side."""
     warning: float = 1.0
+    """[s] The second avoidability test starts this long before the collision (whole steps, >= 1)."""
     blind_window: float = 5.0
+    """[s] A timeout with no one observed for at least this long is "nobody in view"."""
     clip: float = 3.0
+    """[s] The end of a collision episode kept for figures (:attr:`FailureRecord.clip`)."""
 
     def __post_init__(self) -> None:
         check_range("both_tolerance", self.both_tolerance, 0, 0.5, high_open=True)
-        check_range("front_angle", self.front_angle, 0, 180)
-        check_range("behind_angle", self.behind_angle, self.front_angle, 180)
+        if not isinstance(self.side_angles, tuple) or len(self.side_angles) != 2:
+            raise TypeError(f"side_angles must be a pair (front, behind) [deg], got {self.side_angles!r}")
+        front, behind = self.side_angles
+        check_range("side_angles[0]", front, 0, 180)
+        check_range("side_angles[1]", behind, front, 180)
         for name in ("warning", "blind_window", "clip"):
             check_positive(name, getattr(self, name), " [s]")
 
@@ -149,7 +148,8 @@ def closer_of(robot_closing: float, person_closing: float, tolerance: float = 0.
 
 def side_of(bearing: float, rules: FailureRules = FailureRules()) -> str:
     """``"front"``, ``"side"`` or ``"behind"`` of a bearing [deg] from the robot's heading."""
-    return "front" if abs(bearing) < rules.front_angle else "behind" if abs(bearing) > rules.behind_angle else "side"
+    front, behind = rules.side_angles
+    return "front" if abs(bearing) < front else "behind" if abs(bearing) > behind else "side"
 
 
 def _people_gaps(log: EpisodeLog, t: int, start: np.ndarray, end: np.ndarray,
