@@ -36,6 +36,19 @@ def test_subcommand_help(command, capsys):
     assert "--policy" in capsys.readouterr().out or command == "train"
 
 
+@pytest.mark.parametrize("command", ["aggregate", "sweep", "train"])
+def test_a_commands_help_describes_it_with_its_modules_docstring_as_plain_text(command, capsys):
+    import importlib
+
+    doc = importlib.import_module(f"sb3_crowdnav.cli.{command}").__doc__
+    with pytest.raises(SystemExit):
+        main([command, "--help"])
+    out = " ".join(capsys.readouterr().out.split())
+    assert f"sb3-crowdnav {command}" in out and "``" not in out and ":mod:" not in out
+    last_words = " ".join(doc.replace("``", "").split()[-6:])  # the docstring's end, markup taken out
+    assert last_words in out
+
+
 def test_evaluate_prints_table_and_writes_files(tmp_path, capsys):
     assert main(["evaluate", "--policy", "orca", "--episodes", "3", *FAST, "--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out
