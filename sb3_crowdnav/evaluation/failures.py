@@ -50,7 +50,7 @@ from sb3_crowdnav.sim.geometry import swept_clearance
 from sb3_crowdnav.sim.observation import Human, Robot
 from sb3_crowdnav.sim.proximity import min_time_to_collision
 from sb3_crowdnav.sim.rewards import closest_approach
-from sb3_crowdnav.sim.validation import check_int, check_positive, check_range
+from sb3_crowdnav.sim.validation import check_instance, check_int, check_positive, check_range
 
 CLOSERS = ("robot", "person", "both", "none")
 SIDES = ("front", "side", "behind")
@@ -74,8 +74,9 @@ class FailureRules:
 
     def __post_init__(self) -> None:
         check_range("both_tolerance", self.both_tolerance, 0, 0.5, high_open=True)
-        if not isinstance(self.side_angles, tuple) or len(self.side_angles) != 2:
-            raise TypeError(f"side_angles must be a pair (front, behind) [deg], got {self.side_angles!r}")
+        check_instance("side_angles", self.side_angles, tuple, "a (front, behind) pair [deg]")
+        if len(self.side_angles) != 2:
+            raise ValueError(f"side_angles must be a (front, behind) pair [deg], got {self.side_angles!r}")
         front, behind = self.side_angles
         check_range("side_angles[0]", front, 0, 180)
         check_range("side_angles[1]", behind, front, 180)
