@@ -25,6 +25,7 @@ evaluate:
   episodes: 2
   columns: {{same: {{}}, more: {{num_humans: 4}}}}
 """
+EPISODES = "\n  episodes: 2\n"  # the evaluate section's line (to add a key after it)
 
 
 def _grid(tmp_path, text=GRID):
@@ -61,6 +62,10 @@ def _refused(capsys, argv):
     (("ppo.yml", "nothing.yml"), "methods.PPO.hyperparams: no file"),
     (("variant: apg_rl", "variant: apg_rl, cpus: 0"), "methods.APG_RL.cpus: expected a positive integer"),
     (("variant: apg_rl", "variant: apg_rl, cpus: true"), "methods.APG_RL.cpus: expected a positive integer"),
+    ((EPISODES, EPISODES + "  env: 3\n"), "evaluate.env: expected an env id (e.g. CrowdNavWarehouse-v0), got 3"),
+    ((EPISODES, EPISODES + "  env: NoSuchEnv-v0\n"), "methods.APG_RL in envs.few: --env: Environment `NoSuchEnv`"),
+    ((EPISODES, EPISODES + "  envs: CrowdNav-v0\n"), "evaluate: unknown key 'envs'; allowed: episodes, seed_offset, "
+                                                     "columns, allow_env_mismatch, env"),
 ])
 def test_bad_grids_are_refused_before_any_work(tmp_path, capsys, change, fragment):
     path = _grid(tmp_path, GRID.replace(*change))
@@ -152,13 +157,15 @@ def test_cell_state_follows_the_run_folder(tmp_path):
     for column, humans in (("same", 2), ("more", 4)):
         folder = cell.folder / "eval" / column
         _touch(folder / "episodes.csv")
-        meta = {"episodes": 2, "seeds": [1_000_000, 1_000_001], "env_kwargs": {"num_humans": humans},
+        meta = {"env": "CrowdNav-v0", "episodes": 2, "seeds": [1_000_000, 1_000_001], "env_kwargs": {"num_humans": humans},
                 "policies": {"APG_RL": str(train / "best.zip")}}
         _touch(folder / "meta.json", json.dumps(meta))
         if column == "same":
             assert cell_state(cell, grid) == ("partial", "trained; to evaluate: more")
     assert cell_state(cell, grid) == ("done", "")
     _touch(cell.folder / "eval" / "more" / "meta.json", json.dumps({**meta, "episodes": 3}))  # other episodes: again
+    assert cell_state(cell, grid) == ("partial", "trained; to evaluate: more")
+    _touch(cell.folder / "eval" / "more" / "meta.json", json.dumps({**meta, "env": "CrowdNavSquare-v0"}))  # other env
     assert cell_state(cell, grid) == ("partial", "trained; to evaluate: more")
 
     changed = load_grid(_grid(tmp_path, GRID.replace("rl_episodes: 2", "rl_episodes: 3")))
@@ -181,6 +188,53 @@ def test_a_hyperparams_cell_is_done_when_train_has_written_its_model(tmp_path):
     assert cell_state(cell, grid)[1] == "trained; to evaluate: same, more"
     argv = eval_argv(cell, grid, "more")  # the file's env_kwargs, the grid env's, then the column's
     assert argv[argv.index("--env-kwargs") + 1] == "{'num_humans': 4}" and argv[argv.index("--env") + 1] == "CrowdNav-v0"
+
+
+def test_evaluate_env_sets_the_env_of_every_column_with_the_columns_kwargs_alone(tmp_path):
+    """Without evaluate.env a column evaluates in the cell's training env over its world's kwargs; with it, in that
+    env with the column's kwargs alone (a model trained among several crowds is tested in one base env)."""
+    text = textwrap.dedent(f"""\
+        seeds: [0]
+        methods:
+          ROBUST: {{variant: apg_robust, train: {TINY_APG}}}
+        evaluate:
+          episodes: 2
+          columns: {{same: {{actions: with_stop}}, more: {{num_humans: 4, actions: with_stop}}}}
+        """)
+    grid = load_grid(_grid(tmp_path, text.replace("episodes: 2\n", "episodes: 2\n  env: CrowdNav-v0\n")))
+    assert grid.eval_env == "CrowdNav-v0"
+    cell = cells(grid, tmp_path / "out")[0]
+    argv = eval_argv(cell, grid, "more")
+    assert argv[argv.index("--env") + 1] == "CrowdNav-v0"
+    assert argv[argv.index("--env-kwargs") + 1] == "{'num_humans': 4, 'actions': 'with_stop'}"
+    assert main(["sweep", str(tmp_path / "grid.yaml"), "--out", str(tmp_path / "out"), "--dry-run"]) == 0
+
+    training_env = load_grid(_grid(tmp_path, text))
+    argv = eval_argv(cells(training_env, tmp_path / "out")[0], training_env, "more")
+    assert argv[argv.index("--env") + 1] == "CrowdNavWorlds-v0"  # the variant's own env, its world's kwargs under the column's
+    assert argv[argv.index("--env-kwargs") + 1] == "{'worlds': 'robust', 'actions': 'with_stop', 'num_humans': 4}"
+
+
+@pytest.mark.parametrize("name", ["sweep_paper.yaml", "sweep_warehouse.yaml"])
+def test_the_example_grids_pass_every_check(name, tmp_path, capsys):
+    """The grids in examples/ name files that exist and commands that their own checks accept (a renamed hyperparameter
+    file or variant, or a column the evaluation env refuses, fails here)."""
+    grid = Path(__file__).resolve().parents[1] / "examples" / name
+    assert main(["sweep", str(grid), "--out", str(tmp_path / "out"), "--dry-run"]) == 0
+    assert capsys.readouterr().out.splitlines()[-1] == "12 todo, 0 partial, 0 done"
+
+
+def test_a_columns_files_are_relative_to_the_grid_file(tmp_path):
+    text = GRID.replace("more: {num_humans: 4}", "more: {crowd: replay, crowd_kwargs: {path: data/rec.txt}}").replace(
+        "same: {}", "same: {layout: /abs/layout.yaml}")
+    grid = load_grid(_grid(tmp_path, text))
+    assert grid.columns["more"]["crowd_kwargs"] == {"path": str((tmp_path / "data" / "rec.txt").resolve())}
+    assert grid.columns["same"]["layout"] == "/abs/layout.yaml"  # absolute: as given
+    warehouse = load_grid(Path(__file__).resolve().parents[1] / "examples" / "sweep_warehouse.yaml")
+    argv = eval_argv(cells(warehouse, tmp_path / "out")[0], warehouse, "layout_file")
+    layout = str(Path(__file__).resolve().parents[1] / "examples" / "warehouse_layout.yaml")
+    assert argv[argv.index("--env") + 1] == "CrowdNavWarehouse-v0"
+    assert argv[argv.index("--env-kwargs") + 1] == repr({"layout": layout})
 
 
 @pytest.mark.slow  # a local Ray instance (~10 s to start) and 4 tiny training runs

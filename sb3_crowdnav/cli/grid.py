@@ -13,6 +13,13 @@ A grid is a YAML mapping (paths in it are relative to the file)::
     evaluate:                             # optional: the evaluations run after each training run
       episodes: 500
       columns: {orca6: {}, orca10: {num_humans: 10}, social_force: {crowd: social_force}}
+      # env: CrowdNavWarehouse-v0         # optional: the env every column evaluates in (default: each cell's
+                                          # training env, the columns' keyword arguments put over its world's)
+
+With ``evaluate.env`` the columns are that env's keyword arguments and nothing else: the training world's are not
+carried over (a model trained among several crowds in ``CrowdNavWorlds-v0`` is tested in one of its base envs, and a
+robot setting it was trained with, such as ``actions: with_stop``, is written in each column, or the evaluation
+refuses the world mismatch).
 
 A cell is one method in one env with one seed. Its folder ``OUT/cells/METHOD/ENV/seed_S`` holds ``train/`` (the folder
 of ``sb3-crowdnav train``, which resumes from it), ``eval/COLUMN/`` (``sb3-crowdnav evaluate --out``), ``cell.json``
@@ -34,7 +41,7 @@ from sb3_crowdnav.cli.train import HYPERPARAMS_FLAGS, SCHEDULE_FLAGS
 
 TOP_KEYS = ("seeds", "methods", "envs", "train", "evaluate")
 METHOD_KEYS = ("variant", "hyperparams", "algo", "env", "train", "model", "cpus")
-EVALUATE_KEYS = ("episodes", "seed_offset", "columns", "allow_env_mismatch")
+EVALUATE_KEYS = ("episodes", "seed_offset", "columns", "allow_env_mismatch", "env")
 # train options a grid may set (its own keys set the rest: variant, hyperparams, algo, env, seed, out, env kwargs)
 TRAIN_FLAGS = {**SCHEDULE_FLAGS, **{k: v for k, v in HYPERPARAMS_FLAGS.items() if k != "algo"},
                "imitation_episodes": "--imitation-episodes", "imitation_epochs": "--imitation-epochs",
@@ -116,6 +123,7 @@ class Grid:
     episodes: int = 500
     seed_offset: int = 1_000_000
     allow_env_mismatch: bool = False
+    eval_env: str | None = None  # evaluate.env: the env of every column (None: each cell's training env)
 
 
 def _method(where: str, name: str, entry: Any, common: list[str], base: Path) -> Method:
@@ -158,6 +166,20 @@ def _method(where: str, name: str, entry: Any, common: list[str], base: Path) ->
                   cpus=cpus)
 
 
+def _files_from(base: Path, kwargs: dict[str, Any]) -> dict[str, Any]:
+    """A column's env keyword arguments with its file paths (the warehouse's ``layout`` file, a recording's
+    ``crowd_kwargs["path"]``) made absolute from ``base``, the grid file's folder, as every path of a grid is."""
+    def absolute(value: Any) -> Any:
+        return str((base / value).resolve()) if isinstance(value, str) and not Path(value).is_absolute() else value
+
+    kwargs = dict(kwargs)
+    if "layout" in kwargs:
+        kwargs["layout"] = absolute(kwargs["layout"])
+    if isinstance(kwargs.get("crowd_kwargs"), dict) and "path" in kwargs["crowd_kwargs"]:
+        kwargs["crowd_kwargs"] = {**kwargs["crowd_kwargs"], "path": absolute(kwargs["crowd_kwargs"]["path"])}
+    return kwargs
+
+
 def _int_list(where: str, value: Any) -> tuple[int, ...]:
     values = value if isinstance(value, list) else [value]
     if not values or not all(isinstance(v, int) and not isinstance(v, bool) and v >= 0 for v in values):
@@ -194,8 +216,8 @@ def load_grid(path: str | Path) -> Grid:
     envs = {_name(f"{path}: envs", name): _mapping(f"{path}: envs.{name}", kwargs) for name, kwargs in envs.items()}
     evaluate = _mapping(f"{path}: evaluate", top.get("evaluate"), EVALUATE_KEYS)
     columns = _mapping(f"{path}: evaluate.columns", evaluate.get("columns"))
-    columns = {_name(f"{path}: evaluate.columns", name): _mapping(f"{path}: evaluate.columns.{name}", kwargs)
-               for name, kwargs in columns.items()}
+    columns = {_name(f"{path}: evaluate.columns", name): _files_from(path.parent, _mapping(
+        f"{path}: evaluate.columns.{name}", kwargs)) for name, kwargs in columns.items()}
     if evaluate and not columns:
         raise _refuse(f"{path}: evaluate.columns", "give at least one column, e.g. {test: {}}")
     episodes, offset = evaluate.get("episodes", 500), evaluate.get("seed_offset", 1_000_000)
@@ -205,7 +227,10 @@ def load_grid(path: str | Path) -> Grid:
     allow = evaluate.get("allow_env_mismatch", False)
     if not isinstance(allow, bool):
         raise _refuse(f"{path}: evaluate.allow_env_mismatch", f"expected true or false, got {allow!r}")
-    return Grid(parsed, seeds, envs, columns, episodes, offset, allow)
+    eval_env = evaluate.get("env")
+    if eval_env is not None and (not isinstance(eval_env, str) or not eval_env):
+        raise _refuse(f"{path}: evaluate.env", f"expected an env id (e.g. CrowdNavWarehouse-v0), got {eval_env!r}")
+    return Grid(parsed, seeds, envs, columns, episodes, offset, allow, eval_env)
 
 
 @dataclass(frozen=True)
@@ -287,9 +312,13 @@ def env_id(cell: Cell) -> str:
 
 
 def eval_argv(cell: Cell, grid: Grid, column: str, threads: int = 1) -> list[str]:
-    """The ``sb3-crowdnav evaluate`` command of the cell's model in ``column``."""
-    kwargs = {**world_kwargs(cell), **grid.columns[column]}
-    return ["evaluate", "--policy", str(cell.model_path), "--env", env_id(cell), "--episodes", str(grid.episodes),
+    """The ``sb3-crowdnav evaluate`` command of the cell's model in ``column``: in ``evaluate.env`` with the column's
+    keyword arguments, else in the cell's training env with the column's put over its world's."""
+    if grid.eval_env is not None:
+        env, kwargs = grid.eval_env, dict(grid.columns[column])
+    else:
+        env, kwargs = env_id(cell), {**world_kwargs(cell), **grid.columns[column]}
+    return ["evaluate", "--policy", str(cell.model_path), "--env", env, "--episodes", str(grid.episodes),
             "--seed-offset", str(grid.seed_offset), "--out", str(cell.eval_folder(column)), "--threads", str(threads),
             "--no-progress", *(["--env-kwargs", repr(kwargs)] if kwargs else []),
             *(["--allow-env-mismatch"] if grid.allow_env_mismatch else [])]
@@ -323,7 +352,7 @@ def eval_done(cell: Cell, grid: Grid, column: str) -> bool:
     from sb3_crowdnav.cli.common import env_kwargs_from_args
 
     return ((folder / "episodes.csv").is_file() and meta.get("episodes") == grid.episodes
-            and meta.get("seeds", [None])[0] == grid.seed_offset
+            and meta.get("seeds", [None])[0] == grid.seed_offset and meta.get("env") == args.env
             and _plain(meta.get("env_kwargs")) == _plain(env_kwargs_from_args(args))
             and str(cell.model_path) in (meta.get("policies") or {}).values())
 
