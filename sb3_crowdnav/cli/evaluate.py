@@ -24,6 +24,7 @@ from sb3_crowdnav.cli.common import (
     progress_enabled,
     single_crowd,
 )
+from sb3_crowdnav.cli.policy_checks import check_policy
 from sb3_crowdnav.evaluation.policy_spec import GRAMMAR, PolicySpec
 from sb3_crowdnav.evaluation.runner import LOOKAHEAD_KEYS, TEST_SEED_OFFSET
 
@@ -114,101 +115,6 @@ def add_parsers(sub: Any, parents: list[argparse.ArgumentParser]) -> None:
 
 
 # ------------------------------------------------------------------ helpers
-def _check_policy(spec: str, env_id: str = "CrowdNav-v0", env_kwargs: dict[str, Any] | None = None,
-                  allow_env_mismatch: bool = False) -> PolicySpec:
-    """The parsed policy spec, checked before any episode runs: a shipped model's hash, a file's loadability
-    without unpickling (with the env's spaces for a plain SB3 file), the model's observation shapes and world."""
-    try:
-        parsed = PolicySpec.parse(spec, name="--policy")
-    except ValueError as exc:
-        raise UsageError(str(exc)) from None
-    if not parsed.is_model:
-        return parsed
-    if parsed.is_onnx:
-        _check_graph(Path(str(parsed.argument)), env_id, env_kwargs, allow_env_mismatch)
-        return parsed
-    if parsed.kind == "pretrained":
-        from sb3_crowdnav.models import check_pretrained
-
-        try:
-            path = check_pretrained(str(parsed.argument))
-        except ValueError as exc:
-            raise UsageError(f"--policy: {exc}") from None
-    else:
-        path = _resolve_file(spec, str(parsed.argument))
-        parsed = PolicySpec("file", str(path))
-    _check_shapes(path, env_id, env_kwargs)
-    _check_world(path, env_id, env_kwargs, allow_env_mismatch)
-    return parsed
-
-
-def _resolve_file(spec: str, text: str) -> Path:
-    """The saved model a file spec names, its algorithm detected; a file named like a shipped model gets a note."""
-    from sb3_crowdnav.models import PRETRAINED, detect_algorithm, resolve_model_path
-
-    stem = Path(text).name.removesuffix(".zip")
-    shipped = stem if stem in PRETRAINED else None
-    try:
-        path = resolve_model_path(text)
-        detect_algorithm(path)
-    except (FileNotFoundError, ValueError) as exc:
-        hint = f"; the shipped model is --policy pretrained:{shipped}" if shipped else ""
-        raise UsageError(f"--policy {spec!r}: expected {GRAMMAR} ({exc}{hint})") from None
-    if shipped:  # a local file named like a shipped model: say which one is used
-        print(f"note: --policy {spec} loads the local file {path}; the shipped model is --policy pretrained:{shipped}",
-              file=sys.stderr)
-    return path
-
-
-def _check_graph(path: Path, env_id: str, env_kwargs: dict[str, Any] | None, allow: bool) -> None:
-    """An exported graph can be run in the env: ONNX Runtime is installed, the file is a graph with its contract, and
-    the env's observation shapes and (unless ``allow``) world are the model's."""
-    import gymnasium as gym
-
-    from sb3_crowdnav.deploy import OnnxPolicy
-
-    env = gym.make(env_id, **(env_kwargs or {}))
-    try:
-        OnnxPolicy(path, env, allow_env_mismatch=allow)
-    except (ImportError, OSError, ValueError) as exc:
-        raise UsageError(f"--policy {path}: {exc}") from None
-    finally:
-        env.close()
-
-
-def _check_shapes(path: Path, env_id: str, env_kwargs: dict[str, Any] | None) -> None:
-    """The model's observation shapes are the env's (another ``max_humans``, another env), read without unpickling."""
-    import gymnasium as gym
-
-    from sb3_crowdnav.evaluation.runner import check_spaces
-    from sb3_crowdnav.serialization import UnsafeModelFileError, safe_custom_objects
-
-    env = gym.make(env_id, **(env_kwargs or {}))
-    try:
-        model_space = safe_custom_objects(path, env).get("observation_space")
-        check_spaces(model_space, env.observation_space, f"--policy {path.name}")
-    except (UnsafeModelFileError, ValueError) as exc:
-        raise UsageError(f"--policy: {exc}" if isinstance(exc, UnsafeModelFileError) else str(exc)) from None
-    finally:
-        env.close()
-
-
-def _check_world(path: Path, env_id: str, env_kwargs: dict[str, Any] | None, allow: bool) -> None:
-    """A usage error, before any episode, when the model at ``path`` was trained in another world than the env's
-    (:func:`~sb3_crowdnav.models.world_mismatch`), unless ``allow`` (``--allow-env-mismatch``)."""
-    import gymnasium as gym
-
-    from sb3_crowdnav.models import world_mismatch
-
-    env = gym.make(env_id, **(env_kwargs or {}))
-    try:
-        mismatch = world_mismatch(path, env)
-    finally:
-        env.close()
-    if mismatch and not allow:
-        raise UsageError(f"--policy {path.name}: {mismatch}; pass --allow-env-mismatch to evaluate it there anyway")
-
-
 def _labels(specs: list[Any]) -> list[str]:
     """One distinct table label per policy (or crowd): ``APG_RL``, ``APG_RL_2``, ..."""
     labels: list[str] = []
@@ -224,14 +130,45 @@ def _slug(label: str) -> str:
     return "".join(c if c.isalnum() or c in "-_." else "_" for c in label)
 
 
-def _run(args: argparse.Namespace, spec: PolicySpec, env_kwargs: dict[str, Any], **kwargs: Any):
+def _run(args: argparse.Namespace, spec: PolicySpec, env_kwargs: dict[str, Any], csv: Path | None = None,
+         journals: list | None = None, **kwargs: Any):
+    """The records of ``spec`` on the run's episodes. With ``csv`` (the episodes file the run writes), each finished
+    episode is kept in its journal as it ends, a journal of an interrupted run of the same settings is resumed, the
+    CSV is written at the end, and the journal is added to ``journals``, which the command removes once all its files
+    are written (:mod:`~sb3_crowdnav.evaluation.journal`): a killed command resumes each of its runs."""
+    from sb3_crowdnav.evaluation.journal import EpisodeJournal, journal_path
     from sb3_crowdnav.evaluation.runner import run_episodes
+    from sb3_crowdnav.evaluation.tables import write_records_csv
+    from sb3_crowdnav.version import __version__
 
-    return run_episodes(spec, args.episodes, env_kwargs, env_id=args.env, seed_offset=args.seed_offset,
-                        allow_env_mismatch=args.allow_env_mismatch, protective_field=args.protective_field,
-                        lookahead=lookahead_settings(args, spec),
-                        workers=args.workers, deterministic=not args.stochastic, progress=progress_enabled(args),
-                        torch_threads=args.threads, **kwargs)
+    lookahead = lookahead_settings(args, spec)
+    journal, played = None, {}
+    if csv is not None:
+        settings = {"env": args.env, "env_kwargs": env_kwargs, "episodes": args.episodes,
+                    "seed_offset": args.seed_offset, "deterministic": not args.stochastic,
+                    "protective_field": str(args.protective_field) if args.protective_field else None,
+                    "lookahead": lookahead, "policy": str(spec), "policy_sha256": spec.file_sha256(),
+                    "sb3_crowdnav": __version__}
+        journal = EpisodeJournal(journal_path(csv), settings)
+        try:
+            played = journal.played()
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
+        if played:
+            print(f"resuming: {len(played)} of the {args.episodes} episodes of {spec} kept from {journal.path}",
+                  file=sys.stderr)
+    records = run_episodes(spec, args.episodes, env_kwargs, env_id=args.env, seed_offset=args.seed_offset,
+                           allow_env_mismatch=args.allow_env_mismatch, protective_field=args.protective_field,
+                           lookahead=lookahead, workers=args.workers, deterministic=not args.stochastic,
+                           progress=progress_enabled(args), torch_threads=args.threads, played=played,
+                           on_record=journal.append if journal is not None else None, **kwargs)
+    if csv is not None:
+        write_records_csv(records, csv)
+        if journals is None:
+            journal.finish()
+        else:
+            journals.append(journal)
+    return records
 
 
 def _write_meta(out: Path, args: argparse.Namespace, env_kwargs: dict, specs: dict[str, PolicySpec], **extra) -> None:
@@ -249,22 +186,21 @@ def _write_meta(out: Path, args: argparse.Namespace, env_kwargs: dict, specs: di
 # ------------------------------------------------------------------ commands
 def _cmd_evaluate(args: argparse.Namespace) -> int:
     from sb3_crowdnav.evaluation.metrics import summarize
-    from sb3_crowdnav.evaluation.tables import results_table, write_records_csv
+    from sb3_crowdnav.evaluation.tables import results_table
 
     env_kwargs = env_kwargs_from_args(args)
     check_env(args.env, env_kwargs, single_crowd(args))
-    spec = _check_policy(args.policy, args.env, env_kwargs, args.allow_env_mismatch)
+    spec = check_policy(args.policy, args.env, env_kwargs, args.allow_env_mismatch)
     check_lookahead(args, [spec])
     if args.out is not None:
         check_out(args.out)
     label = _labels([spec])[0]
     start = time.perf_counter()
-    records = _run(args, spec, env_kwargs)
+    records = _run(args, spec, env_kwargs, args.out / "episodes.csv" if args.out is not None else None)
     table = results_table({label: summarize(records)})
     _print_table(args, table, start, "episodes")
     if args.out is not None:
         table.save(args.out / "results")
-        write_records_csv(records, args.out / "episodes.csv")
         _write_meta(args.out, args, env_kwargs, {label: spec})
     return 0
 
@@ -309,13 +245,13 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
     from sb3_crowdnav.evaluation.metrics import summarize
     from sb3_crowdnav.evaluation.plots import plot_trajectories, save_animation
     from sb3_crowdnav.evaluation.runner import run_sweep
-    from sb3_crowdnav.evaluation.tables import results_table, sweep_table, write_records_csv
+    from sb3_crowdnav.evaluation.tables import results_table, sweep_table
 
     if args.crowd:
         return _crowd_benchmark(args)
     env_kwargs = env_kwargs_from_args(args)
     check_env(args.env, env_kwargs)
-    specs = [_check_policy(p, args.env, env_kwargs, args.allow_env_mismatch) for p in args.policy]
+    specs = [check_policy(p, args.env, env_kwargs, args.allow_env_mismatch) for p in args.policy]
     check_lookahead(args, specs)
     for n in args.sweep or ():  # every crowd of the sweep can be made
         try:
@@ -329,11 +265,10 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
-    summaries = {}
+    summaries, journals = {}, []
     for spec, label in zip(specs, labels, strict=True):
-        records = _run(args, spec, env_kwargs, desc=label)
+        records = _run(args, spec, env_kwargs, out / f"episodes_{_slug(label)}.csv", journals, desc=label)
         summaries[label] = summarize(records)
-        write_records_csv(records, out / f"episodes_{_slug(label)}.csv")
     table = results_table(summaries)
     table.save(out / "results")
     _print_table(args, table, start, "episodes per policy")
@@ -365,6 +300,8 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
         print(stable.to_markdown(), end="")
         written += [out / "sweep.md", out / "sweep.csv"]
     _write_meta(out, args, env_kwargs, dict(zip(labels, specs, strict=True)), figure_seed=seed, sweep=args.sweep)
+    for journal in journals:
+        journal.finish()
     print(f"\nwrote {', '.join(p.name for p in written)} and meta.json in {out}")
     return 0
 
@@ -372,7 +309,7 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
 def _crowd_benchmark(args: argparse.Namespace) -> int:
     """``benchmark --crowd A B ...``: every policy in every crowd on the same seeds, one table policy x crowd."""
     from sb3_crowdnav.evaluation.metrics import summarize
-    from sb3_crowdnav.evaluation.tables import crowd_table, write_records_csv
+    from sb3_crowdnav.evaluation.tables import crowd_table
 
     # a sweep and figures are of one crowd: the table across crowds would not say which
     for option, given in (("--sweep", args.sweep), ("--figure-seed", args.figure_seed is not None),
@@ -386,19 +323,18 @@ def _crowd_benchmark(args: argparse.Namespace) -> int:
     crowds = crowd_specs(args)
     crowd_kwargs = {label: check_crowd(args.env, env_kwargs, crowd)
                     for crowd, label in zip(crowds, _labels(crowds), strict=True)}
-    specs = [_check_policy(p, args.env, env_kwargs, args.allow_env_mismatch) for p in args.policy]
+    specs = [check_policy(p, args.env, env_kwargs, args.allow_env_mismatch) for p in args.policy]
     check_lookahead(args, specs)
     check_out(args.out)
     labels = _labels(specs)
     out: Path = args.out
     start = time.perf_counter()
-    summaries = {}
-    written = []
+    summaries, written, journals = {}, [], []
     for spec, label in zip(specs, labels, strict=True):
         for crowd, kwargs in crowd_kwargs.items():
-            records = _run(args, spec, kwargs, desc=f"{label} in {crowd}")
-            summaries[(label, crowd)] = summarize(records)
-            written.append(write_records_csv(records, out / f"episodes_{_slug(label)}_{_slug(crowd)}.csv"))
+            csv = out / f"episodes_{_slug(label)}_{_slug(crowd)}.csv"
+            summaries[(label, crowd)] = summarize(_run(args, spec, kwargs, csv, journals, desc=f"{label} in {crowd}"))
+            written.append(csv)
     table = crowd_table(summaries)
     written[:0] = table.save(out / "crowds")
     print(table.to_markdown(), end="")
@@ -408,6 +344,8 @@ def _crowd_benchmark(args: argparse.Namespace) -> int:
         print(f"every policy behind a {args.protective_field}")
     _write_meta(out, args, env_kwargs, dict(zip(labels, specs, strict=True)),
                 crowds={label: str(crowd) for label, crowd in zip(crowd_kwargs, crowds, strict=True)})
+    for journal in journals:
+        journal.finish()
     print(f"\nwrote {', '.join(p.name for p in written)} and meta.json in {out}")
     return 0
 
@@ -425,7 +363,7 @@ def _cmd_render(args: argparse.Namespace) -> int:
         raise UsageError(f"--fps must be in [0.1, 60] frames per second, got {args.fps}")
     env_kwargs = env_kwargs_from_args(args)
     check_env(args.env, env_kwargs, single_crowd(args))
-    spec = _check_policy(args.policy, args.env, env_kwargs, args.allow_env_mismatch)
+    spec = check_policy(args.policy, args.env, env_kwargs, args.allow_env_mismatch)
     check_out(args.out, is_file=True)
     label = _labels([spec])[0]
     record = run_episodes(spec, seeds=[args.seed], env_kwargs=env_kwargs, env_id=args.env,

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import sys
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any
 
 import gymnasium as gym
@@ -288,6 +288,8 @@ def run_episodes(
     allow_env_mismatch: bool = False,
     protective_field: Any = None,
     lookahead: Mapping[str, Any] | None = None,
+    played: Mapping[int, EpisodeRecord] | None = None,
+    on_record: Callable[[EpisodeRecord], None] | None = None,
 ) -> list[EpisodeRecord]:
     """Evaluate ``policy`` on test episodes and return one :class:`EpisodeRecord` per episode, in seed order.
 
@@ -303,6 +305,9 @@ def run_episodes(
     :param allow_env_mismatch: evaluate a model in another world than it was trained for (see :func:`make_policy`)
     :param protective_field: a :class:`~sb3_crowdnav.safety.ProtectiveField` around the policy; None: none
     :param lookahead: a value model's lookahead settings (:func:`with_lookahead`); None: the model's own
+    :param played: records of some of the seeds, played before (a resumed run,
+        :class:`~sb3_crowdnav.evaluation.journal.EpisodeJournal`): those seeds are not played again
+    :param on_record: called with each record as its episode finishes (not with the ``played`` ones)
     """
     if seeds is None:
         if n_episodes is None:
@@ -314,41 +319,57 @@ def run_episodes(
     if is_spec(policy):  # a bad spec fails here, before an env is made or a worker started
         policy = PolicySpec.parse(policy)
     env_kwargs = dict(env_kwargs or {})
-    workers = min(workers, len(seeds))
+    done = {s: played[s] for s in seeds if s in played} if played else {}
+    todo = [s for s in seeds if s not in done]
     bar = _progress(len(seeds), progress, desc or policy_label(policy))
+    bar.update(len(done))
+
+    def finished(record: EpisodeRecord) -> None:
+        done[record.seed] = record
+        if on_record is not None:
+            on_record(record)
+        bar.update(1)
+
     try:
-        if workers == 1:
-            env = make_env(env_id, env_kwargs)
-            try:
-                pol = make_policy(policy, env, allow_env_mismatch, protective_field, lookahead)
-                records = []
-                for s in seeds:
-                    records.append(run_episode(env, pol, s, deterministic, keep_trajectories))
-                    bar.update(1)
-                return records
-            finally:
-                env.close()
-        if not isinstance(policy, PolicySpec):
-            raise ValueError("workers > 1 needs a picklable policy spec ('orca', 'random', or a model .zip path), "
-                             f"not a {type(policy).__name__} object")
-        # fail here, not in the workers: a Pool restarts workers whose initializer raises, forever
-        env = make_env(env_id, env_kwargs)
-        try:
-            make_policy(policy, env, allow_env_mismatch, protective_field, lookahead)
-        finally:
-            env.close()
-        ctx = mp.get_context("spawn")
-        tasks = [(s, deterministic, keep_trajectories) for s in seeds]
-        chunk = max(1, min(16, len(seeds) // (workers * 8)))
-        initargs = (policy, env_id, env_kwargs, torch_threads, protective_field, lookahead)
-        with ctx.Pool(workers, initializer=_init_worker, initargs=initargs) as pool:
-            records = []
-            for rec in pool.imap(_worker_episode, tasks, chunksize=chunk):
-                records.append(rec)
-                bar.update(1)
-        return records
+        _play(policy, todo, finished, env_id, env_kwargs, workers, deterministic, keep_trajectories, torch_threads,
+              allow_env_mismatch, protective_field, lookahead)
+        return [done[s] for s in seeds]
     finally:
         bar.close()
+
+
+def _play(policy: Any, seeds: list[int], finished: Callable[[EpisodeRecord], None], env_id: str,
+          env_kwargs: dict[str, Any], workers: int, deterministic: bool, keep_trajectories: bool,
+          torch_threads: int | None, allow_env_mismatch: bool, protective_field: Any,
+          lookahead: Mapping[str, Any] | None) -> None:
+    """Play the episodes of ``seeds`` (in this process, or in ``workers`` processes), ``finished`` called with each
+    record in seed order; the policy is made (and a bad one refused) even when there is nothing left to play."""
+    workers = max(1, min(workers, len(seeds)))
+    if workers == 1:
+        env = make_env(env_id, env_kwargs)
+        try:
+            pol = make_policy(policy, env, allow_env_mismatch, protective_field, lookahead)
+            for s in seeds:
+                finished(run_episode(env, pol, s, deterministic, keep_trajectories))
+        finally:
+            env.close()
+        return
+    if not isinstance(policy, PolicySpec):
+        raise ValueError("workers > 1 needs a picklable policy spec ('orca', 'random', or a model .zip path), "
+                         f"not a {type(policy).__name__} object")
+    # fail here, not in the workers: a Pool restarts workers whose initializer raises, forever
+    env = make_env(env_id, env_kwargs)
+    try:
+        make_policy(policy, env, allow_env_mismatch, protective_field, lookahead)
+    finally:
+        env.close()
+    ctx = mp.get_context("spawn")
+    tasks = [(s, deterministic, keep_trajectories) for s in seeds]
+    chunk = max(1, min(16, len(seeds) // (workers * 8)))
+    initargs = (policy, env_id, env_kwargs, torch_threads, protective_field, lookahead)
+    with ctx.Pool(workers, initializer=_init_worker, initargs=initargs) as pool:
+        for record in pool.imap(_worker_episode, tasks, chunksize=chunk):
+            finished(record)
 
 
 def run_sweep(policy: Any, humans: Sequence[int], n_episodes: int, env_kwargs: Mapping[str, Any] | None = None,
