@@ -28,7 +28,8 @@ policy and column, with every metric and interval), ``OUT/headline.md`` the READ
 robot), ``OUT/columns.json`` what each column is, and ``OUT/cells/COLUMN/POLICY/`` each cell's own table, its
 episode CSV and its ``meta.json``. The rows run one after the other over every column (the README's first), and
 ``--resume`` keeps the finished cells of an interrupted run (refusing a cell of other settings or, by its SHA-256,
-of another model file of the same name); ``--keep CSV`` (an earlier run's
+of another model file of the same name) and goes on with the cell it was killed in from its last finished episode
+(the cell's episode journal, evaluation page); ``--keep CSV`` (an earlier run's
 ``generalisation.csv``) keeps its rows of the policies this run does not run, so that one model's row can be run
 again (``--policy pretrained:apg_robust --keep paper_results/generalisation/generalisation.csv``).
 A model's row runs its own robot in every column, stated under the table: a shipped model's
