@@ -62,6 +62,7 @@ def _refused(capsys, argv):
     (("ppo.yml", "nothing.yml"), "methods.PPO.hyperparams: no file"),
     (("variant: apg_rl", "variant: apg_rl, cpus: 0"), "methods.APG_RL.cpus: expected a positive integer"),
     (("variant: apg_rl", "variant: apg_rl, cpus: true"), "methods.APG_RL.cpus: expected a positive integer"),
+    (("algo: ppo", "algo: ppo, seeds: [-1]"), "methods.PPO.seeds: expected integers >= 0"),
     ((EPISODES, EPISODES + "  env: 3\n"), "evaluate.env: expected an env id (e.g. CrowdNavWarehouse-v0), got 3"),
     ((EPISODES, EPISODES + "  env: NoSuchEnv-v0\n"), "methods.APG_RL in envs.few: --env: Environment `NoSuchEnv`"),
     ((EPISODES, EPISODES + "  envs: CrowdNav-v0\n"), "evaluate: unknown key 'envs'; allowed: episodes, seed_offset, "
@@ -121,6 +122,13 @@ def test_each_cell_reserves_its_methods_cpus(tmp_path, monkeypatch, capsys):
     assert run_on_ray(cells(grid, tmp_path / "out"), grid, cpus_per_cell=2, retries=3) == []
     assert asked == [{"num_cpus": 2, "max_retries": 3}] * 2 + [{"num_cpus": 1, "max_retries": 3}] * 2
     assert capsys.readouterr().out.count("done     ") == 4
+
+
+def test_a_methods_own_seeds_replace_the_grids(tmp_path, capsys):
+    path = _grid(tmp_path, GRID.replace("algo: ppo", "algo: ppo, seeds: [3]"))
+    assert main(["sweep", str(path), "--out", str(tmp_path / "out"), "--dry-run"]) == 0
+    assert capsys.readouterr().out.splitlines() == ["todo     APG_RL/few/seed_0", "todo     APG_RL/few/seed_1",
+                                                    "todo     PPO/few/seed_3", "3 todo, 0 partial, 0 done"]
 
 
 def test_dry_run_lists_the_cells(tmp_path, capsys):
@@ -215,13 +223,13 @@ def test_evaluate_env_sets_the_env_of_every_column_with_the_columns_kwargs_alone
     assert argv[argv.index("--env-kwargs") + 1] == "{'worlds': 'robust', 'actions': 'with_stop', 'num_humans': 4}"
 
 
-@pytest.mark.parametrize("name", ["sweep_paper.yaml", "sweep_warehouse.yaml"])
-def test_the_example_grids_pass_every_check(name, tmp_path, capsys):
+@pytest.mark.parametrize("name, cells", [("sweep_paper.yaml", 12), ("sweep_warehouse.yaml", 3 + 3 + 1 + 1)])
+def test_the_example_grids_pass_every_check(name, cells, tmp_path, capsys):
     """The grids in examples/ name files that exist and commands that their own checks accept (a renamed hyperparameter
     file or variant, or a column the evaluation env refuses, fails here)."""
     grid = Path(__file__).resolve().parents[1] / "examples" / name
     assert main(["sweep", str(grid), "--out", str(tmp_path / "out"), "--dry-run"]) == 0
-    assert capsys.readouterr().out.splitlines()[-1] == "12 todo, 0 partial, 0 done"
+    assert capsys.readouterr().out.splitlines()[-1] == f"{cells} todo, 0 partial, 0 done"
 
 
 def test_a_columns_files_are_relative_to_the_grid_file(tmp_path):

@@ -7,6 +7,7 @@ A grid is a YAML mapping (paths in it are relative to the file)::
       APG_RL: {variant: apg_rl}
       PPO: {hyperparams: ../zoo_hyperparams/ppo.yml, algo: ppo, env: CrowdNav-v0, cpus: 1}  # cpus: optional, the
                                           # CPUs Ray reserves for each of its cells (default: sweep --cpus-per-cell)
+      QRDQN: {hyperparams: ../zoo_hyperparams/qrdqn.yml, algo: qrdqn, seeds: [0]}  # seeds: optional, its own
     envs:                                 # optional: env keyword arguments of the training runs (default: one, {})
       orca6: {}
     train: {checkpoint_episodes: 500}     # optional: train options of every cell (a method's own 'train' adds to it)
@@ -40,7 +41,7 @@ from sb3_crowdnav.cli.common import Parser, UsageError
 from sb3_crowdnav.cli.train import HYPERPARAMS_FLAGS, SCHEDULE_FLAGS
 
 TOP_KEYS = ("seeds", "methods", "envs", "train", "evaluate")
-METHOD_KEYS = ("variant", "hyperparams", "algo", "env", "train", "model", "cpus")
+METHOD_KEYS = ("variant", "hyperparams", "algo", "env", "train", "model", "cpus", "seeds")
 EVALUATE_KEYS = ("episodes", "seed_offset", "columns", "allow_env_mismatch", "env")
 # train options a grid may set (its own keys set the rest: variant, hyperparams, algo, env, seed, out, env kwargs)
 TRAIN_FLAGS = {**SCHEDULE_FLAGS, **{k: v for k, v in HYPERPARAMS_FLAGS.items() if k != "algo"},
@@ -110,6 +111,7 @@ class Method:
     train: tuple[str, ...] = ()  # train flags (the grid's, then the method's own)
     model: str = "best"  # the model evaluated: best.zip or final.zip (a --hyperparams run: best.zip or ALGO.zip)
     cpus: int | None = None  # the CPUs Ray reserves for each of its cells (None: sweep --cpus-per-cell)
+    seeds: tuple[int, ...] | None = None  # its own training seeds (None: the grid's)
 
 
 @dataclass(frozen=True)
@@ -132,6 +134,7 @@ def _method(where: str, name: str, entry: Any, common: list[str], base: Path) ->
 
     entry = _mapping(where, entry, METHOD_KEYS)
     train = common + train_options(f"{where}.train", _mapping(f"{where}.train", entry.get("train")))
+    seeds = _int_list(f"{where}.seeds", entry["seeds"]) if "seeds" in entry else None
     model = entry.get("model", "best")
     cpus = entry.get("cpus")
     if cpus is not None and (isinstance(cpus, bool) or not isinstance(cpus, int) or cpus < 1):
@@ -147,7 +150,7 @@ def _method(where: str, name: str, entry: Any, common: list[str], base: Path) ->
         for key in ("algo", "env"):
             if key in entry:
                 raise _refuse(f"{where}.{key}", "is for 'hyperparams' methods (a variant has its own env)")
-        return Method(name, variant=entry["variant"], train=tuple(train), model=model, cpus=cpus)
+        return Method(name, variant=entry["variant"], train=tuple(train), model=model, cpus=cpus, seeds=seeds)
     if entry.get("algo") not in ALGOS:
         raise _refuse(f"{where}.algo", f"expected one of {', '.join(ALGOS)}, got {entry.get('algo')!r}")
     if "model" not in entry:  # a --hyperparams run keeps its best model only when it validates its checkpoints
@@ -163,7 +166,7 @@ def _method(where: str, name: str, entry: Any, common: list[str], base: Path) ->
     if not isinstance(env, str):
         raise _refuse(f"{where}.env", f"expected an env id, got {env!r}")
     return Method(name, hyperparams=path.resolve(), algo=entry["algo"], env=env, train=tuple(train), model=model,
-                  cpus=cpus)
+                  cpus=cpus, seeds=seeds)
 
 
 def _files_from(base: Path, kwargs: dict[str, Any]) -> dict[str, Any]:
@@ -285,7 +288,7 @@ def cells(grid: Grid, out: Path) -> list[Cell]:
     several = len(grid.envs) > 1
     return [Cell(m, env, kwargs, seed, out / "cells" / m.name / env / f"seed_{seed}",
                  f"{m.name}@{env}" if several else m.name)
-            for m in grid.methods for env, kwargs in grid.envs.items() for seed in grid.seeds]
+            for m in grid.methods for env, kwargs in grid.envs.items() for seed in (m.seeds or grid.seeds)]
 
 
 def world_kwargs(cell: Cell) -> dict[str, Any]:
