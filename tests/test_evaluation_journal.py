@@ -44,14 +44,20 @@ def _played_seeds(monkeypatch):
     return played
 
 
+def _whole_and_killed(tmp_path, monkeypatch, kept, argv=EVALUATE):
+    """A whole run into tmp_path/whole, then one killed after ``kept`` episodes into tmp_path/cut."""
+    whole, cut = tmp_path / "whole", tmp_path / "cut"
+    assert main([*argv, "--out", str(whole)]) == 0
+    with monkeypatch.context() as m:
+        _kill_after(m, kept)
+        with pytest.raises(Killed):
+            main([*argv, "--out", str(cut)])
+    return whole, cut
+
+
 def test_a_killed_evaluate_plays_only_the_missing_episodes_and_writes_what_a_whole_run_writes(tmp_path, monkeypatch,
                                                                                             capsys):
-    whole, cut = tmp_path / "whole", tmp_path / "cut"
-    assert main([*EVALUATE, "--out", str(whole)]) == 0
-    with monkeypatch.context() as m:
-        _kill_after(m, 4)
-        with pytest.raises(Killed):
-            main([*EVALUATE, "--out", str(cut)])
+    whole, cut = _whole_and_killed(tmp_path, monkeypatch, 4)
     journal = cut / "episodes.partial.jsonl"
     assert len(journal.read_text().splitlines()) == 1 + 4 and not (cut / "episodes.csv").exists()
     played = _played_seeds(monkeypatch)
@@ -65,12 +71,7 @@ def test_a_killed_evaluate_plays_only_the_missing_episodes_and_writes_what_a_who
 
 
 def test_a_line_cut_by_the_kill_is_played_again(tmp_path, monkeypatch):
-    whole, cut = tmp_path / "whole", tmp_path / "cut"
-    assert main([*EVALUATE, "--out", str(whole)]) == 0
-    with monkeypatch.context() as m:
-        _kill_after(m, 3)
-        with pytest.raises(Killed):
-            main([*EVALUATE, "--out", str(cut)])
+    whole, cut = _whole_and_killed(tmp_path, monkeypatch, 3)
     journal = cut / "episodes.partial.jsonl"
     text = journal.read_text()
     journal.write_text(text[: len(text) - 25])  # the third record's line cut short
@@ -103,11 +104,7 @@ def test_a_crowd_benchmark_keeps_one_journal_per_policy_and_crowd(tmp_path, monk
     argv = ["benchmark", "--policy", "orca", "--policy", "random:3", "--crowd", "orca", "social_force",
             "--episodes", "3", "--humans", "2", "--no-progress"]
     pytest.importorskip("jupedsim")
-    assert main([*argv, "--out", str(tmp_path / "whole")]) == 0
-    with monkeypatch.context() as m:
-        _kill_after(m, 5)  # the second crowd of the first policy, 2 of its 3 episodes
-        with pytest.raises(Killed):
-            main([*argv, "--out", str(tmp_path / "cut")])
+    _whole_and_killed(tmp_path, monkeypatch, 5, argv)  # killed in the second crowd of the first policy, 2 of 3 played
     kept = sorted(p.name for p in (tmp_path / "cut").iterdir())
     assert kept == ["episodes_ORCA_orca.csv", "episodes_ORCA_orca.partial.jsonl",  # finished, kept until the end
                     "episodes_ORCA_social_force.partial.jsonl"]
