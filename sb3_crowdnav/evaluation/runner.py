@@ -306,7 +306,8 @@ def run_episodes(
     :param protective_field: a :class:`~sb3_crowdnav.safety.ProtectiveField` around the policy; None: none
     :param lookahead: a value model's lookahead settings (:func:`with_lookahead`); None: the model's own
     :param played: records of some of the seeds, played before (a resumed run,
-        :class:`~sb3_crowdnav.evaluation.journal.EpisodeJournal`): those seeds are not played again
+        :class:`~sb3_crowdnav.evaluation.journal.EpisodeJournal`): those seeds are not played again, and their
+        records are returned as given (without a trajectory when they have none, whatever ``keep_trajectories``)
     :param on_record: called with each record as its episode finishes (not with the ``played`` ones)
     """
     if seeds is None:
