@@ -164,10 +164,7 @@ def _run(args: argparse.Namespace, spec: PolicySpec, env_kwargs: dict[str, Any],
                            on_record=journal.append if journal is not None else None, **kwargs)
     if csv is not None:
         write_records_csv(records, csv)
-        if journals is None:
-            journal.finish()
-        else:
-            journals.append(journal)
+        journals.append(journal)
     return records
 
 
@@ -196,13 +193,21 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         check_out(args.out)
     label = _labels([spec])[0]
     start = time.perf_counter()
-    records = _run(args, spec, env_kwargs, args.out / "episodes.csv" if args.out is not None else None)
+    journals: list = []
+    records = _run(args, spec, env_kwargs, args.out / "episodes.csv" if args.out is not None else None, journals)
     table = results_table({label: summarize(records)})
     _print_table(args, table, start, "episodes")
     if args.out is not None:
         table.save(args.out / "results")
         _write_meta(args.out, args, env_kwargs, {label: spec})
+    _finish(journals)
     return 0
+
+
+def _finish(journals: list) -> None:
+    """Remove a command's journals: every file it writes is written."""
+    for journal in journals:
+        journal.finish()
 
 
 def _figure_episodes(args, specs, labels, env_kwargs, seed):
@@ -300,8 +305,7 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
         print(stable.to_markdown(), end="")
         written += [out / "sweep.md", out / "sweep.csv"]
     _write_meta(out, args, env_kwargs, dict(zip(labels, specs, strict=True)), figure_seed=seed, sweep=args.sweep)
-    for journal in journals:
-        journal.finish()
+    _finish(journals)
     print(f"\nwrote {', '.join(p.name for p in written)} and meta.json in {out}")
     return 0
 
@@ -344,8 +348,7 @@ def _crowd_benchmark(args: argparse.Namespace) -> int:
         print(f"every policy behind a {args.protective_field}")
     _write_meta(out, args, env_kwargs, dict(zip(labels, specs, strict=True)),
                 crowds={label: str(crowd) for label, crowd in zip(crowd_kwargs, crowds, strict=True)})
-    for journal in journals:
-        journal.finish()
+    _finish(journals)
     print(f"\nwrote {', '.join(p.name for p in written)} and meta.json in {out}")
     return 0
 

@@ -39,6 +39,7 @@ from typing import Any
 
 from sb3_crowdnav.cli.common import Parser, UsageError
 from sb3_crowdnav.cli.train import HYPERPARAMS_FLAGS, SCHEDULE_FLAGS
+from sb3_crowdnav.evaluation.journal import plain
 
 TOP_KEYS = ("seeds", "methods", "envs", "train", "evaluate")
 METHOD_KEYS = ("variant", "hyperparams", "algo", "env", "train", "model", "cpus", "seeds")
@@ -334,10 +335,6 @@ def parse_command(argv: list[str]) -> argparse.Namespace:
     return build_parser(RaisingParser).parse_args(argv)
 
 
-def _plain(value: Any) -> Any:
-    return json.loads(json.dumps(value, default=str))
-
-
 def identity(cell: Cell) -> dict[str, Any]:
     """What ``cell.json`` records: the training run's settings (its threads aside), compared on every rerun."""
     argv = cell.train_argv()
@@ -356,7 +353,7 @@ def eval_done(cell: Cell, grid: Grid, column: str) -> bool:
 
     return ((folder / "episodes.csv").is_file() and meta.get("episodes") == grid.episodes
             and meta.get("seeds", [None])[0] == grid.seed_offset and meta.get("env") == args.env
-            and _plain(meta.get("env_kwargs")) == _plain(env_kwargs_from_args(args))
+            and plain(meta.get("env_kwargs")) == plain(env_kwargs_from_args(args))
             and str(cell.model_path) in (meta.get("policies") or {}).values())
 
 
@@ -380,7 +377,7 @@ def cell_state(cell: Cell, grid: Grid) -> tuple[str, str]:
     """``(state, detail)`` of a cell from its folder: ``todo`` (nothing yet), ``partial`` (started, or trained and
     not every column evaluated) or ``done``; :class:`UsageError` when the folder holds a run of other settings."""
     recorded = _read(cell.folder / "cell.json")
-    if recorded is not None and recorded != _plain(identity(cell)):
+    if recorded is not None and recorded != plain(identity(cell)):
         raise UsageError(f"{cell.folder} holds a run started with other settings ({' '.join(recorded.get('train', []))}); "
                          "the grid now says otherwise: remove the folder or give another --out")
     started = cell.train_folder.is_dir() and any(cell.train_folder.iterdir())

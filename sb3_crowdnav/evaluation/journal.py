@@ -27,7 +27,7 @@ def journal_path(episodes_csv: Path) -> Path:
     return episodes_csv.with_name(episodes_csv.stem + SUFFIX)
 
 
-def _plain(value: Any) -> Any:
+def plain(value: Any) -> Any:
     """``value`` as JSON gives it back (tuples as lists, paths as text): what the first line is compared in."""
     return json.loads(json.dumps(value, default=str))
 
@@ -41,7 +41,7 @@ class EpisodeJournal:
 
     def __init__(self, path: str | Path, settings: Mapping[str, Any]) -> None:
         self.path = Path(path)
-        self.settings = _plain(dict(settings))
+        self.settings = plain(dict(settings))
 
     def played(self) -> dict[int, EpisodeRecord]:
         """The records an earlier run kept, by seed; ``ValueError`` naming the file when it was started with other
@@ -87,4 +87,4 @@ def _line(record: EpisodeRecord) -> str:
     return json.dumps(record.to_dict()) + "\n"  # (nan and inf as NaN and Infinity, which json reads back)
 
 
-__all__ = ["SUFFIX", "EpisodeJournal", "journal_path"]
+__all__ = ["SUFFIX", "EpisodeJournal", "journal_path", "plain"]
