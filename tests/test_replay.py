@@ -458,6 +458,11 @@ def test_the_preparation_script_writes_each_scene_in_the_replay_format(tmp_path,
         rows += [(12, 9, 1.0, 0.0, 1.0, 0.0, 0.0, 0.0)]  # one sample only
         (root / path).parent.mkdir(parents=True, exist_ok=True)
         np.savetxt(root / path, rows)
+    for path, _ in module.TRAINING_SCENES.values():  # TrajNet's copies: already frame id x y, every 10th frame
+        rows = [(f, 4, 0.04 * f, 1.0) for f in range(0, 100, 10)] + [(20, 5, 2.0, 2.0), (30, 6, 0.0, 0.0)]
+        rows += [(40, 6, 0.0, 0.5)]
+        (root / path).parent.mkdir(parents=True, exist_ok=True)
+        np.savetxt(root / path, rows)
     assert module.main([str(root), str(tmp_path / "out")]) == 0
     printed = capsys.readouterr().out
     assert printed.count("dropped the single-sample person(s) [9]") == len(module.SCENES)
@@ -466,3 +471,21 @@ def test_the_preparation_script_writes_each_scene_in_the_replay_format(tmp_path,
         assert rec.max_present() == 2
         np.testing.assert_allclose(rec.positions[0][1] - rec.positions[0][0], [0.5, 0.0])  # x and y, not z
         assert f"--scene {name}=" in printed and f"frame_rate={fps:g},tracked=nearest" in printed
+    assert printed.count("dropped the single-sample person(s) [5]") == len(module.TRAINING_SCENES)
+    for name, (_, fps) in module.TRAINING_SCENES.items():
+        rec = read_recording(tmp_path / "out" / f"{name}.txt", fps)
+        assert rec.max_present() == 2 and len(rec.positions) == 2
+        np.testing.assert_allclose(rec.positions[0][1] - rec.positions[0][0], [0.4, 0.0])
+        assert f"--scene {name}=" not in printed  # for training, not one of the evaluation scenes
+        assert f"--recording {tmp_path / 'out' / name}.txt,frame_rate={fps:g}" in printed
+
+
+def test_the_preparation_script_refuses_a_file_of_other_columns(tmp_path):
+    """A TrajNet file that is not four columns (an obsmat put in its place) is refused, naming the file."""
+    from example_scripts import load_example
+
+    module = load_example("prepare_recordings")
+    bad = tmp_path / "students001.txt"
+    np.savetxt(bad, [(0, 1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0), (10, 1, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0)])
+    with pytest.raises(ValueError, match=r"students001\.txt: expected the 4 columns of a frame id x y file, got 8"):
+        module.convert(bad, tmp_path / "out.txt", columns=4)
