@@ -43,6 +43,8 @@ TRAINING_SCENES = {
 def convert(source: Path, target: Path, columns: int = 8) -> tuple[int, int, list[int]]:
     """Write ``source`` (an obsmat file, or with ``columns=4`` a ``frame id x y`` file) as ``frame id x y`` into
     ``target``; rows, people, the dropped ids."""
+    if columns not in (4, 8):
+        raise ValueError(f"columns must be 8 (an obsmat file) or 4 (frame id x y), got {columns!r}")
     data = np.loadtxt(source, ndmin=2)
     if data.shape[1] != columns:
         kind = "an obsmat file" if columns == 8 else "a frame id x y file"

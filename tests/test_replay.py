@@ -489,3 +489,6 @@ def test_the_preparation_script_refuses_a_file_of_other_columns(tmp_path):
     np.savetxt(bad, [(0, 1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0), (10, 1, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0)])
     with pytest.raises(ValueError, match=r"students001\.txt: expected the 4 columns of a frame id x y file, got 8"):
         module.convert(bad, tmp_path / "out.txt", columns=4)
+    with pytest.raises(ValueError, match=r"columns must be 8 .* or 4 .*, got 5"):
+        module.convert(bad, tmp_path / "out.txt", columns=5)
+    assert not (tmp_path / "out.txt").exists()
