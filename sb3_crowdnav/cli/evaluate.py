@@ -130,8 +130,8 @@ def _slug(label: str) -> str:
     return "".join(c if c.isalnum() or c in "-_." else "_" for c in label)
 
 
-def _run(args: argparse.Namespace, spec: PolicySpec, env_kwargs: dict[str, Any], csv: Path | None = None,
-         journals: list | None = None, **kwargs: Any):
+def _run(args: argparse.Namespace, spec: PolicySpec, env_kwargs: dict[str, Any], csv: Path | None,
+         journals: list, **kwargs: Any):
     """The records of ``spec`` on the run's episodes. With ``csv`` (the episodes file the run writes), each finished
     episode is kept in its journal as it ends, a journal of an interrupted run of the same settings is resumed, the
     CSV is written at the end, and the journal is added to ``journals``, which the command removes once all its files
