@@ -69,6 +69,17 @@ class LayoutRanges:
             if hi < lo:
                 raise ValueError(f"{name} must be a (min, max) range with min <= max, got {getattr(self, name)!r}")
 
+    @functools.cached_property
+    def _size_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """The low and high bounds (4,) [m] of the rack length, rack depth, aisle and cross aisle widths that
+        :func:`generate_layout` draws from: built once per ranges (a layout is drawn at every reset; the same values
+        as building them each time)."""
+        bounds = np.array([self.rack_length, self.rack_depth, self.aisle_width, self.cross_aisle_width])
+        low, high = np.ascontiguousarray(bounds[:, 0]), np.ascontiguousarray(bounds[:, 1])
+        low.setflags(write=False)
+        high.setflags(write=False)
+        return low, high
+
 
 def _pair(name: str, value: Any) -> tuple[Any, Any]:
     check_instance(name, value, (tuple, list), "a (min, max) pair")
@@ -278,8 +289,7 @@ def generate_layout(rng: np.random.Generator, ranges: LayoutRanges | None = None
     r = LayoutRanges() if ranges is None else ranges
     rows = int(rng.integers(r.rows[0], r.rows[1] + 1))
     segments = int(rng.integers(r.segments[0], r.segments[1] + 1))
-    bounds = np.array([r.rack_length, r.rack_depth, r.aisle_width, r.cross_aisle_width])  # (4, 2) low, high [m]
-    length, depth, aisle, cross = uniform(rng, bounds[:, 0], bounds[:, 1]).tolist()
+    length, depth, aisle, cross = uniform(rng, *r._size_bounds).tolist()
     return layout_from_sizes(rows, segments, length, depth, aisle, cross)
 
 

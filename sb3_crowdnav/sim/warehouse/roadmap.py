@@ -189,8 +189,12 @@ class Roadmap:
 
     @staticmethod
     def route_length(route: np.ndarray | list[list[float]]) -> float:
-        """The length [m] of the polyline ``route`` (n, 2)."""
-        return float(np.linalg.norm(np.diff(np.asarray(route, dtype=np.float64), axis=0), axis=1).sum())
+        """The length [m] of the polyline ``route`` (n, 2): ``norm(diff(route), axis=1).sum()`` as the ufuncs those
+        call (``diff`` subtracts the shifted views, ``norm`` is ``sqrt(add.reduce(d * d))`` of a real array), without
+        their Python layers (every reset asks it of the robot's route): the same values."""
+        points = np.asarray(route, dtype=np.float64)
+        d = points[1:] - points[:-1]
+        return float(np.sqrt(np.add.reduce(d * d, axis=1)).sum())
 
 
 __all__ = ["PolygonSpace", "Roadmap"]

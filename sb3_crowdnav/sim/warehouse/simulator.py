@@ -136,7 +136,7 @@ class WarehouseSimulator(CrowdSimulator):
         current = np.zeros((s.max_humans, HUMAN_DIM))
         current[: self.num_humans, Human.POS] = slots[usable[starts]] if n else np.zeros((0, 2))
         current[: self.num_humans, Human.RADIUS] = s.human_radius
-        self.history = np.repeat(current[None], s.history_length, axis=0)
+        self.history = current[None].repeat(s.history_length, axis=0)
         self.mask = np.zeros(s.max_humans, dtype=bool)
         self.mask[: self.num_humans] = True
         self.human_goals = np.full((self.num_humans, 2), np.nan)  # pickers have no fixed goal (figures draw none)
