@@ -24,7 +24,7 @@ import numpy as np
 
 from sb3_crowdnav.sim.config import SceneConfig
 from sb3_crowdnav.sim.crowd_settings import LinearCrowdSettings, OrcaCrowdSettings, SocialForceCrowdSettings
-from sb3_crowdnav.sim.orca import OrcaCrowd
+from sb3_crowdnav.sim.orca import OrcaCrowd, OrcaPair
 from sb3_crowdnav.sim.population import People
 from sb3_crowdnav.sim.replay import ReplayCrowdModel
 from sb3_crowdnav.sim.scenarios import Scenario
@@ -113,7 +113,7 @@ class OrcaCrowdModel:
         self.settings: OrcaCrowdSettings = scene.crowd_kwargs
         self.crowds: list[OrcaCrowd] = []
         self.seeing = np.zeros(0, dtype=bool)
-        self._pair: tuple[Any, ...] | None = None  # a mixed crowd's sides and pyrvo calls (_pair_calls)
+        self._pair: OrcaPair | None = None  # a mixed crowd's two simulators
 
     def reset(self, rng: np.random.Generator, people: People, robot: RobotAgent, walls: Walls | None = None) -> None:
         radii = people.radii + self.settings.safety_space
@@ -125,57 +125,15 @@ class OrcaCrowdModel:
         # each simulator computes its side's people, the other side's passive in it (OrcaCrowd)
         self.crowds = [OrcaCrowd(self.scene, people.starts, radii, people.v_prefs, robot_agent if side is seeing else None,
                                  obstacles, passive=blind if side is seeing else seeing) for side in self.sides]
-        self._pair = self._pair_calls() if len(self.crowds) == 2 else None
-
-    def _pair_calls(self) -> tuple[Any, ...]:
-        """The sides and the bound pyrvo methods a step of two simulators calls (bound once per episode: a mixed crowd
-        makes about 40 pyrvo calls a step, and the step is the warehouse's default)."""
-        (blind, seeing), (blind_sim, seeing_sim) = self.sides, self.crowds
-        b, s = blind_sim.sim, seeing_sim.sim
-        return (blind, seeing, seeing_sim.robot_id,
-                b.set_agent_pref_velocity, b.do_step, b.get_agent_position, b.get_agent_velocity,
-                b.set_agent_position, b.set_agent_velocity,
-                s.set_agent_pref_velocity, s.do_step, s.get_agent_position, s.get_agent_velocity,
-                s.set_agent_position, s.set_agent_velocity)
+        self._pair = OrcaPair(*self.crowds, *self.sides) if len(self.crowds) == 2 else None
 
     def step(self, preferred: list[tuple[float, float]], robot: RobotAgent) -> tuple[np.ndarray, np.ndarray]:
-        if self._pair is not None:
-            return self._step_pair(preferred, robot)
         robot_state = (robot.position, robot.velocity)
+        if self._pair is not None:
+            return self._pair.step(preferred, robot_state)
         if not self.crowds:  # nobody
             return np.zeros((0, 2)), np.zeros((0, 2))
         return self.crowds[0].step(preferred, robot_state)
-
-    def _step_pair(self, preferred: list[tuple[float, float]], robot: RobotAgent) -> tuple[np.ndarray, np.ndarray]:
-        """A step of a mixed crowd, each simulator advanced as :meth:`OrcaCrowd.advance` does (the blind people's, then
-        the seeing people's with the robot put at its state), then each side's new states read (:meth:`OrcaCrowd.rows`)
-        and put into the other simulator (:meth:`OrcaCrowd.put`): the same pyrvo calls with the same values, in one
-        loop per side. Putting a person's state into one simulator leaves every other agent's as it was, so reading
-        the seeing side after putting the blind side changes nothing."""
-        (blind, seeing, robot_id, b_pref, b_step, b_pos, b_vel, b_set_pos, b_set_vel,
-         s_pref, s_step, s_pos, s_vel, s_set_pos, s_set_vel) = self._pair
-        for i in blind:
-            b_pref(i, preferred[i])
-        b_step()
-        for i in seeing:
-            s_pref(i, preferred[i])
-        (px, py), (vx, vy) = robot.position, robot.velocity
-        s_set_pos(robot_id, (float(px), float(py)))
-        s_set_vel(robot_id, (float(vx), float(vy)))
-        s_step()
-        rows: list[Any] = [None] * (len(blind) + len(seeing))  # each person's (px, py, vx, vy), in the people's order
-        for i in blind:
-            position, velocity = b_pos(i).to_tuple(), b_vel(i).to_tuple()
-            s_set_pos(i, position)
-            s_set_vel(i, velocity)
-            rows[i] = position + velocity
-        for i in seeing:
-            position, velocity = s_pos(i).to_tuple(), s_vel(i).to_tuple()
-            b_set_pos(i, position)
-            b_set_vel(i, velocity)
-            rows[i] = position + velocity
-        state = np.array(rows)
-        return state[:, :2], state[:, 2:]
 
     def move_person(self, i: int, position: np.ndarray) -> None:
         """Put person ``i`` at ``position`` (2,) (the warehouse pushes a person pressed into a rack back out)."""

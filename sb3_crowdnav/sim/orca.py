@@ -119,6 +119,59 @@ class OrcaCrowd:
         self.sim.set_agent_position(i, (float(position[0]), float(position[1])))
 
 
+
+class OrcaPair:
+    """The two simulators of a mixed crowd (:class:`~sb3_crowdnav.sim.crowd.OrcaCrowdModel`): ``blind_crowd`` computes
+    the ``blind`` people, ``seeing_crowd`` the ``seeing`` ones and has the robot, each with the other side passive.
+
+    A step advances each simulator as :meth:`OrcaCrowd.advance` does (the blind side's, then the seeing side's with the
+    robot put at its state), reads each side's new states (:meth:`OrcaCrowd.rows`) and puts them into the other
+    simulator (:meth:`OrcaCrowd.put`): the same pyrvo calls with the same values, in one loop per side, through
+    methods bound once per episode (a mixed crowd, the warehouse's default, makes about 40 pyrvo calls a step).
+    Putting a person's state into a simulator leaves every other agent's as it was, so reading the seeing side after
+    the blind side was put changes nothing.
+    """
+
+    def __init__(self, blind_crowd: OrcaCrowd, seeing_crowd: OrcaCrowd, blind: list[int], seeing: list[int]) -> None:
+        self.blind, self.seeing, self.robot_id = blind, seeing, seeing_crowd.robot_id
+        b, s = blind_crowd.sim, seeing_crowd.sim
+        self._blind_calls = (b.set_agent_pref_velocity, b.do_step, b.get_agent_position, b.get_agent_velocity,
+                             b.set_agent_position, b.set_agent_velocity)
+        self._seeing_calls = (s.set_agent_pref_velocity, s.do_step, s.get_agent_position, s.get_agent_velocity,
+                              s.set_agent_position, s.set_agent_velocity)
+
+    def step(self, pref_velocities: list, robot_state: tuple) -> tuple[np.ndarray, np.ndarray]:
+        """Advance both simulators; every person's new positions and velocities, each (N, 2), in the people's order.
+
+        :param pref_velocities: N (vx, vy) pairs
+        :param robot_state: ``(position, velocity)`` pairs of the robot at the start of the step
+        """
+        blind, seeing, robot_id = self.blind, self.seeing, self.robot_id
+        b_pref, b_step, b_pos, b_vel, b_set_pos, b_set_vel = self._blind_calls
+        s_pref, s_step, s_pos, s_vel, s_set_pos, s_set_vel = self._seeing_calls
+        for i in blind:
+            b_pref(i, pref_velocities[i])
+        b_step()
+        for i in seeing:
+            s_pref(i, pref_velocities[i])
+        (px, py), (vx, vy) = robot_state
+        s_set_pos(robot_id, (float(px), float(py)))
+        s_set_vel(robot_id, (float(vx), float(vy)))
+        s_step()
+        rows: list = [None] * (len(blind) + len(seeing))  # each person's (px, py, vx, vy)
+        for i in blind:
+            position, velocity = b_pos(i).to_tuple(), b_vel(i).to_tuple()
+            s_set_pos(i, position)
+            s_set_vel(i, velocity)
+            rows[i] = position + velocity
+        for i in seeing:
+            position, velocity = s_pos(i).to_tuple(), s_vel(i).to_tuple()
+            b_set_pos(i, position)
+            b_set_vel(i, velocity)
+            rows[i] = position + velocity
+        state = np.array(rows)
+        return state[:, :2], state[:, 2:]
+
 def _set_agent(sim: pyrvo.RVOSimulator, i: int, position: tuple[float, float], radius: float, max_speed: float,
                velocity: tuple[float, float]) -> int:
     """Put agent ``i`` of a reused simulator in the state ``add_agent`` with these values (and the neighbour distance,
