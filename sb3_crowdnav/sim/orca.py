@@ -119,7 +119,6 @@ class OrcaCrowd:
         self.sim.set_agent_position(i, (float(position[0]), float(position[1])))
 
 
-
 class OrcaPair:
     """The two simulators of a mixed crowd (:class:`~sb3_crowdnav.sim.crowd.OrcaCrowdModel`): ``blind_crowd`` computes
     the ``blind`` people, ``seeing_crowd`` the ``seeing`` ones and has the robot, each with the other side passive.
@@ -171,6 +170,7 @@ class OrcaPair:
             rows[i] = position + velocity
         state = np.array(rows)
         return state[:, :2], state[:, 2:]
+
 
 def _set_agent(sim: pyrvo.RVOSimulator, i: int, position: tuple[float, float], radius: float, max_speed: float,
                velocity: tuple[float, float]) -> int:
