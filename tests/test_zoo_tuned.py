@@ -186,3 +186,25 @@ def test_tuned_reads_a_journal_file(tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         zoo_main([*argv, "--storage", str(tmp_path / "missing.log")])
     assert exc.value.code == 2 and "no journal file" in capsys.readouterr().err
+
+
+def test_tuned_replaces_only_its_envs_entry_and_keeps_the_others(tmp_path, capsys):
+    """A file with one entry per env: the study's env entry (and the comments above it) is rewritten, every other
+    entry is kept as written, comments included; an env the file lacks is appended."""
+    storage, _ = _study(tmp_path, 3)
+    other = ("# the warehouse entry, kept\nCrowdNavWarehouse-v0:\n  policy: 'ApgPolicy'\n  # an inner comment\n\n"
+             "  gamma: 0.7\n")
+    (tmp_path / "base.yml").write_text(BASE + other)
+    out = tmp_path / "base.yml"  # over the file the study started from, as the docs run it
+    argv = ["tuned", "--algo", "dqn", "--env", "CrowdNav-v0", "-conf", str(out), "--storage", storage,
+            "--study-name", "dqn", "--out", str(out)]
+    zoo_main(argv)
+    text = out.read_text()
+    assert text.endswith(other) and "# a base file" not in text  # the tuned entry's old comments replaced
+    assert load_hyperparams(out, "CrowdNavWarehouse-v0")["gamma"] == 0.7
+    assert load_hyperparams(out, "CrowdNav-v0")["imitation_episodes"] == 30
+    zoo_main(argv)  # again: the same file
+    assert out.read_text() == text
+    (tmp_path / "wh.yml").write_text(other)
+    zoo_main([*argv[:-1], str(tmp_path / "wh.yml")])
+    assert (tmp_path / "wh.yml").read_text().startswith(other) and "CrowdNav-v0:" in (tmp_path / "wh.yml").read_text()

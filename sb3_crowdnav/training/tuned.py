@@ -130,6 +130,38 @@ def tuned_hyperparams(algo: str, base: dict[str, Any], storage: str, study_name:
     return entry, study
 
 
+def _sections(text: str) -> list[tuple[str | None, str]]:
+    """``text`` of a hyperparameter file cut into ``(key, text)`` parts, in order: each top-level key's entry with the
+    comment and blank lines at the left margin right above it (a last part of key None holds trailing comments)."""
+    parts: list[tuple[str | None, str]] = []
+    pending = ""  # left-margin comments and blank lines: they head the entry that follows
+    for line in text.splitlines(keepends=True):
+        if not line.strip() or line.startswith("#"):
+            pending += line
+        elif not line[0].isspace():  # a top-level key
+            parts.append((line.split(":", 1)[0].strip().strip("'\""), pending + line))
+            pending = ""
+        elif parts:  # an entry's indented line
+            parts[-1] = (parts[-1][0], parts[-1][1] + pending + line)
+            pending = ""
+        else:
+            pending += line
+    if pending:
+        parts.append((None, pending))
+    return parts
+
+
+def replace_section(text: str, env_id: str, section: str) -> str:
+    """``text`` (a hyperparameter file, possibly empty) with ``env_id``'s entry and the comments above it replaced by
+    ``section``, every other entry kept as written (a file holds one entry per env, and a study tunes one of them); a
+    file without that entry gets ``section`` appended."""
+    parts = _sections(text)
+    if not any(key == env_id for key, _ in parts):
+        joined = "".join(part for _, part in parts)
+        return joined + ("\n" if joined and not joined.endswith("\n") else "") + section
+    return "".join(section if key == env_id else part for key, part in parts)
+
+
 def header(algo: str, env_id: str, conf: str, study_name: str, study: Any, argv: list[str]) -> str:
     budget = study_budget(study)
     per_trial = f"{budget['n_timesteps']} env steps" if budget["n_timesteps"] else "env steps not recorded"
@@ -169,11 +201,12 @@ def main(argv: list[str] | None = None) -> None:
         entry, study = tuned_hyperparams(args.algo, base, args.storage, args.study_name)
     except (ValueError, FileNotFoundError) as exc:
         parser.exit(2, f"sb3-crowdnav-zoo tuned: error: {' '.join(str(exc).split())}\n")
-    text = header(args.algo, args.env, args.conf, args.study_name, study, argv)
-    text += yaml.safe_dump({args.env: entry}, sort_keys=False, width=120)
-    Path(args.out).write_text(text)
+    section = header(args.algo, args.env, args.conf, args.study_name, study, argv)
+    section += yaml.safe_dump({args.env: entry}, sort_keys=False, width=120)
+    out = Path(args.out)
+    out.write_text(replace_section(out.read_text() if out.is_file() else "", args.env, section))
     print(f"wrote {args.out}: trial #{study.best_trial.number} of study {args.study_name!r} "
           f"(mean episode reward {study.best_trial.value:.4f})")
 
 
-__all__ = ["header", "main", "study_budget", "tuned_hyperparams"]
+__all__ = ["header", "main", "replace_section", "study_budget", "tuned_hyperparams"]
