@@ -8,7 +8,8 @@ text that a study can be carried in from machine to machine, :func:`open_storage
 
 It takes the study's best trial, turns its sampled values into hyperparameters with rl-zoo3's converter (as
 ``rl_zoo3.train --trial-id`` does), puts them over the file the study started from (``policy_kwargs`` over its
-``policy_kwargs``, as the trials ran them) and writes the result, headed by comments that state what the choice
+``policy_kwargs``, as the trials ran them) and writes the result as ``--env``'s entry of ``--out`` (the file's other
+envs' entries are kept as written), headed by comments that state what the choice
 cost: the study's command, its trials (complete, pruned, failed) and their wall time, the env steps of a trial, the
 evaluations that scored it and the best trial's score. The values come from the study's database and are written as
 plain YAML (``policy_kwargs`` as the ``dict(...)`` string the package's files use, read back by ``safe_eval``).
