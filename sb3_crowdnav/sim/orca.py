@@ -45,7 +45,7 @@ class OrcaCrowd:
     An agent of ``passive`` (and the robot's) is one whose new state this simulator is not asked for: it looks at no
     neighbour and (nearly) no obstacle, so RVO2 spends nothing on its velocity, and the others see it where it is put
     (RVO2 computes an agent's velocity from the others' current position, velocity and radius only). The robot is put
-    at its actual state before each step; a passive pedestrian by the caller (:meth:`put`), from where another
+    at its actual state before each step; a passive pedestrian by the caller (:class:`OrcaPair`), from where another
     simulator moved it.
     """
 
@@ -107,13 +107,6 @@ class OrcaCrowd:
         get_pos, get_vel = self.sim.get_agent_position, self.sim.get_agent_velocity
         return [get_pos(i).to_tuple() + get_vel(i).to_tuple() for i in indices]
 
-    def put(self, indices, rows: list[tuple[float, float, float, float]]) -> None:
-        """Put the pedestrians ``indices`` in the states ``rows`` (``(px, py, vx, vy)`` each)."""
-        set_pos, set_vel = self.sim.set_agent_position, self.sim.set_agent_velocity
-        for i, (x, y, vx, vy) in zip(indices, rows, strict=True):
-            set_pos(i, (x, y))
-            set_vel(i, (vx, vy))
-
     def move_agent(self, i: int, position: np.ndarray) -> None:
         """Put pedestrian ``i`` at ``position`` (2,) (the warehouse pushes a picker out of a rack it was pressed into)."""
         self.sim.set_agent_position(i, (float(position[0]), float(position[1])))
@@ -123,21 +116,18 @@ class OrcaPair:
     """The two simulators of a mixed crowd (:class:`~sb3_crowdnav.sim.crowd.OrcaCrowdModel`): ``blind_crowd`` computes
     the ``blind`` people, ``seeing_crowd`` the ``seeing`` ones and has the robot, each with the other side passive.
 
-    A step advances each simulator as :meth:`OrcaCrowd.advance` does (the blind side's, then the seeing side's with the
-    robot put at its state), reads each side's new states (:meth:`OrcaCrowd.rows`) and puts them into the other
-    simulator (:meth:`OrcaCrowd.put`): the same pyrvo calls with the same values, in one loop per side, through
-    methods bound once per episode (a mixed crowd, the warehouse's default, makes about 40 pyrvo calls a step).
-    Putting a person's state into a simulator leaves every other agent's as it was, so reading the seeing side after
-    the blind side was put changes nothing.
+    A step advances each simulator (:meth:`OrcaCrowd.advance`, the blind side's first), then reads each side's new
+    states and puts them into the other simulator, in one loop per side through pyrvo methods bound once per episode
+    (a mixed crowd, the warehouse's default, makes about 40 such calls a step). Putting a person's state into a
+    simulator leaves every other agent's as it was, so reading the seeing side after the blind side was put changes
+    nothing.
     """
 
     def __init__(self, blind_crowd: OrcaCrowd, seeing_crowd: OrcaCrowd, blind: list[int], seeing: list[int]) -> None:
-        self.blind, self.seeing, self.robot_id = blind, seeing, seeing_crowd.robot_id
+        self.crowds, self.blind, self.seeing = (blind_crowd, seeing_crowd), blind, seeing
         b, s = blind_crowd.sim, seeing_crowd.sim
-        self._blind_calls = (b.set_agent_pref_velocity, b.do_step, b.get_agent_position, b.get_agent_velocity,
-                             b.set_agent_position, b.set_agent_velocity)
-        self._seeing_calls = (s.set_agent_pref_velocity, s.do_step, s.get_agent_position, s.get_agent_velocity,
-                              s.set_agent_position, s.set_agent_velocity)
+        self._blind_calls = (b.get_agent_position, b.get_agent_velocity, b.set_agent_position, b.set_agent_velocity)
+        self._seeing_calls = (s.get_agent_position, s.get_agent_velocity, s.set_agent_position, s.set_agent_velocity)
 
     def step(self, pref_velocities: list, robot_state: tuple) -> tuple[np.ndarray, np.ndarray]:
         """Advance both simulators; every person's new positions and velocities, each (N, 2), in the people's order.
@@ -145,25 +135,18 @@ class OrcaPair:
         :param pref_velocities: N (vx, vy) pairs
         :param robot_state: ``(position, velocity)`` pairs of the robot at the start of the step
         """
-        blind, seeing, robot_id = self.blind, self.seeing, self.robot_id
-        b_pref, b_step, b_pos, b_vel, b_set_pos, b_set_vel = self._blind_calls
-        s_pref, s_step, s_pos, s_vel, s_set_pos, s_set_vel = self._seeing_calls
-        for i in blind:
-            b_pref(i, pref_velocities[i])
-        b_step()
-        for i in seeing:
-            s_pref(i, pref_velocities[i])
-        (px, py), (vx, vy) = robot_state
-        s_set_pos(robot_id, (float(px), float(py)))
-        s_set_vel(robot_id, (float(vx), float(vy)))
-        s_step()
-        rows: list = [None] * (len(blind) + len(seeing))  # each person's (px, py, vx, vy)
-        for i in blind:
+        blind_crowd, seeing_crowd = self.crowds
+        blind_crowd.advance(pref_velocities)
+        seeing_crowd.advance(pref_velocities, robot_state)
+        b_pos, b_vel, b_set_pos, b_set_vel = self._blind_calls
+        s_pos, s_vel, s_set_pos, s_set_vel = self._seeing_calls
+        rows: list = [None] * (len(self.blind) + len(self.seeing))  # each person's (px, py, vx, vy)
+        for i in self.blind:
             position, velocity = b_pos(i).to_tuple(), b_vel(i).to_tuple()
             s_set_pos(i, position)
             s_set_vel(i, velocity)
             rows[i] = position + velocity
-        for i in seeing:
+        for i in self.seeing:
             position, velocity = s_pos(i).to_tuple(), s_vel(i).to_tuple()
             b_set_pos(i, position)
             b_set_vel(i, velocity)
