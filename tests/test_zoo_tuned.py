@@ -208,3 +208,68 @@ def test_tuned_replaces_only_its_envs_entry_and_keeps_the_others(tmp_path, capsy
     (tmp_path / "wh.yml").write_text(other)
     zoo_main([*argv[:-1], str(tmp_path / "wh.yml")])
     assert (tmp_path / "wh.yml").read_text().startswith(other) and "CrowdNav-v0:" in (tmp_path / "wh.yml").read_text()
+
+
+def test_a_file_trial_runs_the_files_settings_and_is_queued_once(tmp_path, monkeypatch, capsys):
+    """--file-trial queues one trial that the sampler gives no values (the file's settings stand), once per study; a
+    failed one is queued again; and it is taken out of the line rl-zoo3 parses."""
+    from optuna.trial import TrialState
+    from rl_zoo3 import train as zoo_train
+
+    from sb3_crowdnav.training.tuned import FILE_TRIAL
+    from sb3_crowdnav.training.zoo import _over_policy_kwargs
+
+    path = str(tmp_path / "new" / "tune.log")  # neither the journal nor its folder exists yet
+    seen = {}
+    monkeypatch.setattr(zoo_train, "train", lambda: seen.setdefault("argv", __import__("sys").argv[:]))
+    argv = ["train", "--algo", "dqn", "--env", "CrowdNav-v0", "-optimize", "--storage", path, "--study-name", "s",
+            "--file-trial"]
+    zoo_main(argv)
+    assert "--file-trial" not in seen["argv"] and "a trial of the file's own settings queued" in capsys.readouterr().err
+    storage = optuna.storages.JournalStorage(optuna.storages.journal.JournalFileBackend(path))
+    study = optuna.load_study(study_name="s", storage=storage)
+    trial = study.ask()  # the queued trial comes first
+    assert trial.user_attrs.get(FILE_TRIAL) is True
+    sampler = lambda t, *rest: sample_dqn_params(t, 81, 1, {"using_her_replay_buffer": False, "her_kwargs": {}})  # noqa: E731
+    assert _over_policy_kwargs(sampler, {"n_quantiles": 5}, trial) == {} and trial.params == {}
+    zoo_main(argv)  # running: not queued again
+    assert "has a trial of the file's own settings already" in capsys.readouterr().err
+    assert len(study.get_trials(states=(TrialState.WAITING,))) == 0
+    study.tell(trial.number, state=TrialState.FAIL)  # a killed machine's file trial, marked FAIL: queued again
+    zoo_main(argv)
+    assert len(study.get_trials(states=(TrialState.WAITING,))) == 1
+    other = optuna.create_study(direction="maximize").ask()  # a sampled trial is sampled
+    assert _over_policy_kwargs(sampler, {}, other)["learning_rate"] > 0
+
+
+def test_tuned_keeps_the_files_settings_when_its_trial_is_best(tmp_path, capsys):
+    from sb3_crowdnav.training.tuned import FILE_TRIAL
+
+    register()
+    storage = f"sqlite:///{tmp_path / 'tune.db'}"
+    study = optuna.create_study(storage=storage, study_name="dqn", direction="maximize",
+                                sampler=optuna.samplers.RandomSampler(seed=0))
+    study.set_user_attr("command", COMMAND)
+    study.enqueue_trial({}, user_attrs={FILE_TRIAL: True})
+    sampled = lambda t: sample_dqn_params(t, 81, 1, {"using_her_replay_buffer": False, "her_kwargs": {}})  # noqa: E731
+    study.optimize(lambda t: 1.0 if t.user_attrs.get(FILE_TRIAL) else (sampled(t), 0.5)[1], n_trials=3)
+    (tmp_path / "base.yml").write_text(BASE)
+    out = tmp_path / "tuned.yml"
+    zoo_main(["tuned", "--algo", "dqn", "--env", "CrowdNav-v0", "-conf", str(tmp_path / "base.yml"),
+              "--storage", storage, "--study-name", "dqn", "--out", str(out)])
+    text = " ".join(line[2:] for line in out.read_text().splitlines() if line.startswith("# "))
+    assert "best trial #0, mean episode reward 1.0000: the file's own settings (--file-trial)" in text
+    assert load_hyperparams(out) == load_hyperparams(tmp_path / "base.yml")  # the file's values, unchanged
+
+
+@pytest.mark.parametrize("argv", [
+    ["train", "--algo", "dqn", "--env", "CrowdNav-v0", "--storage", "x.log", "--study-name", "s", "--file-trial"],
+    ["train", "--algo", "dqn", "--env", "CrowdNav-v0", "-optimize", "--storage", "x.log", "--file-trial"],
+    ["enjoy", "--algo", "dqn", "--env", "CrowdNav-v0", "--file-trial"],
+])
+def test_file_trial_outside_a_stored_study_exits_2(argv, capsys):
+    with pytest.raises(SystemExit) as exc:
+        zoo_main(argv)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--file-trial" in err[0]

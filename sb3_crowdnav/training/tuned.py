@@ -27,6 +27,8 @@ from typing import Any
 
 import yaml
 
+# the user attribute of the trial that ran the file's own settings, unsampled (sb3-crowdnav-zoo train --file-trial)
+FILE_TRIAL = "file_settings"
 FLAGS = {"n_timesteps": ("-n", "--n-timesteps"), "n_evaluations": ("--n-evaluations",),
          "eval_episodes": ("--eval-episodes",), "n_trials": ("--n-trials",), "max_total_trials": ("--max-total-trials",)}
 
@@ -81,6 +83,26 @@ def fail_running_trials(storage: str, study_name: str) -> list[int]:
     return [t.number for t in running]
 
 
+def enqueue_file_trial(storage: str, study_name: str) -> bool:
+    """Queue a trial of study ``study_name`` that runs the file's own settings, nothing sampled (its user attribute
+    :data:`FILE_TRIAL`; :mod:`sb3_crowdnav.training.zoo`'s sampler gives it no values), unless the study holds one
+    that is waiting, running or finished (a failed one is queued again); whether one was queued. The study is created
+    as rl-zoo3 creates it (maximize) when ``storage`` does not hold it yet; a journal file (``.log``) and its folder
+    too."""
+    import optuna
+    from optuna.trial import TrialState
+
+    backend: Any = storage
+    if storage.endswith(".log"):
+        Path(storage).parent.mkdir(parents=True, exist_ok=True)
+        backend = optuna.storages.JournalStorage(optuna.storages.journal.JournalFileBackend(storage))
+    study = optuna.create_study(storage=backend, study_name=study_name, load_if_exists=True, direction="maximize")
+    if any(t.user_attrs.get(FILE_TRIAL) and t.state != TrialState.FAIL for t in study.get_trials(deepcopy=False)):
+        return False
+    study.enqueue_trial({}, user_attrs={FILE_TRIAL: True})
+    return True
+
+
 def study_budget(study: Any) -> dict[str, Any]:
     """The trials of ``study`` by state, the settings its recorded command gave (None where not given) and the wall
     time of its finished trials (``trial_hours``: start to end of each complete, pruned or failed trial, summed)."""
@@ -120,7 +142,10 @@ def tuned_hyperparams(algo: str, base: dict[str, Any], storage: str, study_name:
         raise ValueError(f"--study-name: no study {study_name!r} in {storage}") from None
     if not study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.COMPLETE,)):
         raise ValueError(f"--study-name: study {study_name!r} has no complete trial yet")
-    best = hyperparams_opt.HYPERPARAMS_CONVERTER[algo](dict(study.best_trial.params))
+    if study.best_trial.user_attrs.get(FILE_TRIAL):  # the file's own settings scored best: nothing to put over them
+        best: dict[str, Any] = {}
+    else:
+        best = hyperparams_opt.HYPERPARAMS_CONVERTER[algo](dict(study.best_trial.params))
     entry = dict(base)
     if "policy_kwargs" in best:
         own = entry.get("policy_kwargs") or {}
@@ -174,7 +199,9 @@ def header(algo: str, env_id: str, conf: str, study_name: str, study: Any, argv:
         f"the best of {budget['complete']} complete trials of study {study_name!r} ({budget['pruned']} pruned, "
         f"{budget['failed']} failed), each trial {per_trial}, {scored}; the finished trials' wall time "
         f"{budget['trial_hours']:.1f} h in all;",
-        f"best trial #{study.best_trial.number}, mean episode reward {study.best_trial.value:.4f}.",
+        f"best trial #{study.best_trial.number}, mean episode reward {study.best_trial.value:.4f}"
+        + (": the file's own settings (--file-trial), which no sampled trial beat; the values below are the file's."
+           if study.best_trial.user_attrs.get(FILE_TRIAL) else "."),
         f"The study's command: {budget['command'] or 'not recorded'}",
         f"Written {datetime.date.today().isoformat()} by: sb3-crowdnav-zoo tuned {shlex.join(argv)}",
     ]
@@ -210,4 +237,5 @@ def main(argv: list[str] | None = None) -> None:
           f"(mean episode reward {study.best_trial.value:.4f})")
 
 
-__all__ = ["header", "main", "replace_section", "study_budget", "tuned_hyperparams"]
+__all__ = ["FILE_TRIAL", "enqueue_file_trial", "header", "main", "replace_section", "study_budget",
+           "tuned_hyperparams"]

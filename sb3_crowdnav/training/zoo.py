@@ -6,7 +6,9 @@ for Optuna tuning, a sampler to ``rl_zoo3.hyperparams_opt.HYPERPARAMS_SAMPLER``)
 does exactly that and then hands the command line to rl-zoo3 unchanged, so every rl-zoo3 flag
 works (``--storage sqlite:///tune.db --study-name apg -optimize`` spreads tuning over machines
 through a shared database; ``--storage PATH.log``, a journal file, carries a study from machine to machine, and
-``--fail-running`` marks the trials a killed tuning process left running as failed before it resumes).
+``--fail-running`` marks the trials a killed tuning process left running as failed before it resumes;
+``--file-trial`` queues one trial that runs the ``-conf`` file's own settings, so that a study's best is never worse
+than the file it started from).
 ``--gym-packages sb3_crowdnav`` is added when missing, and ``--num-threads 1`` (one torch
 thread, the package's training floor; rl-zoo3 leaves torch its default of every core) unless the command gives one.
 
@@ -229,6 +231,10 @@ def experiment_manager() -> type:
 
 
 def _over_policy_kwargs(sampler: Any, own: dict[str, Any], *args: Any) -> dict[str, Any]:
+    from sb3_crowdnav.training.tuned import FILE_TRIAL
+
+    if getattr(args[0], "user_attrs", {}).get(FILE_TRIAL):  # --file-trial's trial: the file's settings as they are
+        return {}
     params = sampler(*args)
     if isinstance(params.get("policy_kwargs"), dict):
         params = {**params, "policy_kwargs": {**own, **params["policy_kwargs"]}}
@@ -267,6 +273,29 @@ def _fail_running(command: str, rest: list[str]) -> None:
         print(f"sb3-crowdnav-zoo: trial {number} of study {study_name!r} was left running: marked FAIL", file=sys.stderr)
 
 
+def _file_trial(command: str, rest: list[str]) -> None:
+    """``--file-trial`` (the package's flag, taken out before rl-zoo3 reads the line): queue one trial of the study
+    that runs the ``-conf`` file's own settings, nothing sampled, scored like every other trial, so that ``tuned``
+    keeps the file's values when no sampled trial beats them (:func:`~sb3_crowdnav.training.tuned.enqueue_file_trial`:
+    once per study)."""
+    storage, study_name = _option(rest, "--storage"), _option(rest, "--study-name")
+    optimize = "-optimize" in rest or "--optimize-hyperparameters" in rest
+    if command != "train" or not optimize or storage is None or study_name is None:
+        print("sb3-crowdnav-zoo: error: --file-trial: queues a trial in a stored study: give it to train with -optimize, "
+              "--storage and --study-name", file=sys.stderr)
+        raise SystemExit(2)
+    from sb3_crowdnav.training.tuned import enqueue_file_trial
+
+    try:
+        queued = enqueue_file_trial(storage, study_name)
+    except Exception as exc:  # (an unusable storage: Optuna's and SQLAlchemy's errors alike, said in one line)
+        print(f"sb3-crowdnav-zoo: error: --storage {storage!r}: {type(exc).__name__}: {' '.join(str(exc).split())}",
+              file=sys.stderr)
+        raise SystemExit(2) from None
+    print(f"sb3-crowdnav-zoo: study {study_name!r}: " + ("a trial of the file's own settings queued" if queued else
+          "has a trial of the file's own settings already"), file=sys.stderr)
+
+
 def main(argv: list[str] | None = None) -> None:
     argv = list(sys.argv[1:] if argv is None else argv)
     if not argv or argv[0] not in COMMANDS:
@@ -281,6 +310,9 @@ def main(argv: list[str] | None = None) -> None:
     if "--fail-running" in rest:
         rest = [arg for arg in rest if arg != "--fail-running"]
         _fail_running(command, rest)
+    if "--file-trial" in rest:
+        rest = [arg for arg in rest if arg != "--file-trial"]
+        _file_trial(command, rest)
     if "--gym-packages" not in rest:
         rest += ["--gym-packages", "sb3_crowdnav"]
     if not any(arg == "--num-threads" or arg.startswith("--num-threads=") for arg in rest):
