@@ -273,3 +273,16 @@ def test_file_trial_outside_a_stored_study_exits_2(argv, capsys):
     assert exc.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--file-trial" in err[0]
+
+
+def test_the_header_states_the_file_trials_score_when_another_trial_is_best(tmp_path):
+    from sb3_crowdnav.training.tuned import FILE_TRIAL, header
+
+    register()
+    study = optuna.create_study(direction="maximize", sampler=optuna.samplers.RandomSampler(seed=0))
+    study.enqueue_trial({}, user_attrs={FILE_TRIAL: True})
+    sampled = lambda t: sample_dqn_params(t, 81, 1, {"using_her_replay_buffer": False, "her_kwargs": {}})  # noqa: E731
+    study.optimize(lambda t: 0.25 if t.user_attrs.get(FILE_TRIAL) else (sampled(t), 0.75)[1], n_trials=2)
+    text = " ".join(line[2:] for line in header("dqn", "CrowdNav-v0", "b.yml", "t", study, []).splitlines())
+    assert "best trial #1, mean episode reward 0.7500." in text
+    assert "The file's own settings (--file-trial, trial #0) scored 0.2500." in text

@@ -202,6 +202,8 @@ def header(algo: str, env_id: str, conf: str, study_name: str, study: Any, argv:
         f"best trial #{study.best_trial.number}, mean episode reward {study.best_trial.value:.4f}"
         + (": the file's own settings (--file-trial), which no sampled trial beat; the values below are the file's."
            if study.best_trial.user_attrs.get(FILE_TRIAL) else "."),
+        *[f"The file's own settings (--file-trial, trial #{t.number}) scored {t.value:.4f}." for t in study.trials
+          if t.user_attrs.get(FILE_TRIAL) and t.value is not None and t.number != study.best_trial.number],
         f"The study's command: {budget['command'] or 'not recorded'}",
         f"Written {datetime.date.today().isoformat()} by: sb3-crowdnav-zoo tuned {shlex.join(argv)}",
     ]
