@@ -251,47 +251,42 @@ def _option(argv: list[str], name: str) -> str | None:
     return None
 
 
-def _fail_running(command: str, rest: list[str]) -> None:
-    """``--fail-running`` (the package's flag, taken out before rl-zoo3 reads the line): the study's RUNNING trials,
-    left so by a tuning process that was killed, are marked FAIL before the study resumes
-    (:func:`~sb3_crowdnav.training.tuned.fail_running_trials`)."""
+def _on_stored_study(flag: str, does: str, command: str, rest: list[str], action: Any) -> Any:
+    """Run ``action(storage, study_name)`` for the package's study flag ``flag`` (taken out before rl-zoo3 reads the
+    line), which ``does`` something to a stored study: refused in one line (exit 2) unless the command is ``train``
+    with ``-optimize``, ``--storage`` and ``--study-name``, and when the storage cannot be used."""
     storage, study_name = _option(rest, "--storage"), _option(rest, "--study-name")
     optimize = "-optimize" in rest or "--optimize-hyperparameters" in rest
     if command != "train" or not optimize or storage is None or study_name is None:
-        print("sb3-crowdnav-zoo: error: --fail-running: resumes a study: give it to train with -optimize, --storage "
-              "and --study-name", file=sys.stderr)
-        raise SystemExit(2)
-    from sb3_crowdnav.training.tuned import fail_running_trials
-
-    try:
-        failed = fail_running_trials(storage, study_name)
-    except Exception as exc:  # (an unreadable storage: Optuna's and SQLAlchemy's errors alike, said in one line)
-        print(f"sb3-crowdnav-zoo: error: --storage {storage!r}: {type(exc).__name__}: {' '.join(str(exc).split())}",
+        print(f"sb3-crowdnav-zoo: error: {flag}: {does}: give it to train with -optimize, --storage and --study-name",
               file=sys.stderr)
-        raise SystemExit(2) from None
-    for number in failed:
-        print(f"sb3-crowdnav-zoo: trial {number} of study {study_name!r} was left running: marked FAIL", file=sys.stderr)
-
-
-def _file_trial(command: str, rest: list[str]) -> None:
-    """``--file-trial`` (the package's flag, taken out before rl-zoo3 reads the line): queue one trial of the study
-    that runs the ``-conf`` file's own settings, nothing sampled, scored like every other trial, so that ``tuned``
-    keeps the file's values when no sampled trial beats them (:func:`~sb3_crowdnav.training.tuned.enqueue_file_trial`:
-    once per study)."""
-    storage, study_name = _option(rest, "--storage"), _option(rest, "--study-name")
-    optimize = "-optimize" in rest or "--optimize-hyperparameters" in rest
-    if command != "train" or not optimize or storage is None or study_name is None:
-        print("sb3-crowdnav-zoo: error: --file-trial: queues a trial in a stored study: give it to train with -optimize, "
-              "--storage and --study-name", file=sys.stderr)
         raise SystemExit(2)
-    from sb3_crowdnav.training.tuned import enqueue_file_trial
-
     try:
-        queued = enqueue_file_trial(storage, study_name)
+        return action(storage, study_name)
     except Exception as exc:  # (an unusable storage: Optuna's and SQLAlchemy's errors alike, said in one line)
         print(f"sb3-crowdnav-zoo: error: --storage {storage!r}: {type(exc).__name__}: {' '.join(str(exc).split())}",
               file=sys.stderr)
         raise SystemExit(2) from None
+
+
+def _fail_running(command: str, rest: list[str]) -> None:
+    """``--fail-running``: the study's RUNNING trials, left so by a tuning process that was killed, are marked FAIL
+    before the study resumes (:func:`~sb3_crowdnav.training.tuned.fail_running_trials`)."""
+    from sb3_crowdnav.training.tuned import fail_running_trials
+
+    study_name = _option(rest, "--study-name")
+    for number in _on_stored_study("--fail-running", "resumes a study", command, rest, fail_running_trials):
+        print(f"sb3-crowdnav-zoo: trial {number} of study {study_name!r} was left running: marked FAIL", file=sys.stderr)
+
+
+def _file_trial(command: str, rest: list[str]) -> None:
+    """``--file-trial``: queue one trial of the study that runs the ``-conf`` file's own settings, nothing sampled,
+    scored like every other trial, so that ``tuned`` keeps the file's values when no sampled trial beats them
+    (:func:`~sb3_crowdnav.training.tuned.enqueue_file_trial`: once per study)."""
+    from sb3_crowdnav.training.tuned import enqueue_file_trial
+
+    study_name = _option(rest, "--study-name")
+    queued = _on_stored_study("--file-trial", "queues a trial in a stored study", command, rest, enqueue_file_trial)
     print(f"sb3-crowdnav-zoo: study {study_name!r}: " + ("a trial of the file's own settings queued" if queued else
           "has a trial of the file's own settings already"), file=sys.stderr)
 
