@@ -51,14 +51,17 @@ def _literal(value: Any) -> str:
     raise ValueError(f"cannot write {type(value).__name__} {value!r} into a hyperparameter file")
 
 
-def open_storage(storage: str) -> Any:
+def open_storage(storage: str, create: bool = False) -> Any:
     """The Optuna storage ``storage`` names, by rl-zoo3's rule: a path ending in ``.log`` is a journal file
-    (``JournalStorage``: one JSON line per change of the study, appended), anything else a database URL."""
+    (``JournalStorage``: one JSON line per change of the study, appended), anything else a database URL. A journal
+    file that does not exist is refused, or with ``create`` started (its folder too), as rl-zoo3 starts one."""
     import optuna
 
     if not storage.endswith(".log"):
         return storage
-    if not Path(storage).is_file():
+    if create:
+        Path(storage).parent.mkdir(parents=True, exist_ok=True)
+    elif not Path(storage).is_file():
         raise ValueError(f"--storage: no journal file {storage!r}")
     return optuna.storages.JournalStorage(optuna.storages.journal.JournalFileBackend(storage))
 
@@ -92,11 +95,8 @@ def enqueue_file_trial(storage: str, study_name: str) -> bool:
     import optuna
     from optuna.trial import TrialState
 
-    backend: Any = storage
-    if storage.endswith(".log"):
-        Path(storage).parent.mkdir(parents=True, exist_ok=True)
-        backend = optuna.storages.JournalStorage(optuna.storages.journal.JournalFileBackend(storage))
-    study = optuna.create_study(storage=backend, study_name=study_name, load_if_exists=True, direction="maximize")
+    study = optuna.create_study(storage=open_storage(storage, create=True), study_name=study_name, load_if_exists=True,
+                                direction="maximize")
     if any(t.user_attrs.get(FILE_TRIAL) and t.state != TrialState.FAIL for t in study.get_trials(deepcopy=False)):
         return False
     study.enqueue_trial({}, user_attrs={FILE_TRIAL: True})
