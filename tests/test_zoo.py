@@ -156,6 +156,31 @@ def test_zoo_evaluations_play_validation_episodes(tmp_path):
     assert manager.seed == 7  # the training seed is restored
 
 
+@pytest.mark.parametrize("given, people", [(None, 2), ({"num_humans": 4}, 4)])
+def test_zoo_evaluations_play_the_files_world(tmp_path, given, people):
+    """A file's env_kwargs reach the eval envs as well as the training envs (rl-zoo3 2.9 gives its eval envs only
+    the command line's, so a study of the warehouse worlds of CrowdNavWorlds-v0 was scored on the open floor); an
+    explicit --eval-env-kwargs still decides."""
+    import argparse
+
+    from stable_baselines3.common.callbacks import EvalCallback
+
+    from sb3_crowdnav.training.zoo import experiment_manager
+
+    register()  # "ApgPolicy" for SB3's algorithms, as the zoo's entry point does
+    config = tmp_path / "ppo.yml"
+    config.write_text(yaml.safe_dump({"CrowdNav-v0": {"policy": "ApgPolicy", "n_envs": 1, "n_timesteps": 64,
+                                                      "n_steps": 32, "batch_size": 32, "env_kwargs": {"num_humans": 2}}}))
+    manager = experiment_manager()(argparse.Namespace(), "ppo", "CrowdNav-v0", str(tmp_path / "logs"),
+                                   config=str(config), eval_freq=32, n_eval_episodes=1, eval_env_kwargs=given, verbose=0)
+    manager.setup_experiment()
+    (evaluation,) = [c for c in manager.callbacks if isinstance(c, EvalCallback)]
+    assert int(evaluation.eval_env.reset()["humans_mask"][0].sum()) == people
+    assert manager.eval_env_kwargs == (given or {})  # (restored: rl-zoo3's own record is left as it was)
+    training = manager.create_envs(1)
+    assert int(training.reset()["humans_mask"][0].sum()) == 2
+
+
 def test_imitation_settings_come_from_the_file_or_the_caller_once():
     """A hyperparameter file's imitation_* keys are what the command line's --imitation-* give; both at once must
     agree; APGValue keeps its own imitation_* hyperparameters; an algorithm without imitation refuses them."""

@@ -219,13 +219,20 @@ def experiment_manager() -> type:
                 samplers[self.algo] = sampler
 
         def create_envs(self, n_envs: int, eval_env: bool = False, no_log: bool = False) -> Any:
+            """Training envs as rl-zoo3 builds them; eval envs seeded at the validation offset and, unless
+            ``--eval-env-kwargs`` was given, with the training envs' keyword arguments, the file's ``env_kwargs``
+            included (rl-zoo3 2.9 gives its eval envs only the command line's, so a file's world, e.g. the
+            warehouse worlds of ``CrowdNavWorlds-v0``, would be scored in the env's default world)."""
             if not eval_env:
                 return super().create_envs(n_envs, eval_env=eval_env, no_log=no_log)
             training_seed, self.seed = self.seed, VALIDATION_SEED_OFFSET
+            given = self.eval_env_kwargs
+            if self._eval_env_kwargs_args is None:  # (rl-zoo3's record of --eval-env-kwargs)
+                self.eval_env_kwargs = self.env_kwargs
             try:
                 return super().create_envs(n_envs, eval_env=eval_env, no_log=no_log)
             finally:
-                self.seed = training_seed
+                self.seed, self.eval_env_kwargs = training_seed, given
 
     return ZooExperimentManager
 
