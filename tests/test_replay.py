@@ -492,3 +492,53 @@ def test_the_preparation_script_refuses_a_file_of_other_columns(tmp_path):
     with pytest.raises(ValueError, match=r"columns must be 8 .* or 4 .*, got 5"):
         module.convert(bad, tmp_path / "out.txt", columns=5)
     assert not (tmp_path / "out.txt").exists()
+
+
+def _standing_on_the_start(tmp_path: Path) -> Path:
+    """P stands on the robot's start (0, 0) from 1 s on (its track starting late, as an annotator's may); seven
+    others stand far away from 0 s (eight people at once: more than 6 observed slots, fewer than 10)."""
+    rows = ["t,id,x,y"]
+    for t in np.arange(0.0, 10.0 + 1e-9, 0.5):
+        rows.extend(f"{t},Q{j},{10.0 + j},10.0" for j in range(7))
+        if t >= 1.0:
+            rows.append(f"{t},P,0.0,0.0")
+    path = tmp_path / "standing.csv"
+    path.write_text("\n".join(rows) + "\n")
+    return path
+
+
+@pytest.mark.parametrize("max_humans", [10, 6], ids=["slots", "tracked nearest"])
+def test_appear_clear_holds_back_a_person_who_would_appear_on_the_robot(tmp_path, max_humans):
+    """As recorded, P appears on the standing robot at 1 s and that is a collision no policy could avoid. With
+    appear="clear" P is held back, absent and unobserved, while the robot stands there, and appears where the
+    recording has them in the first step the robot's move does not touch them; then P is observed and counts."""
+    path = _standing_on_the_start(tmp_path)
+
+    def make(appear):
+        return CrowdNavEnv(crowd="replay", actions="with_stop", max_humans=max_humans, crowd_kwargs={
+            "path": str(path), "robot_start": (0.0, 0.0), "robot_goal": (4.0, 0.0), "start_time": 0.0,
+            "tracked": "nearest", "appear": appear})
+
+    stop, ahead = 80, 64  # the stop; full speed towards the goal (the robot faces it)
+    env = make("as_recorded")
+    env.reset(seed=0)
+    outcomes = [env.step(stop)[4]["outcome"] for _ in range(4)]
+    assert outcomes[-1] == "collision"  # at 1 s (step 4), P appears inside the robot's disc
+
+    env = make("clear")
+    env.reset(seed=0)
+    seen = []
+    for k in range(12):
+        _, _, terminated, truncated, info = env.step(stop if k < 6 else ahead)
+        assert not terminated and not truncated, info["outcome"]
+        people = env.sim.history[-1, env.sim.mask][:, Human.POS]  # the observed people, where they are
+        distance = math.hypot(*env.sim.robot[:2])  # the robot from P's spot
+        seen.append(bool(np.any(np.hypot(*people.T) < 0.1)))  # P observed
+        if distance < 0.6:  # the robot's disc on P's spot: P absent
+            assert not seen[-1]
+    assert not any(seen[:4]) and seen[-1]  # P absent before 1 s; observed once the robot moved off its spot
+
+
+def test_appear_is_refused_outside_its_choices(street):
+    with pytest.raises(ValueError, match="appear"):
+        CrowdNavEnv(crowd="replay", crowd_kwargs={"path": str(street), "appear": "never"})

@@ -22,6 +22,7 @@ from sb3_crowdnav.sim.validation import (
 
 MAX_SAFETY_SPACE = 2.0  # [m]
 TRACKED = ("all", "nearest")  # crowd='replay''s choices of who is observed
+APPEAR = ("as_recorded", "clear")  # crowd='replay''s choices of when a person appears
 # upper bounds of the social force settings (name, limit, unit): beyond them a setting is a slip, not a crowd
 SOCIAL_FORCE_LIMITS = (
     ("person_strength", 1e5, " N"), ("wall_strength", 1e5, " N"), ("force_range", 5.0, " m"),
@@ -95,6 +96,12 @@ class ReplayCrowdSettings:
         segment (0: from the first sample, as recorded). Annotators start a track when a person is first marked, which
         in the ETH/UCY scenes is often well inside the view (people step out of a door, or are marked late): with 0
         such a person appears from nowhere, possibly in contact with the robot, which no sensor would allow
+    :param appear: when a person appears: ``"as_recorded"`` (the default) at their first sample (less ``lead_in``),
+        wherever the robot is; ``"clear"``: the same, except that a person whose disc would touch the robot's during
+        the step they appear in (the robot's move through the step against the person where they appear: the
+        collision test of the reward) is held back, absent and unobserved, until a step in which it would not, and
+        appears there, where the recording has them then. A person who steps out of a door or is marked late is
+        then never counted as a collision the robot could not have seen coming; nobody's path is changed
     """
 
     path: str | None = None
@@ -106,6 +113,7 @@ class ReplayCrowdSettings:
     crossing_length: float = 8.0
     tracked: str = "all"
     lead_in: float = 0.0
+    appear: str = "as_recorded"
 
     def __post_init__(self) -> None:
         if self.path is None:
@@ -134,6 +142,7 @@ class ReplayCrowdSettings:
         check_number("crowd_kwargs['lead_in']", self.lead_in, allow_zero=True)
         check_at_most("crowd_kwargs['lead_in']", self.lead_in, MAX_LEAD_IN, " s")
         object.__setattr__(self, "lead_in", float(self.lead_in))
+        check_choice("crowd_kwargs['appear']", self.appear, APPEAR)
         if start is not None and self.crossing_length != 8.0:
             raise ValueError("crowd_kwargs['crossing_length'] sets the placed crossing; with robot_start and "
                              "robot_goal given it has no effect")

@@ -10,7 +10,9 @@ episode), sampled every Δt. At each step time t:
   vanished person's slot is padded (zeros, mask 0). The recording's most people present at once must fit
   ``max_humans`` (checked at construction), unless ``tracked="nearest"``: then, in a window with more people
   present at once than ``max_humans``, the slots hold the ``max_humans`` present people nearest to the robot at the
-  start of each step (a tracker's N nearest tracks), each keeping its slot while it stays among them.
+  start of each step (a tracker's N nearest tracks), each keeping its slot while it stays among them. With
+  ``appear="clear"`` a person who would appear touching the robot during the step (:func:`touching`) is held back,
+  absent, and appears at the first step in which they would not, where the recording has them then.
 * **positions**: the recording's samples interpolated linearly to t.
 * **velocities**: backward differences over one step, ``(p(t) - p(t - Δt)) / Δt``, so that ``p(t) = p(t - Δt) +
   v(t) Δt`` as the ORCA crowd integrates. Before its first sample a person's position is extended back along its first
@@ -33,6 +35,7 @@ import numpy as np
 
 from sb3_crowdnav.sim.config import SceneConfig
 from sb3_crowdnav.sim.crowd_settings import ReplayCrowdSettings
+from sb3_crowdnav.sim.geometry import point_segment_distance
 from sb3_crowdnav.sim.population import People
 from sb3_crowdnav.sim.scenarios import MIN_GAP, Scenario
 from sb3_crowdnav.sim.sensing import assign_slots
@@ -50,6 +53,15 @@ def _positions_at(times: np.ndarray, positions: np.ndarray, at: np.ndarray) -> n
         slope = (positions[1] - positions[0]) / (times[1] - times[0])
         out[before] = positions[0] + (at[before, None] - times[0]) * slope
     return out
+
+
+def touching(positions: np.ndarray, start: tuple[float, float], end: tuple[float, float], reach: float) -> np.ndarray:
+    """(n,) bool: the people standing at ``positions`` (n, 2) whose centre comes within ``reach`` (the robot's radius
+    plus a person's) of the robot's centre as it moves from ``start`` to ``end`` (the reward's collision test for a
+    person who does not move in the step, as one who appears does not)."""
+    if not len(positions):
+        return np.zeros(0, dtype=bool)
+    return point_segment_distance(positions, np.asarray(start, dtype=np.float64), np.asarray(end, dtype=np.float64)) < reach
 
 
 class ReplayCrowdModel:
@@ -77,6 +89,10 @@ class ReplayCrowdModel:
         self.k = 0
         self.tracks: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # tracked="nearest", too many people
         self.slot_person = np.zeros(0, dtype=np.int64)  # (max_humans,) the person in each slot then, -1: none
+        self.clear = self.settings.appear == "clear"  # hold back a person who would appear touching the robot
+        self.reach = scene.robot_radius + scene.human_radius
+        self.waiting = np.zeros(0, dtype=bool)  # appear="clear": per slot, its person is due and held back
+        self.appeared = np.zeros(0, dtype=bool)  # appear="clear", tracked="nearest": per person, has appeared
         s = self.settings
         if s.start_time is not None and s.robot_start is None and not self._overlapping(s.start_time).size:
             raise ValueError(f"crowd_kwargs: no one is present from start_time {s.start_time!r} s for the episode's "
@@ -148,14 +164,20 @@ class ReplayCrowdModel:
             present[a:b + 1, j] = True
         return pos, vel, present
 
-    def _track_nearest(self, k: int, robot: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
-        """``tracked="nearest"``: the slots at step ``k`` hold the ``max_humans`` present people nearest to ``robot``
-        (ties in file order); a person still among them keeps its slot, one who enters takes the lowest free slot
-        (nearest first) and is an arrival. Sets ``present``/``arrivals``; returns the slots' positions and velocities."""
+    def _track_nearest(self, k: int, start: tuple[float, float], end: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+        """``tracked="nearest"``: the slots at step ``k`` hold the ``max_humans`` present people nearest to the robot's
+        ``start`` (ties in file order); a person still among them keeps its slot, one who enters takes the lowest free
+        slot (nearest first) and is an arrival. With ``appear="clear"`` only the people who have appeared count
+        (:meth:`_held_back`). Sets ``present``/``arrivals``; returns the slots' positions and velocities."""
         pos, vel, present = (a[k] for a in self.tracks)
+        if self.clear:
+            due = present & ~self.appeared
+            due[due] = ~touching(pos[due], start, end, self.reach)
+            self.appeared |= due
+            present = present & self.appeared
         n = len(self.slot_person)
         here = np.flatnonzero(present)
-        order = np.argsort(np.linalg.norm(pos[here] - np.asarray(robot), axis=-1), kind="stable")
+        order = np.argsort(np.linalg.norm(pos[here] - np.asarray(start), axis=-1), kind="stable")
         slots, entered = assign_slots(self.slot_person.tolist(), here[order[:n]].tolist())
         arrivals = np.zeros(n, dtype=bool)
         arrivals[entered] = True
@@ -164,6 +186,22 @@ class ReplayCrowdModel:
         who = np.where(taken, self.slot_person, 0)
         self.present, self.arrivals = taken, arrivals
         return np.where(taken[:, None], pos[who], 0.0), np.where(taken[:, None], vel[who], 0.0)
+
+    def _held_back(self, k: int, start: tuple[float, float], end: tuple[float, float]) -> None:
+        """``present``/``arrivals`` at step ``k`` of the slots (not tracked by nearness): as recorded, or with
+        ``appear="clear"`` without the people held back, a slot's due person arriving at the first step in which they
+        would not touch the robot moving from ``start`` to ``end``."""
+        present, arrivals = self.all_present[k], self.all_arrivals[k]
+        if self.clear:
+            self.waiting = (self.waiting | arrivals) & present  # (one who vanishes while held back never appears)
+            if self.waiting.any():
+                held = self.waiting.copy()
+                held[held] = touching(self.positions[k][held], start, end, self.reach)
+                arrivals, present = self.waiting & ~held, present & ~held
+                self.waiting = held
+            else:
+                arrivals = np.zeros_like(arrivals)
+        self.present, self.arrivals = present, arrivals
 
     def _crossing(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray] | None:
         """The placed start and goal (2,) of the current window, or None when its start is taken or no one is there."""
@@ -207,13 +245,15 @@ class ReplayCrowdModel:
         (sx, sy), (gx, gy) = start.tolist(), goal.tolist()
         if self.tracks is not None:  # tracked="nearest" with more people than slots
             self.slot_person = np.full(self.scene.max_humans, -1)
-            starts, self.velocities = self._track_nearest(0, (sx, sy))
+            self.appeared = np.zeros(self.tracks[2].shape[1], dtype=bool)
+            starts, self.velocities = self._track_nearest(0, (sx, sy), (sx, sy))
             last_seen = self.tracks[2].shape[0] - 1 - np.argmax(self.tracks[2][::-1], axis=0)  # of each person
             goals = np.where(self.present[:, None], self.tracks[0][last_seen[self.slot_person], self.slot_person], 0.0)
             return Scenario(start, goal, math.atan2(gy - sy, gx - sx), starts, goals)
-        self.present, self.arrivals = self.all_present[0], self.all_arrivals[0]
-        self.velocities = self.all_velocities[0]
         n = self.positions.shape[1]
+        self.waiting = np.zeros(n, dtype=bool)
+        self._held_back(0, (sx, sy), (sx, sy))
+        self.velocities = self.all_velocities[0]
         last_seen = self.all_present.shape[0] - 1 - np.argmax(self.all_present[::-1], axis=0)  # of each slot
         goals = self.positions[last_seen, np.arange(n)] if n else np.zeros((0, 2))
         return Scenario(start, goal, math.atan2(gy - sy, gx - sx), self.positions[0].copy(), goals)
@@ -225,10 +265,11 @@ class ReplayCrowdModel:
     def step(self, preferred: list[tuple[float, float]], robot: object) -> tuple[np.ndarray, np.ndarray]:
         """The next step's recorded positions and velocities (n, 2); zeros in empty slots."""
         self.k = k = min(self.k + 1, len(self.positions) - 1)
+        end = robot.position if robot.end_position is None else robot.end_position
         if self.tracks is not None:
-            return self._track_nearest(k, robot.position)
-        self.present, self.arrivals = self.all_present[k], self.all_arrivals[k]
+            return self._track_nearest(k, robot.position, end)
+        self._held_back(k, robot.position, end)
         return self.positions[k], self.all_velocities[k]
 
 
-__all__ = ["CELL", "MAX_TRIES", "ReplayCrowdModel"]
+__all__ = ["CELL", "MAX_TRIES", "ReplayCrowdModel", "touching"]
