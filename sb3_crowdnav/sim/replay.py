@@ -192,15 +192,11 @@ class ReplayCrowdModel:
         ``appear="clear"`` without the people held back, a slot's due person arriving at the first step in which they
         would not touch the robot moving from ``start`` to ``end``."""
         present, arrivals = self.all_present[k], self.all_arrivals[k]
-        if self.clear:
-            self.waiting = (self.waiting | arrivals) & present  # (one who vanishes while held back never appears)
-            if self.waiting.any():
-                held = self.waiting.copy()
-                held[held] = touching(self.positions[k][held], start, end, self.reach)
-                arrivals, present = self.waiting & ~held, present & ~held
-                self.waiting = held
-            else:
-                arrivals = np.zeros_like(arrivals)
+        if self.clear:  # (the due include this step's arrivals; one who vanishes while held back never appears)
+            due = (self.waiting | arrivals) & present
+            held = due.copy()
+            held[held] = touching(self.positions[k][held], start, end, self.reach)
+            arrivals, present, self.waiting = due & ~held, present & ~held, held
         self.present, self.arrivals = present, arrivals
 
     def _crossing(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray] | None:
