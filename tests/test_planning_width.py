@@ -77,6 +77,30 @@ def test_a_beam_asks_v_for_its_actions_successors_only():
     assert counting.states == b * n_actions * (1 + 2 + 2 * 2)
 
 
+class LargestBatchNet(CountingNet):
+    """V, keeping the most states it was asked for in one call."""
+
+    def forward(self, observation):
+        self.states = max(self.states, len(observation["robot"]))
+        return self.net(observation)
+
+
+def test_a_large_batch_is_searched_in_chunks_with_the_values_of_each_observation_alone():
+    env = gym.make("CrowdNav-v0")
+    policy = value_policy(env, planning_depth=2, planning_width=3)
+    chunk = policy.ACTION_VALUE_CHUNK
+    b, n_actions = 2 * chunk + 3, env.action_space.n  # two full chunks and a short one
+    obs = random_observations(env, b, seed=3)
+    largest = LargestBatchNet(policy.value_net)
+    values = policy.action_values(obs, net=largest)
+    assert values.shape == (b, n_actions)
+    # V never sees more than a chunk's expansion (its deeper step: chunk x 3 x n_actions states), not the batch's
+    assert largest.states == chunk * 3 * n_actions
+    alone = np.concatenate([policy.action_values({k: v[i: i + 1] for k, v in obs.items()}) for i in range(b)])
+    np.testing.assert_allclose(values, alone, rtol=0, atol=1e-6)
+    np.testing.assert_array_equal(values.argmax(axis=1), alone.argmax(axis=1))
+
+
 def test_planning_width_is_refused_unless_an_int_of_one_or_more_with_a_deeper_search():
     env = gym.make("CrowdNav-v0")
     for bad, error in ((0, ValueError), (-1, ValueError), (1.5, TypeError), (True, TypeError), ("2", TypeError)):
