@@ -70,7 +70,8 @@ class ValueLookaheadPolicy(BasePolicy):
     For every observation in the batch and every one of the world's actions (80, or 81 with a stop) the
     :class:`PropagationModel` gives the next observation and R(s, a); V is evaluated on the
     B x n_actions propagated states in **one** forward pass (each distinct state once under the robot's limits:
-    :meth:`lookahead_inputs`), and the action maximising
+    :meth:`lookahead_inputs`; a batch of more than :attr:`ACTION_VALUE_CHUNK` observations in chunks of that many),
+    and the action maximising
     ``R + γ^(Δt·v_pref) · V(s')`` (zero future value for terminal successors) is taken.
 
     :param observation_space: the env's Dict observation space
