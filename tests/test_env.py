@@ -18,7 +18,7 @@ from sb3_crowdnav.sim.observation import Human, Robot
 
 REWARD_KEYS = ("reward_success", "reward_collision", "reward_discomfort", "reward_social", "reward_angular")
 STATS_KEYS = ("outcome", "navigation_time", "path_length", "min_separation", "discomfort_frequency",
-              "comfort_zone_time", "heading_change", "discounted_return", "num_humans",
+              "comfort_zone_time", "heading_change", "discounted_return", "num_humans", "steps_with_people",
               "discomfort_separation", "comfort_zone_separation", "sharp_turns",
               # the safety figures
               "min_time_to_collision", "near_misses", "steps_near_people", "speed_near_people", "peak_acceleration",

@@ -194,3 +194,30 @@ def test_a_record_from_the_envs_stats_takes_every_field_and_its_type():
     assert math.isnan(EpisodeRecord.from_stats(3, steps, total, optional).min_clearance)
     with pytest.raises(KeyError, match="near_misses"):  # a statistic every env reports is not made up
         EpisodeRecord.from_stats(3, steps, total, {k: v for k, v in stats.items() if k != "near_misses"})
+
+
+def test_the_gap_leaves_out_episodes_in_which_no_one_was_present():
+    # a recorded scene's window with people (num_humans 3) none of whom came while the robot drove: its separation is
+    # the env's no-one distance, not a gap; a record without the count (-1, read from an older file) keeps num_humans
+    present = replace(record(0, "success", 40, 10.0, 0.3, 0.3, 0.5, 0.0, humans=3), steps_with_people=12)
+    nobody = replace(record(1, "success", 40, 10.0, 0.3, 0.3, 231.0, 0.0, humans=3), steps_with_people=0)
+    older = record(2, "success", 40, 10.0, 0.3, 0.3, 1.5, 0.0, humans=3)
+    assert older.steps_with_people == -1
+    assert summarize([present, nobody]).min_separation == pytest.approx(0.5)
+    assert summarize([present, nobody, older]).min_separation == pytest.approx(1.0)
+    assert math.isnan(summarize([nobody]).min_separation)
+
+
+@pytest.mark.parametrize("humans", [0, 6])
+def test_the_env_counts_the_steps_with_someone_present(humans):
+    import gymnasium as gym
+
+    env = gym.make("CrowdNav-v0", num_humans=humans)
+    env.reset(seed=5)
+    steps = 0
+    while True:
+        *_, terminated, truncated, info = env.step(4 * 16)
+        steps += 1
+        if terminated or truncated:
+            break
+    assert info["episode_stats"]["steps_with_people"] == (steps if humans else 0)

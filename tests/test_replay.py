@@ -17,6 +17,8 @@ from stable_baselines3.common.env_checker import check_env as sb3_check_env
 import sb3_crowdnav  # noqa: F401  (registers the envs)
 from sb3_crowdnav import OrcaPolicy
 from sb3_crowdnav.envs.crowd_nav import CrowdNavEnv
+from sb3_crowdnav.evaluation import summarize
+from sb3_crowdnav.evaluation.runner import run_episode
 from sb3_crowdnav.sim import SceneConfig
 from sb3_crowdnav.sim.observation import Human
 from sb3_crowdnav.sim.recording import MAX_COORDINATE, MAX_SPEED, read_recording, write_recording
@@ -443,6 +445,21 @@ def test_a_window_past_the_recording_is_an_empty_floor(tmp_path):
         obs, reward, *_, info = env.step(8)
     assert not obs["humans_mask"].any() and not obs["humans"].reshape(5, 10, 5)[-1].any()
     assert info["min_distance"] == env.unwrapped.no_one_distance and math.isfinite(reward)
+
+
+def test_a_person_who_comes_after_the_robot_left_gives_no_gap(tmp_path):
+    """P leaves before the robot starts (at 1 s), Q comes at 20 s and stands; the robot's 8 m are driven long before:
+    the window has a person (num_humans 1), no one is present in any step, and the summary's gap leaves it out."""
+    rows = ["t,id,x,y", "0.0,P,20.0,-20.0", "0.5,P,20.0,-20.0"]
+    rows += [f"{t},Q,20.0,20.0" for t in np.arange(20.0, 40.0 + 1e-9, 0.5)]
+    path = tmp_path / "late.csv"
+    path.write_text("\n".join(rows) + "\n")
+    env = gym.make("CrowdNav-v0", crowd="replay", crowd_kwargs={
+        "path": path, "robot_start": (-4.0, 0.0), "robot_goal": (4.0, 0.0), "start_time": 1.0})
+    record = run_episode(env, OrcaPolicy(), seed=0)
+    assert record.outcome == "success" and record.num_humans == 1
+    assert record.steps_with_people == 0 and record.min_separation == env.unwrapped.no_one_distance
+    assert math.isnan(summarize([record]).min_separation)
 
 
 def test_the_preparation_script_writes_each_scene_in_the_replay_format(tmp_path, capsys):

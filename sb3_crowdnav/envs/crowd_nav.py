@@ -87,10 +87,10 @@ class CrowdNavEnv(CrowdEnvBase):
     path length, minimum separation, discomfort frequency, comfort-zone time, the mean separation
     over the discomfort steps and over the comfort-zone steps, the total heading change, the number
     of sharp turns (steps turning by at least ``angular_penalty_threshold``, Eq. 13's trigger, counted
-    under every reward), the discounted return and the number of pedestrians, and the safety figures from the people's
-    true state (minimum time-to-collision capped at 10 s, near misses, speed near people, peak acceleration and turn
-    rate; :meth:`~sb3_crowdnav.envs.statistics.EpisodeStatistics.summary`). A collision step's
-    ``info`` (and its ``episode_stats``) says ``collision_with="human"`` (the warehouse also has
+    under every reward), the discounted return, the number of pedestrians and of steps with someone present, and
+    the safety figures from the people's true state (minimum time-to-collision capped at 10 s, near misses, speed
+    near people, peak acceleration and turn rate; :meth:`~sb3_crowdnav.envs.statistics.EpisodeStatistics.summary`).
+    A collision step's ``info`` (and its ``episode_stats``) says ``collision_with="human"`` (the warehouse also has
     ``"obstacle"``).
 
     ## Arguments

@@ -45,6 +45,7 @@ class EpisodeStatistics:
     def reset(self) -> None:
         """Forget the episode (called at every env reset)."""
         self.steps = 0
+        self.steps_with_people = 0  # steps with someone present (a recorded scene can have none)
         self.path_length = 0.0
         self.min_separation = math.inf
         self.discomfort_steps = 0
@@ -67,7 +68,9 @@ class EpisodeStatistics:
         """Add one transition: the robot's state (9 floats) ``before`` and ``after`` it, its reward terms and reward, and
         the people's true state after it: ``humans`` (max_humans, 5) [px, py, vx, vy, radius], ``mask`` (max_humans,)
         bool, who is present."""
-        min_dist = min(float(terms.min_distance), self.no_one_distance)
+        closest = float(terms.min_distance)  # inf with no one present
+        min_dist = min(closest, self.no_one_distance)
+        self.steps_with_people += closest < math.inf
         (x0, y0), (x1, y1) = before[Robot.POS], after[Robot.POS]
         self.path_length += math.hypot(x1 - x0, y1 - y0)
         self.min_separation = min(self.min_separation, min_dist)
@@ -124,6 +127,7 @@ class EpisodeStatistics:
             "sharp_turns": self.sharp_turns,
             "discounted_return": self.discounted_return,
             "num_humans": num_humans,
+            "steps_with_people": self.steps_with_people,
             "min_time_to_collision": self.min_ttc,
             "near_misses": self.near_misses,
             "steps_near_people": self.near_person_steps,

@@ -62,7 +62,7 @@ class EpisodeJournal:
             for line in lines[1:]:
                 try:
                     row = json.loads(line)
-                    record = EpisodeRecord(**{key: row[key] for key in RECORD_FIELDS})
+                    record = EpisodeRecord(**{key: row[key] for key in RECORD_FIELDS if key in row})  # (older: defaults)
                 except (ValueError, KeyError, TypeError):
                     break  # the line a kill cut short (it is always the last): played again
                 records[record.seed] = record

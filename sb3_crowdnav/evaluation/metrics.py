@@ -11,8 +11,10 @@ p̂ = 0 or 1 (0.99 over 500 episodes → [0.977, 0.996]).
 
 Averages (see :class:`Summary`): the navigation time and path length over **successful**
 episodes (as the field reports them), the returns, heading change, sharp turns and comfort-zone
-time over **all** episodes, the minimum separation ("gap") over all episodes with at least one pedestrian
-(a collision contributes its value ≤ 0), and the discomfort frequency pooled over all steps
+time over **all** episodes, the minimum separation ("gap") over all episodes with at least one pedestrian present
+during the episode (the records' ``steps_with_people`` > 0: a recorded scene's window can hold people none of whom
+is present while the robot drives; a record without it, written before it, counts when it has ``num_humans`` > 0;
+a collision contributes its value ≤ 0), and the discomfort frequency pooled over all steps
 (Σ discomfort steps / Σ steps).
 
 Two separations are pooled over **steps** rather than episodes, as the field's CrowdNav code
@@ -140,6 +142,12 @@ def _pooled(values: Sequence[float], weights: Sequence[float]) -> float:
     return sum(v * w for v, w in pairs) / total if total > 0 else math.nan
 
 
+def _with_people(record: Any) -> bool:
+    """Whether someone was present during the episode (``steps_with_people``; a record without it: ``num_humans``)."""
+    known = getattr(record, "steps_with_people", -1)
+    return known > 0 if known >= 0 else record.num_humans > 0
+
+
 def summarize(records: Sequence[Any], confidence: float = 0.95) -> Summary:
     """Aggregate :class:`~sb3_crowdnav.evaluation.runner.EpisodeRecord` s into a :class:`Summary`."""
     records = list(records)
@@ -151,7 +159,7 @@ def summarize(records: Sequence[Any], confidence: float = 0.95) -> Summary:
         raise ValueError(f"unknown outcome(s) {sorted(unknown)}; expected {OUTCOMES}")
     counts = {o: sum(r.outcome == o for r in records) for o in OUTCOMES}
     success = [r for r in records if r.outcome == "success"]
-    seps = [r.min_separation for r in records if r.num_humans > 0 and math.isfinite(r.min_separation)]
+    seps = [r.min_separation for r in records if _with_people(r) and math.isfinite(r.min_separation)]
     total_steps = sum(r.steps for r in records)
     discomfort_steps = sum(r.discomfort_frequency * r.steps for r in records)
     return Summary(

@@ -51,9 +51,11 @@ class EpisodeRecord:
 
     ``episode_return`` is the undiscounted sum of rewards; ``discounted_return`` is
     Σ_t gamma^(t·Δt·v_pref)·r_t as computed by the env (the "return" of the paper's Table 3).
-    ``min_separation`` is the smallest surface distance to any pedestrian (``inf`` without
-    pedestrians, ≤ 0 after a collision); ``discomfort_frequency`` the share of this episode's
-    steps with a pedestrian closer than the discomfort distance (0.2 m).
+    ``min_separation`` is the smallest surface distance to any pedestrian (the env's finite
+    ``no_one_distance`` when no one was present, ≤ 0 after a collision), ``steps_with_people`` the steps
+    with someone present (0: no one was, though a recorded scene's window may give ``num_humans`` > 0);
+    ``discomfort_frequency`` the share of this episode's steps with a pedestrian closer than the
+    discomfort distance (0.2 m).
     ``discomfort_separation`` and ``comfort_zone_separation`` are the mean over this episode's
     discomfort steps, respectively its steps inside a pedestrian's comfort ellipse, of the
     step's minimum surface distance to any pedestrian (``nan`` when there is no such step); the
@@ -87,6 +89,9 @@ class EpisodeRecord:
     discomfort_separation: float = math.nan
     comfort_zone_separation: float = math.nan
     sharp_turns: int = 0
+    # steps with someone present (-1: not recorded, e.g. a record read from a file written before it): a recorded
+    # scene's window can have people (num_humans) none of whom is present while the robot drives
+    steps_with_people: int = -1
     collision_with: str = ""  # "human" or "obstacle" (a rack or wall, in the warehouse) after a collision
     route_length: float = math.nan  # [m] the warehouse robot's planned route from start to goal
     # the safety figures (nan: not recorded, e.g. a record built by hand)
