@@ -64,6 +64,8 @@ def test_the_graph_decision_is_the_policys(case, monkeypatch):
     env = gym.make(env_id, **env_kwargs)
     policy = value_policy(env, **policy_kwargs)
     obs = random_observations(env, 200 if policy.stopping_check else 40)  # enough for the check to charge some actions
+    # the graph takes the batch in one pass: so does the policy here (it searches ACTION_VALUE_CHUNK at a time)
+    monkeypatch.setattr(policy, "ACTION_VALUE_CHUNK", len(obs["robot"]))
     distinct = policy.action_values(obs)  # under limits V once per distinct state: other batch sizes, float32 rounding
     # the graph evaluates V on every (observation, action) row, as the policy does when told to
     monkeypatch.setattr(policy, "lookahead_inputs", functools.partial(policy.lookahead_inputs, distinct=False))
