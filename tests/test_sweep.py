@@ -94,6 +94,15 @@ def test_a_cell_larger_than_the_local_instance_is_refused(tmp_path, capsys, argv
     assert not (tmp_path / "o").exists()
 
 
+def test_only_the_selected_cells_need_to_fit_the_local_instance(tmp_path, capsys):
+    """--cells without the 2-CPU method's cells runs on 1 CPU (the dry run lists them); with them it is refused."""
+    path = _grid(tmp_path, GRID.replace("variant: apg_rl", "variant: apg_rl, cpus: 2"))
+    argv = ["sweep", str(path), "--out", str(tmp_path / "o"), "--num-cpus", "1", "--dry-run"]
+    assert main([*argv, "--cells", "PPO/*"]) == 0
+    assert capsys.readouterr().out.count("todo     PPO/") == 2
+    assert "each APG_RL cell reserves 2 CPUs" in _refused(capsys, [*argv, "--cells", "APG_RL/*/seed_0"])
+
+
 def test_each_cell_reserves_its_methods_cpus(tmp_path, monkeypatch, capsys):
     """run_on_ray asks Ray for a method's ``cpus`` for each of its cells, --cpus-per-cell for the others (a stand-in
     for Ray records the options of every task; the real Ray runs in the slow test below)."""

@@ -100,15 +100,15 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     grid = grids.load_grid(args.grid)
     all_cells = grids.cells(grid, args.out)
     check_grid(grid, all_cells)
-    if args.address is None:  # a cell that reserves more CPUs than the local instance has would never start
+    selected = select_cells(all_cells, args.cells)
+    if args.address is None:  # a cell to run that reserves more CPUs than the local instance has would never start
         available = args.num_cpus or os.cpu_count() or 1
-        for method in grid.methods:
+        for method in dict.fromkeys(cell.method for cell in selected):  # (the methods of --cells only)
             needed = method.cpus or args.cpus_per_cell
             if needed > available:
                 source = f"methods.{method.name}.cpus" if method.cpus else "--cpus-per-cell"
                 raise UsageError(f"{source}: each {method.name} cell reserves {needed} CPUs, more than the local Ray "
                                  f"instance's {available} (--num-cpus); it would never start")
-    selected = select_cells(all_cells, args.cells)
     states = {cell.name: grids.cell_state(cell, grid) for cell in all_cells}
     for cell in selected:
         state, detail = states[cell.name]
