@@ -286,3 +286,35 @@ def test_the_header_states_the_file_trials_score_when_another_trial_is_best(tmp_
     text = " ".join(line[2:] for line in header("dqn", "CrowdNav-v0", "b.yml", "t", study, []).splitlines())
     assert "best trial #1, mean episode reward 0.7500." in text
     assert "The file's own settings (--file-trial, trial #0) scored 0.2500." in text
+
+
+def test_a_resumed_study_does_not_draw_its_first_samples_again(tmp_path):
+    """The sampler of a resumed study is seeded past the trials it holds: a new process (seed 0) would otherwise draw
+    trial 0's random values again for the first trial after the resume; the same study state gives the same sampler,
+    and a study that does not exist yet is seeded as rl-zoo3 seeds it."""
+    from sb3_crowdnav.training.tuned import stored_trial_count
+    from sb3_crowdnav.training.zoo import experiment_manager
+
+    path = _journal_study(tmp_path)  # trials 0 (complete) and 1 (running), drawn with RandomSampler(seed=0)
+    assert stored_trial_count(path, "dqn") == 2
+    assert stored_trial_count(path, "other") == 0 and stored_trial_count(str(tmp_path / "none.log"), "dqn") == 0
+    storage = optuna.storages.JournalStorage(optuna.storages.journal.JournalFileBackend(path))
+    first = optuna.load_study(study_name="dqn", storage=storage).trials[0].params
+
+    def manager(study_name):
+        em = object.__new__(experiment_manager())  # (only the attributes the sampler reads)
+        em.seed, em.storage, em.study_name, em.n_startup_trials = 0, path, study_name, 3
+        return em
+
+    def next_params(study_name):
+        em = manager(study_name)
+        sampler = em._create_sampler("random")
+        assert em.seed == 0  # given back
+        study = optuna.create_study(direction="maximize", sampler=sampler)  # a fresh study: only the seed differs
+        trial = study.ask()
+        sample_dqn_params(trial, 81, 1, {"using_her_replay_buffer": False, "her_kwargs": {}})
+        return trial.params
+
+    assert next_params("other") == first  # a new study: seed 0, as rl-zoo3 (and as trial 0 was drawn)
+    resumed = next_params("dqn")
+    assert resumed != first and resumed == next_params("dqn")

@@ -66,6 +66,20 @@ def open_storage(storage: str, create: bool = False) -> Any:
     return optuna.storages.JournalStorage(optuna.storages.journal.JournalFileBackend(storage))
 
 
+def stored_trial_count(storage: str, study_name: str) -> int:
+    """The number of trials, in any state, of study ``study_name`` in ``storage`` (0 for a study, or a journal file,
+    that does not exist yet)."""
+    import optuna
+
+    if storage.endswith(".log") and not Path(storage).is_file():
+        return 0
+    try:
+        study = optuna.load_study(study_name=study_name, storage=open_storage(storage))
+    except KeyError:  # (Optuna's answer for a study the storage does not hold)
+        return 0
+    return len(study.get_trials(deepcopy=False))
+
+
 def fail_running_trials(storage: str, study_name: str) -> list[int]:
     """Mark the trials of study ``study_name`` that are still RUNNING as FAIL; their numbers. For a study whose
     tuning process was killed (a stopped machine leaves its trial RUNNING, and rl-zoo3's ``--max-total-trials``

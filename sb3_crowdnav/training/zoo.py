@@ -218,6 +218,22 @@ def experiment_manager() -> type:
             finally:
                 samplers[self.algo] = sampler
 
+        def _create_sampler(self, sampler_method: str) -> Any:
+            """rl-zoo3's sampler, seeded with ``--seed`` plus the number of trials the stored study already holds
+            (:func:`~sb3_crowdnav.training.tuned.stored_trial_count`): a resumed study does not draw its first
+            random trials again (a new process would restart the sampler's generator at ``--seed``, and the
+            start-up trials after a resume would repeat the first ones), and the same study state still gives the
+            same samples."""
+            from sb3_crowdnav.training.tuned import stored_trial_count
+
+            seed = self.seed
+            if self.storage is not None and self.study_name is not None and seed is not None:
+                self.seed = seed + stored_trial_count(self.storage, self.study_name)
+            try:
+                return super()._create_sampler(sampler_method)
+            finally:
+                self.seed = seed
+
         def create_envs(self, n_envs: int, eval_env: bool = False, no_log: bool = False) -> Any:
             """Training envs as rl-zoo3 builds them; eval envs seeded at the validation offset and, unless
             ``--eval-env-kwargs`` was given, with the training envs' keyword arguments, the file's ``env_kwargs``
