@@ -298,6 +298,8 @@ def test_a_resumed_study_does_not_draw_its_first_samples_again(tmp_path):
     path = _journal_study(tmp_path)  # trials 0 (complete) and 1 (running), drawn with RandomSampler(seed=0)
     assert stored_trial_count(path, "dqn") == 2
     assert stored_trial_count(path, "other") == 0 and stored_trial_count(str(tmp_path / "none.log"), "dqn") == 0
+    database = _study(tmp_path, 3)[0]  # a database URL (sqlite) as well
+    assert stored_trial_count(database, "dqn") == 3 and stored_trial_count(database, "other") == 0
     storage = optuna.storages.JournalStorage(optuna.storages.journal.JournalFileBackend(path))
     first = optuna.load_study(study_name="dqn", storage=storage).trials[0].params
 
