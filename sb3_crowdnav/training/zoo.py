@@ -8,7 +8,8 @@ works (``--storage sqlite:///tune.db --study-name apg -optimize`` spreads tuning
 through a shared database; ``--storage PATH.log``, a journal file, carries a study from machine to machine, and
 ``--fail-running`` marks the trials a killed tuning process left running as failed before it resumes;
 ``--file-trial`` queues one trial that runs the ``-conf`` file's own settings, so that a study's best is never worse
-than the file it started from).
+than the file it started from). A stored study's sampler is seeded with ``--seed`` plus the trials the study holds, so
+that a resumed study draws new samples.
 ``--gym-packages sb3_crowdnav`` is added when missing, and ``--num-threads 1`` (one torch
 thread, the package's training floor; rl-zoo3 leaves torch its default of every core) unless the command gives one.
 
