@@ -66,18 +66,24 @@ def open_storage(storage: str, create: bool = False) -> Any:
     return optuna.storages.JournalStorage(optuna.storages.journal.JournalFileBackend(storage))
 
 
-def stored_trial_count(storage: str, study_name: str) -> int:
-    """The number of trials, in any state, of study ``study_name`` in ``storage`` (0 for a study, or a journal file,
-    that does not exist yet)."""
+def stored_study(storage: str, study_name: str) -> Any:
+    """Study ``study_name`` of ``storage``, or None when the storage (a journal file that does not exist) or the
+    study is not there yet."""
     import optuna
 
     if storage.endswith(".log") and not Path(storage).is_file():
-        return 0
+        return None
     try:
-        study = optuna.load_study(study_name=study_name, storage=open_storage(storage))
+        return optuna.load_study(study_name=study_name, storage=open_storage(storage))
     except KeyError:  # (Optuna's answer for a study the storage does not hold)
-        return 0
-    return len(study.get_trials(deepcopy=False))
+        return None
+
+
+def stored_trial_count(storage: str, study_name: str) -> int:
+    """The number of trials, in any state, of study ``study_name`` in ``storage`` (0 for a study, or a journal file,
+    that does not exist yet)."""
+    study = stored_study(storage, study_name)
+    return 0 if study is None else len(study.get_trials(deepcopy=False))
 
 
 def fail_running_trials(storage: str, study_name: str) -> list[int]:
@@ -85,14 +91,10 @@ def fail_running_trials(storage: str, study_name: str) -> list[int]:
     tuning process was killed (a stopped machine leaves its trial RUNNING, and rl-zoo3's ``--max-total-trials``
     counts it as one to come): never while another worker tunes the same study. A study not yet in ``storage`` has
     none."""
-    import optuna
     from optuna.trial import TrialState
 
-    if storage.endswith(".log") and not Path(storage).is_file():
-        return []
-    try:
-        study = optuna.load_study(study_name=study_name, storage=open_storage(storage))
-    except KeyError:
+    study = stored_study(storage, study_name)
+    if study is None:
         return []
     running = study.get_trials(deepcopy=False, states=(TrialState.RUNNING,))
     for trial in running:
