@@ -15,6 +15,7 @@ import numpy as np
 from sb3_crowdnav.sim.actions import ACTION_SETS
 from sb3_crowdnav.sim.crowd_settings import crowd_settings
 from sb3_crowdnav.sim.validation import (
+    check_at_least,
     check_at_most,
     check_choice,
     check_instance,
@@ -39,6 +40,9 @@ REWARD_LIMITS = (  # on the absolute value
     ("discomfort_factor", 100.0, ""), ("comfort_person", 10.0, " m"), ("comfort_side", 10.0, " m"),
     ("social_penalty", 100.0, ""), ("angular_penalty", 100.0, ""), ("angular_penalty_threshold", math.pi, " rad"),
 )
+# sensible lower bounds of the comfort ellipse's semi-axes: the social term scales by (d_side / d_person)² (Eq. 11),
+# which overflows for d_person near 1e-155 m; a centimetre is far below any person's body
+REWARD_MINIMA = (("comfort_person", 0.01, " m"), ("comfort_side", 0.01, " m"))
 # [1/m] the largest progress shaping (``progress_reward`` of both envs): beyond it the shaping swamps the success
 # reward (1) within centimetres
 MAX_PROGRESS_REWARD = 10.0
@@ -361,6 +365,8 @@ class RewardConfig:
             check_number(name, getattr(self, name))
         for name, limit, unit in REWARD_LIMITS:
             check_at_most(name, abs(getattr(self, name)), limit, unit)
+        for name, limit, unit in REWARD_MINIMA:
+            check_at_least(name, getattr(self, name), limit, unit)
         _to_python_scalars(self)
 
     @property

@@ -110,6 +110,12 @@ def check_at_most(name: str, value: Any, limit: float, unit: str = "") -> None:
         raise ValueError(f"{name} must be <= {limit}{unit}, got {value!r}")
 
 
+def check_at_least(name: str, value: Any, limit: float, unit: str = "") -> None:
+    """``ValueError`` when ``value`` is below its sensible lower ``limit`` (e.g. a length whose square divides)."""
+    if value < limit:
+        raise ValueError(f"{name} must be >= {limit}{unit}, got {value!r}")
+
+
 def check_choice(name: str, value: Any, choices: Collection[Any]) -> None:
     """``ValueError`` naming the allowed ``choices`` when ``value`` is not one of them.
 
