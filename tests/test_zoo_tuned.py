@@ -320,3 +320,71 @@ def test_a_resumed_study_does_not_draw_its_first_samples_again(tmp_path):
     assert next_params("other") == first  # a new study: seed 0, as rl-zoo3 (and as trial 0 was drawn)
     resumed = next_params("dqn")
     assert resumed != first and resumed == next_params("dqn")
+
+
+def test_a_trial_past_its_minutes_is_pruned_and_says_so(tmp_path, capsys):
+    """--trial-minutes: a real study whose one trial runs past its (tiny) minutes stops at the next step, is PRUNED
+    with the minutes recorded, counts for --max-total-trials, and tuned's header says how many were stopped; rl-zoo3's
+    own callback is given back after the command."""
+    from optuna.trial import TrialState
+    from rl_zoo3 import exp_manager
+
+    original = exp_manager.TrialEvalCallback
+    (tmp_path / "base.yml").write_text("CrowdNav-v0:\n  policy: 'ApgPolicy'\n  n_timesteps: 3000\n"
+                                       "  learning_starts: 0\n  buffer_size: 1000\n")
+    path = str(tmp_path / "study.log")
+    argv = ["train", "--algo", "dqn", "--env", "CrowdNav-v0", "-conf", str(tmp_path / "base.yml"), "-optimize",
+            "--max-total-trials", "1", "--n-timesteps", "3000", "--n-evaluations", "1", "--eval-episodes", "2",
+            "--sampler", "random", "--pruner", "none", "--storage", path, "--study-name", "s", "-f",
+            str(tmp_path / "logs"), "--trial-minutes", "0.002"]
+    with pytest.raises(SystemExit) as exc:  # its one trial pruned: no best trial to print
+        zoo_main(argv)
+    assert exc.value.code == 1 and "'s' has no complete trial yet" in capsys.readouterr().err
+    assert exp_manager.TrialEvalCallback is original
+    study = optuna.load_study(study_name="s", storage=optuna.storages.JournalStorage(
+        optuna.storages.journal.JournalFileBackend(path)))
+    (trial,) = study.trials
+    assert trial.state == TrialState.PRUNED and trial.user_attrs["pruned_after_minutes"] == 0.002
+    assert (trial.datetime_complete - trial.datetime_start).total_seconds() < 60  # not its 3,000 steps
+    with pytest.raises(SystemExit):  # the study holds its one trial: nothing more runs
+        zoo_main(argv)
+    assert len(optuna.load_study(study_name="s", storage=optuna.storages.JournalStorage(
+        optuna.storages.journal.JournalFileBackend(path))).trials) == 1
+    from sb3_crowdnav.training.tuned import study_budget
+
+    budget = study_budget(study)
+    assert (budget["pruned"], budget["timed_out"], budget["trial_minutes"]) == (1, 1, [0.002])
+
+
+def test_the_header_counts_the_trials_stopped_by_their_minutes(tmp_path):
+    from sb3_crowdnav.training.tuned import TRIAL_MINUTES, header
+
+    study = optuna.create_study(direction="maximize")
+
+    def objective(trial):
+        if trial.number in (1, 2):  # pruned: trial 2 by the median pruner, trial 1 as the wall-time callback stops one
+            if trial.number == 1:
+                trial.set_user_attr(TRIAL_MINUTES, 45.0)
+            raise optuna.TrialPruned()
+        return float(trial.suggest_float("learning_rate", 1e-5, 1e-3))
+
+    study.optimize(objective, n_trials=4)
+    text = " ".join(line[2:] for line in header("dqn", "CrowdNav-v0", "base.yml", "dqn", study, []).splitlines())
+    assert "(2 pruned, 1 of them still training after 45 min (--trial-minutes), 0 failed)" in text
+
+
+@pytest.mark.parametrize("argv", [
+    ["train", "--algo", "dqn", "--env", "CrowdNav-v0", "-optimize", "--trial-minutes", "0"],
+    ["train", "--algo", "dqn", "--env", "CrowdNav-v0", "-optimize", "--trial-minutes=-5"],
+    ["train", "--algo", "dqn", "--env", "CrowdNav-v0", "-optimize", "--trial-minutes", "nan"],
+    ["train", "--algo", "dqn", "--env", "CrowdNav-v0", "-optimize", "--trial-minutes", "ten"],
+    ["train", "--algo", "dqn", "--env", "CrowdNav-v0", "-optimize", "--trial-minutes"],
+    ["train", "--algo", "dqn", "--env", "CrowdNav-v0", "--trial-minutes", "30"],  # not tuning
+    ["enjoy", "--algo", "dqn", "--env", "CrowdNav-v0", "--trial-minutes", "30"],
+])
+def test_bad_trial_minutes_exit_2_with_one_line(argv, capsys):
+    with pytest.raises(SystemExit) as exc:
+        zoo_main(argv)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--trial-minutes" in err[0]

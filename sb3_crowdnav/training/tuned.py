@@ -29,6 +29,7 @@ import yaml
 
 # the user attribute of the trial that ran the file's own settings, unsampled (sb3-crowdnav-zoo train --file-trial)
 FILE_TRIAL = "file_settings"
+TRIAL_MINUTES = "pruned_after_minutes"  # the user attribute of a trial that --trial-minutes stopped (its minutes)
 FLAGS = {"n_timesteps": ("-n", "--n-timesteps"), "n_evaluations": ("--n-evaluations",),
          "eval_episodes": ("--eval-episodes",), "n_trials": ("--n-trials",), "max_total_trials": ("--max-total-trials",)}
 
@@ -137,7 +138,10 @@ def study_budget(study: Any) -> dict[str, Any]:
              for key, flags in FLAGS.items()}
     hours = sum((t.datetime_complete - t.datetime_start).total_seconds()
                 for t in trials if t.datetime_start and t.datetime_complete) / 3600
-    return {**states, **given, "command": command, "trial_hours": hours}
+    stopped = sorted({t.user_attrs[TRIAL_MINUTES] for t in trials if TRIAL_MINUTES in t.user_attrs})
+    timed_out = sum(TRIAL_MINUTES in t.user_attrs for t in trials)
+    return {**states, **given, "command": command, "trial_hours": hours, "timed_out": timed_out,
+            "trial_minutes": stopped}
 
 
 def tuned_hyperparams(algo: str, base: dict[str, Any], storage: str, study_name: str) -> tuple[dict[str, Any], Any]:
@@ -212,8 +216,10 @@ def header(algo: str, env_id: str, conf: str, study_name: str, study: Any, argv:
               f"{budget['n_evaluations'] or 'its'} evaluations")
     lines = [
         f"{algo} on {env_id}, tuned with Optuna through rl-zoo3 (sb3-crowdnav-zoo train -optimize) from {conf}:",
-        f"the best of {budget['complete']} complete trials of study {study_name!r} ({budget['pruned']} pruned, "
-        f"{budget['failed']} failed), each trial {per_trial}, {scored}; the finished trials' wall time "
+        f"the best of {budget['complete']} complete trials of study {study_name!r} ({budget['pruned']} pruned"
+        + (f", {budget['timed_out']} of them still training after "
+           f"{' / '.join(f'{m:g}' for m in budget['trial_minutes'])} min (--trial-minutes)" if budget["timed_out"] else "")
+        + f", {budget['failed']} failed), each trial {per_trial}, {scored}; the finished trials' wall time "
         f"{budget['trial_hours']:.1f} h in all;",
         f"best trial #{study.best_trial.number}, mean episode reward {study.best_trial.value:.4f}"
         + (": the file's own settings (--file-trial), which no sampled trial beat; the values below are the file's."

@@ -8,8 +8,10 @@ works (``--storage sqlite:///tune.db --study-name apg -optimize`` spreads tuning
 through a shared database; ``--storage PATH.log``, a journal file, carries a study from machine to machine, and
 ``--fail-running`` marks the trials a killed tuning process left running as failed before it resumes;
 ``--file-trial`` queues one trial that runs the ``-conf`` file's own settings, so that a study's best is never worse
-than the file it started from). A stored study's sampler is seeded with ``--seed`` plus the trials the study holds, so
-that a resumed study draws new samples.
+than the file it started from; ``--trial-minutes MIN`` prunes a trial still training after MIN minutes, its imitation
+included, so that a study on a shared machine finishes: rl-zoo3's DQN space holds settings, batches of 2,048 at a
+gradient step per env step, that take hours per trial here). A stored study's sampler is seeded with ``--seed`` plus
+the trials the study holds, so that a resumed study draws new samples.
 ``--gym-packages sb3_crowdnav`` is added when missing, and ``--num-threads 1`` (one torch
 thread, the package's training floor; rl-zoo3 leaves torch its default of every core) unless the command gives one.
 
@@ -41,7 +43,9 @@ with ``policy_kwargs: "dict(features_extractor_class=...)"``).
 from __future__ import annotations
 
 import functools
+import math
 import sys
+import time
 from typing import Any, ClassVar
 
 from sb3_contrib import QRDQN, MaskablePPO, RecurrentPPO
@@ -254,6 +258,54 @@ def experiment_manager() -> type:
     return ZooExperimentManager
 
 
+def wall_time_eval_callback(minutes: float) -> type:
+    """rl-zoo3's ``TrialEvalCallback`` that also stops its trial ``minutes`` after it was built (rl-zoo3's objective
+    builds it just before ``learn``, so a model's imitation counts): learning ends at the next step, the trial is
+    pruned as rl-zoo3 prunes one (its validations so far reported) and its ``pruned_after_minutes`` attribute says
+    why."""
+    from rl_zoo3.callbacks import TrialEvalCallback
+
+    from sb3_crowdnav.training.tuned import TRIAL_MINUTES
+
+    class WallTimeTrialEvalCallback(TrialEvalCallback):
+        def __init__(self, *args: Any, **kwargs: Any) -> None:
+            super().__init__(*args, **kwargs)
+            self.deadline = time.monotonic() + 60.0 * minutes
+
+        def _on_step(self) -> bool:
+            if time.monotonic() > self.deadline:
+                self.is_pruned = True  # rl-zoo3's objective raises TrialPruned after learn
+                self.trial.set_user_attr(TRIAL_MINUTES, minutes)
+                return False
+            return super()._on_step()
+
+    return WallTimeTrialEvalCallback
+
+
+def _trial_minutes(command: str, rest: list[str]) -> tuple[list[str], float]:
+    """``--trial-minutes MIN``: the line without it and MIN, checked (a positive number of minutes, with ``train
+    -optimize``; else one line and exit 2)."""
+    value = _option(rest, "--trial-minutes")
+    optimize = "-optimize" in rest or "--optimize-hyperparameters" in rest
+    try:
+        minutes = float(value) if value is not None else math.nan
+    except ValueError:
+        minutes = math.nan
+    if command != "train" or not optimize or not (math.isfinite(minutes) and minutes > 0):
+        print(f"sb3-crowdnav-zoo: error: --trial-minutes: a positive number of minutes for train -optimize, got "
+              f"{value!r}" + ("" if command == "train" and optimize else " (not tuning)"), file=sys.stderr)
+        raise SystemExit(2)
+    out, skip = [], False
+    for arg in rest:
+        if skip:
+            skip = False
+        elif arg == "--trial-minutes":
+            skip = True
+        elif not arg.startswith("--trial-minutes="):
+            out.append(arg)
+    return out, minutes
+
+
 def _over_policy_kwargs(sampler: Any, own: dict[str, Any], *args: Any) -> dict[str, Any]:
     from sb3_crowdnav.training.tuned import FILE_TRIAL
 
@@ -332,6 +384,9 @@ def main(argv: list[str] | None = None) -> None:
     if "--file-trial" in rest:
         rest = [arg for arg in rest if arg != "--file-trial"]
         _file_trial(command, rest)
+    minutes = None
+    if any(arg == "--trial-minutes" or arg.startswith("--trial-minutes=") for arg in rest):
+        rest, minutes = _trial_minutes(command, rest)
     if "--gym-packages" not in rest:
         rest += ["--gym-packages", "sb3_crowdnav"]
     if not any(arg == "--num-threads" or arg.startswith("--num-threads=") for arg in rest):
@@ -343,11 +398,24 @@ def main(argv: list[str] | None = None) -> None:
     utils.yaml = zoo_safety.safe_yaml_module()  # saved runs read as plain data (zoo_safety)
     try:
         if command == "train":
+            from rl_zoo3 import exp_manager
             from rl_zoo3 import train as zoo_train
 
             zoo_train.ExperimentManager = experiment_manager()  # the name rl_zoo3.train.train() builds its manager from
             zoo_train.StoreDict = SafeStoreDict  # key:value options parsed, not eval'd
-            zoo_train.train()
+            callback = exp_manager.TrialEvalCallback  # the name rl-zoo3's objective builds a trial's callback from
+            if minutes is not None:
+                exp_manager.TrialEvalCallback = wall_time_eval_callback(minutes)
+            try:
+                zoo_train.train()
+            except ValueError as exc:  # rl-zoo3 prints the best trial after a study, which has none yet
+                if str(exc) != "No trials are completed yet.":
+                    raise
+                print(f"sb3-crowdnav-zoo train: the study {_option(rest, '--study-name')!r} has no complete trial yet "
+                      "(every trial so far pruned or failed)", file=sys.stderr)
+                raise SystemExit(1) from None
+            finally:
+                exp_manager.TrialEvalCallback = callback
         else:
             from rl_zoo3 import enjoy as zoo_enjoy
 
