@@ -122,7 +122,8 @@ def enqueue_file_trial(storage: str, study_name: str) -> bool:
 
 def study_budget(study: Any) -> dict[str, Any]:
     """The trials of ``study`` by state, the settings its recorded command gave (None where not given) and the wall
-    time of its finished trials (``trial_hours``: start to end of each complete, pruned or failed trial, summed)."""
+    time of its complete and pruned trials (``trial_hours``: start to end of each, summed). Failed trials are not
+    summed: one killed with its machine ends when ``--fail-running`` marks it, hours after it stopped."""
     from optuna.trial import TrialState
 
     trials = study.get_trials(deepcopy=False)
@@ -136,8 +137,8 @@ def study_budget(study: Any) -> dict[str, Any]:
         words = []
     given = {key: next((words[i + 1] for i, w in enumerate(words[:-1]) if w in flags), None)
              for key, flags in FLAGS.items()}
-    hours = sum((t.datetime_complete - t.datetime_start).total_seconds()
-                for t in trials if t.datetime_start and t.datetime_complete) / 3600
+    hours = sum((t.datetime_complete - t.datetime_start).total_seconds() for t in trials
+                if t.datetime_start and t.datetime_complete and t.state in (TrialState.COMPLETE, TrialState.PRUNED)) / 3600
     stopped = sorted({t.user_attrs[TRIAL_MINUTES] for t in trials if TRIAL_MINUTES in t.user_attrs})
     timed_out = sum(TRIAL_MINUTES in t.user_attrs for t in trials)
     return {**states, **given, "command": command, "trial_hours": hours, "timed_out": timed_out,
@@ -219,8 +220,8 @@ def header(algo: str, env_id: str, conf: str, study_name: str, study: Any, argv:
         f"the best of {budget['complete']} complete trials of study {study_name!r} ({budget['pruned']} pruned"
         + (f", {budget['timed_out']} of them still training after "
            f"{' / '.join(f'{m:g}' for m in budget['trial_minutes'])} min (--trial-minutes)" if budget["timed_out"] else "")
-        + f", {budget['failed']} failed), each trial {per_trial}, {scored}; the finished trials' wall time "
-        f"{budget['trial_hours']:.1f} h in all;",
+        + f", {budget['failed']} failed), each trial {per_trial}, {scored}; the complete and pruned trials' wall "
+        f"time {budget['trial_hours']:.1f} h in all;",
         f"best trial #{study.best_trial.number}, mean episode reward {study.best_trial.value:.4f}"
         + (": the file's own settings (--file-trial), which no sampled trial beat; the values below are the file's."
            if study.best_trial.user_attrs.get(FILE_TRIAL) else "."),
