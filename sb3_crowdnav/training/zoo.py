@@ -282,9 +282,11 @@ def wall_time_eval_callback(minutes: float) -> type:
     return WallTimeTrialEvalCallback
 
 
-def _trial_minutes(command: str, rest: list[str]) -> tuple[list[str], float]:
+def _trial_minutes(command: str, rest: list[str]) -> tuple[list[str], float | None]:
     """``--trial-minutes MIN``: the line without it and MIN, checked (a positive number of minutes, with ``train
-    -optimize``; else one line and exit 2)."""
+    -optimize``; else one line and exit 2); the line as it is and None without the flag."""
+    if not any(arg == "--trial-minutes" or arg.startswith("--trial-minutes=") for arg in rest):
+        return rest, None
     value = _option(rest, "--trial-minutes")
     optimize = "-optimize" in rest or "--optimize-hyperparameters" in rest
     try:
@@ -384,9 +386,7 @@ def main(argv: list[str] | None = None) -> None:
     if "--file-trial" in rest:
         rest = [arg for arg in rest if arg != "--file-trial"]
         _file_trial(command, rest)
-    minutes = None
-    if any(arg == "--trial-minutes" or arg.startswith("--trial-minutes=") for arg in rest):
-        rest, minutes = _trial_minutes(command, rest)
+    rest, minutes = _trial_minutes(command, rest)
     if "--gym-packages" not in rest:
         rest += ["--gym-packages", "sb3_crowdnav"]
     if not any(arg == "--num-threads" or arg.startswith("--num-threads=") for arg in rest):
