@@ -1,0 +1,232 @@
+"""How far perfect foresight of the people takes a value model's lookahead: a research probe, not a policy.
+
+    python examples/foresight_bound.py --policy pretrained:apg_warehouse --episodes 200 --foresight next
+    python examples/foresight_bound.py --policy pretrained:apg_warehouse --episodes 200 --foresight braking \\
+        --steps 6 --charge-standing
+
+The model plays the validation episodes (seeds 2,000,000 + i by default) of ``--env`` (default the warehouse) and,
+before each decision, is told where the people it observes will really be:
+
+* ``--foresight none``: nothing (the model as it is, the reference);
+* ``--foresight next``: the observed people's newest velocities are replaced by those of their real next step, so
+  the lookahead's constant-velocity step puts each of them exactly where the env will (the rest of the search is
+  unchanged);
+* ``--foresight braking``: the lookahead's stopping check (the model must have one) also charges a collision to
+  every action after which the robot, braking to a stand and then standing, comes within the radii sum of an
+  observed person's real path over the next ``--steps`` steps (the people as they walk while the robot brakes);
+  contact while the robot stands is charged only with ``--charge-standing`` (the stopping check's own rule leaves
+  it out). The charges are the check's: where every action is charged, none is.
+
+The real future comes from a second env: reset from the episode's seed, the episode's actions replayed, then
+stepped once more (``next``), or on with the stop command (``braking``). An ORCA person reads the robot's state at
+the start of a step, so their next step does not depend on the robot's action in it, and the foresight is exact;
+the probe checks this at every step and stops with an error in a crowd where it is not (social force, whose people
+feel the robot's move through the step). Prints success / collisions with people / with racks or walls / timeouts,
+as episodes. Bad input exits with status 2 and one line, before any episode.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections import Counter
+from collections.abc import Iterator
+from contextlib import contextmanager, nullcontext
+from typing import Any
+
+import numpy as np
+
+from sb3_crowdnav.apg_value import propagation
+from sb3_crowdnav.cli.common import (
+    Parser,
+    UsageError,
+    check_env,
+    env_kwargs_from_args,
+    env_options,
+    nonneg_int,
+    positive_int,
+    single_crowd,
+)
+from sb3_crowdnav.evaluation.runner import make_env, make_policy, with_lookahead
+from sb3_crowdnav.sim.actions import STOP_ACTION
+from sb3_crowdnav.sim.observation import HUMAN_DIM, Human, ObservationSchema
+from sb3_crowdnav.sim.rewards import closest_approach
+from sb3_crowdnav.training.callbacks import VALIDATION_SEED_OFFSET
+
+FORESIGHTS = ("none", "next", "braking")
+
+
+class Foresight:
+    """The people's real positions and velocities ahead of an episode's current step, from a replay of its actions.
+
+    :param env: a second env of the same id and options as the one played
+    :param seed: the episode's seed
+    """
+
+    def __init__(self, env: Any, seed: int) -> None:
+        self.env, self.seed, self.actions = env, int(seed), []
+
+    def ahead(self, steps: int, then: int) -> np.ndarray:
+        """(steps, n, 5): the people's rows of the next ``steps`` steps (position, velocity, radius), the first of the
+        step about to be taken (whatever the robot does in it), the others with the robot doing ``then``; an episode
+        that ends early repeats its last row."""
+        env = self.env
+        env.reset(seed=self.seed)
+        for action in self.actions:
+            env.step(action)
+        sim = env.unwrapped.sim
+        rows = []
+        for _ in range(steps):
+            _, _, terminated, truncated, _ = env.step(then)
+            rows.append(sim.history[-1, : sim.num_humans].copy())
+            if terminated or truncated:
+                break
+        rows += [rows[-1]] * (steps - len(rows))
+        return np.stack(rows)
+
+
+def with_next_velocities(obs: dict[str, np.ndarray], rows: np.ndarray) -> dict[str, np.ndarray]:
+    """``obs`` with the observed people's newest velocities replaced by those of ``rows`` (n, 5), their next step."""
+    mask = obs["humans_mask"]
+    humans = obs["humans"].copy()
+    view = ObservationSchema(humans.size // (mask.size * HUMAN_DIM), mask.size).humans_view(humans[None])[0]
+    n = rows.shape[0]
+    seen = mask[:n] > 0.5
+    view[-1, :n][seen, Human.VEL] = rows[seen][:, Human.VEL]
+    return {**obs, "humans": humans}
+
+
+@contextmanager
+def braking_foresight(pending: dict[str, Any], charge_standing: bool) -> Iterator[None]:
+    """Within the block, the stopping check of a one-observation lookahead also charges the actions whose braking path
+    meets the people's real paths ``pending["paths"]`` ((steps, n, 2), set before each decision and used once)."""
+    check = propagation.braking_hits
+
+    def hits(path, radius, starts, velocities, human_radius, mask, time_step):
+        hit = check(path, radius, starts, velocities, human_radius, mask, time_step)
+        paths, pending["paths"] = pending["paths"], None
+        if paths is None or path.shape[1] != 1:  # a deeper step of the search: the check as it is
+            return hit
+        if path.shape[0] < paths.shape[0]:  # the robot stands at the braking's end
+            path = np.concatenate([path, np.repeat(path[-1:], paths.shape[0] - path.shape[0], axis=0)])
+        n = paths.shape[1]
+        reach = human_radius[0, :n] + float(np.asarray(radius).reshape(-1)[0])
+        observed = np.asarray(mask, dtype=bool)[0, :n]
+        extra = np.zeros(hit.shape, dtype=bool)
+        for j in range(paths.shape[0] - 1):
+            off0 = path[j][:, :, None] - paths[j][None, None]  # (1, A, n, 2)
+            off1 = path[j + 1][:, :, None] - paths[j + 1][None, None]
+            origin = np.zeros_like(off0)
+            near = (closest_approach(off0, off1, origin, origin) < reach) & observed
+            if not charge_standing:
+                near &= (np.sum((path[j + 1] - path[j]) ** 2, axis=-1) > propagation.STANDING_STEP ** 2)[..., None]
+            extra |= near.any(axis=-1)
+        return hit | extra
+
+    propagation.braking_hits = hits
+    try:
+        yield
+    finally:
+        propagation.braking_hits = check
+
+
+def play(policy: Any, env: Any, twin: Any, seeds: list[int], foresight: str, steps: int,
+         pending: dict[str, Any]) -> Counter:
+    """The episodes of ``seeds``; their outcomes (success, people, obstacles, timeout). ``pending`` is the dict of
+    :func:`braking_foresight` (``--foresight braking``)."""
+    outcomes: Counter = Counter()
+    for seed in seeds:
+        obs, _ = env.reset(seed=seed)
+        future = Foresight(twin, seed)
+        while True:
+            expected = None
+            if foresight == "next":
+                expected = future.ahead(1, 0)[0]
+                obs = with_next_velocities(obs, expected)
+            elif foresight == "braking":
+                rows = future.ahead(steps + 1, STOP_ACTION)
+                expected, pending["paths"] = rows[0], rows[:, :, Human.POS]
+            action = int(np.asarray(policy.predict(obs, deterministic=True)[0]).reshape(-1)[0])
+            future.actions.append(action)
+            obs, _, terminated, truncated, info = env.step(action)
+            if expected is not None:
+                sim = env.unwrapped.sim
+                if not np.array_equal(sim.history[-1, : sim.num_humans, Human.POS], expected[:, Human.POS]):
+                    raise RuntimeError(f"seed {seed}, step {len(future.actions)}: the people's step depends on the "
+                                       "robot's action in this env; foresight by replay needs a crowd that reads the "
+                                       "robot's state at the start of the step (ORCA)")
+            if terminated or truncated:
+                break
+        outcome = info["outcome"]
+        if outcome == "collision":
+            outcome = "obstacles" if info.get("collision_with", "human") != "human" else "people"
+        outcomes[outcome] += 1
+    return outcomes
+
+
+def parse(argv: list[str] | None) -> tuple[argparse.Namespace, str, dict[str, Any]]:
+    p = Parser(prog="foresight_bound.py", description=__doc__, parents=[env_options()],
+               formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--policy", default="pretrained:apg_warehouse", metavar="SPEC",
+                   help="a value model's spec, as for sb3-crowdnav evaluate (default: pretrained:apg_warehouse)")
+    p.add_argument("--foresight", choices=FORESIGHTS, default="next", help="what the model is told (default: next)")
+    p.add_argument("--steps", type=positive_int,
+                   help="--foresight braking: steps of the people's real paths (default: 6)")
+    p.add_argument("--charge-standing", action="store_true",
+                   help="--foresight braking: charge contact while the robot stands too")
+    p.add_argument("--pedestrian-model", choices=propagation.PropagationModel.PEDESTRIAN_MODELS,
+                   help="the lookahead's prediction of the people (default: the model's)")
+    p.add_argument("--episodes", type=positive_int, default=200, help="episodes (default: 200)")
+    p.add_argument("--seed-offset", type=nonneg_int, default=VALIDATION_SEED_OFFSET,
+                   help=f"seed of the first episode (default: {VALIDATION_SEED_OFFSET:,}, the validation seeds)")
+    args = p.parse_args(argv)
+    env_id = args.env or "CrowdNavWarehouse-v0"
+    steps_given, args.steps = args.steps, args.steps or 6
+    try:
+        if args.foresight != "braking" and (steps_given is not None or args.charge_standing):
+            raise UsageError("--steps and --charge-standing belong to --foresight braking")
+        kwargs = env_kwargs_from_args(args)
+        check_env(env_id, kwargs, single_crowd(args))
+    except (UsageError, ValueError) as exc:
+        p.error(str(exc))
+    return args, env_id, kwargs
+
+
+def main(argv: list[str] | None = None) -> None:
+    args, env_id, kwargs = parse(argv)
+    from sb3_crowdnav.nn import configure_cpu
+
+    configure_cpu(num_threads=1)
+    env, twin = make_env(env_id, kwargs), make_env(env_id, kwargs)
+    try:
+        policy = make_policy(args.policy, env.unwrapped)
+        lookahead = getattr(getattr(policy, "policy", None), "propagation", None)
+        if lookahead is None:
+            raise ValueError("it has no lookahead to tell the future to (a value model's spec is needed)")
+        if args.foresight == "braking" and not lookahead.stopping_check:
+            raise ValueError("--foresight braking needs a model with the stopping check; it has none")
+    except (TypeError, ValueError) as exc:
+        print(f"foresight_bound.py: error: --policy {args.policy!r}: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
+    if args.pedestrian_model:
+        policy = with_lookahead(policy, {"pedestrian_model": args.pedestrian_model})
+    seeds = list(range(args.seed_offset, args.seed_offset + args.episodes))
+    pending: dict[str, Any] = {"paths": None}
+    with braking_foresight(pending, args.charge_standing) if args.foresight == "braking" else nullcontext():
+        try:
+            outcomes = play(policy, env, twin, seeds, args.foresight, args.steps, pending)
+        except RuntimeError as exc:
+            raise SystemExit(f"foresight_bound.py: error: {exc}") from None
+    told = args.foresight
+    if told == "braking":
+        told += f" ({args.steps} steps{', standing charged' if args.charge_standing else ''})"
+    if args.pedestrian_model:
+        told += f", pedestrian model {args.pedestrian_model}"
+    world = f"{env_id} {kwargs}" if kwargs else env_id
+    print(f"{args.policy}, foresight {told}, {world}, {args.episodes} episodes from seed {args.seed_offset:,}: "
+          f"success / people / obstacles / timeouts {outcomes['success']} / {outcomes['people']} / "
+          f"{outcomes['obstacles']} / {outcomes['timeout']}")
+
+
+if __name__ == "__main__":
+    main()
