@@ -3,6 +3,7 @@
     python examples/foresight_bound.py --policy pretrained:apg_warehouse --episodes 200 --foresight next
     python examples/foresight_bound.py --policy pretrained:apg_warehouse --episodes 200 --foresight braking \\
         --steps 6 --charge-standing
+    python examples/foresight_bound.py --policy pretrained:apg_warehouse --episodes 200 --foresight plans --steps 6
 
 The model plays the validation episodes (seeds 2,000,000 + i by default) of ``--env`` (default the warehouse) and,
 before each decision, is told where the people it observes will really be:
@@ -16,9 +17,15 @@ before each decision, is told where the people it observes will really be:
   observed person's real path over the next ``--steps`` steps (the people as they walk while the robot brakes);
   contact while the robot stands is charged only with ``--charge-standing`` (the stopping check's own rule leaves
   it out). The charges are the check's: where every action is charged, none is.
+* ``--foresight plans``: the stopping check's charge for people replaced by a planner's with the same foresight:
+  an action is charged when every one of its continuations over the next ``--steps`` steps (holding it; its speed
+  straight on; the stop) meets an observed person's real path (the robot standing included) or an observed rack or
+  wall segment. It asks of an action only that some short plan after it stays clear, where the stopping check asks
+  that braking does (the check's charge for racks, a braking path into one, stays).
 
 The real future comes from a second env: reset from the episode's seed, the episode's actions replayed, then
-stepped once more (``next``), or on with the stop command (``braking``). An ORCA person reads the robot's state at
+stepped once more (``next``), or on with the stop command (``braking``, ``plans``: the people's paths are those of
+a robot that brakes, the best guess for the other plans). An ORCA person reads the robot's state at
 the start of a step, so their next step does not depend on the robot's action in it, and the foresight is exact;
 the probe checks this at every step and stops with an error in a crowd where it is not (social force, whose people
 feel the robot's move through the step). Prints success / collisions with people / with racks or walls / timeouts,
@@ -48,12 +55,13 @@ from sb3_crowdnav.cli.common import (
     single_crowd,
 )
 from sb3_crowdnav.evaluation.runner import make_env, make_policy, with_lookahead
-from sb3_crowdnav.sim.actions import STOP_ACTION
-from sb3_crowdnav.sim.observation import HUMAN_DIM, Human, ObservationSchema
+from sb3_crowdnav.sim.actions import N_ACTIONS, N_DIRECTIONS, STOP_ACTION, apply_action
+from sb3_crowdnav.sim.geometry import swept_clearance
+from sb3_crowdnav.sim.observation import HUMAN_DIM, Human, ObservationSchema, Robot
 from sb3_crowdnav.sim.rewards import closest_approach
 from sb3_crowdnav.training.callbacks import VALIDATION_SEED_OFFSET
 
-FORESIGHTS = ("none", "next", "braking")
+FORESIGHTS = ("none", "next", "braking", "plans")
 
 
 class Foresight:
@@ -99,10 +107,14 @@ def with_next_velocities(obs: dict[str, np.ndarray], rows: np.ndarray) -> dict[s
 @contextmanager
 def braking_foresight(pending: dict[str, Any], charge_standing: bool) -> Iterator[None]:
     """Within the block, the stopping check of a one-observation lookahead also charges the actions whose braking path
-    meets the people's real paths ``pending["paths"]`` ((steps, n, 2), set before each decision and used once)."""
+    meets the people's real paths ``pending["paths"]`` ((steps, n, 2), set before each decision and used once), or,
+    given ``pending["doomed"]`` ((A,) bool, :func:`doomed_actions`), charges those instead of its own prediction."""
     check = propagation.braking_hits
 
     def hits(path, radius, starts, velocities, human_radius, mask, time_step):
+        doomed, pending["doomed"] = pending.get("doomed"), None
+        if doomed is not None and path.shape[1] == 1:
+            return doomed[None, :].copy()
         hit = check(path, radius, starts, velocities, human_radius, mask, time_step)
         paths, pending["paths"] = pending["paths"], None
         if paths is None or path.shape[1] != 1:  # a deeper step of the search: the check as it is
@@ -130,6 +142,57 @@ def braking_foresight(pending: dict[str, Any], charge_standing: bool) -> Iterato
         propagation.braking_hits = check
 
 
+def _crossings(path: np.ndarray, people: np.ndarray, reach: np.ndarray) -> np.ndarray:
+    """(...) bool: the robot's ``path`` (K + 1, ..., 2) comes within ``reach`` (n,) of the people's ``people``
+    (K + 1, n, 2) in some step (the closest approach of the two straight motions of each step)."""
+    hit = np.zeros(path.shape[1:-1], dtype=bool)
+    for j in range(path.shape[0] - 1):
+        off0 = path[j][..., None, :] - people[j]
+        off1 = path[j + 1][..., None, :] - people[j + 1]
+        origin = np.zeros_like(off0)
+        hit |= (closest_approach(off0, off1, origin, origin) < reach).any(axis=-1)
+    return hit
+
+
+def doomed_actions(world: Any, obs: dict[str, np.ndarray], people: np.ndarray, radii: np.ndarray,
+                   steps: int) -> np.ndarray:
+    """(A,) bool: the actions after which every plan over ``steps`` steps (holding the action; the action's speed
+    straight on; the stop) meets an observed person's real path or an observed rack or wall segment.
+
+    :param world: the model's :class:`~sb3_crowdnav.sim.world.World`
+    :param people: (steps + 1, n, 2) the people's positions now and over the next ``steps`` steps
+    :param radii: (n,) their radii [m]
+    """
+    robot = np.asarray(obs["robot"], dtype=np.float64)
+    fractions, directions = world.action_table(1.0)
+    speeds = robot[Robot.V_PREF] * fractions
+    n_actions, n = speeds.size, people.shape[1]
+    straight = np.where(np.arange(n_actions) < N_ACTIONS, np.arange(n_actions) - np.arange(n_actions) % N_DIRECTIONS,
+                        np.arange(n_actions))  # the action of the same speed, direction 0 (the stop stays the stop)
+    stop = int(np.flatnonzero(speeds == 0)[0]) if (speeds == 0).any() else int(np.argmin(speeds))
+    plans = np.stack([np.arange(n_actions), straight, np.full(n_actions, stop)], axis=1)  # (A, 3) the later actions
+    position = np.broadcast_to(robot[Robot.POS], (n_actions, 3, 2))
+    heading = np.broadcast_to(robot[Robot.HEADING], (n_actions, 3))
+    velocity = np.broadcast_to(robot[Robot.VEL], (n_actions, 3, 2))
+    goal = np.broadcast_to(robot[Robot.GOAL], (n_actions, 3, 2))
+    path = [position]
+    for j in range(steps):
+        chosen = np.broadcast_to(np.arange(n_actions)[:, None], (n_actions, 3)) if j == 0 else plans
+        position, heading, velocity = apply_action(position, heading, goal, speeds[chosen], directions[chosen],
+                                                   world.kinematics, world.time_step, velocity,
+                                                   world.max_acceleration, world.max_turn_rate)
+        path.append(position)
+    path = np.stack(path)  # (steps + 1, A, 3, 2)
+    observed = np.asarray(obs["humans_mask"][:n]) > 0.5
+    hit = _crossings(path, people[:, observed], radii[observed] + robot[Robot.RADIUS])
+    if "obstacles" in obs:
+        segments = np.asarray(obs["obstacles"], dtype=np.float64).reshape(-1, 4)
+        present = np.asarray(obs["obstacles_mask"]) > 0.5
+        for j in range(steps):
+            hit |= swept_clearance(path[j], path[j + 1], segments, present) < robot[Robot.RADIUS]
+    return hit.all(axis=1)
+
+
 def play(policy: Any, env: Any, twin: Any, seeds: list[int], foresight: str, steps: int,
          pending: dict[str, Any]) -> Counter:
     """The episodes of ``seeds``; their outcomes (success, people, obstacles, timeout). ``pending`` is the dict of
@@ -146,6 +209,13 @@ def play(policy: Any, env: Any, twin: Any, seeds: list[int], foresight: str, ste
             elif foresight == "braking":
                 rows = future.ahead(steps + 1, STOP_ACTION)
                 expected, pending["paths"] = rows[0], rows[:, :, Human.POS]
+            elif foresight == "plans":
+                rows = future.ahead(steps, STOP_ACTION)
+                sim = env.unwrapped.sim
+                now = sim.history[-1, : sim.num_humans, Human.POS][None]
+                expected = rows[0]
+                pending["doomed"] = doomed_actions(policy.policy.world, obs, np.concatenate([now, rows[:, :, Human.POS]]),
+                                                   rows[0, :, Human.RADIUS], steps)
             action = int(np.asarray(policy.predict(obs, deterministic=True)[0]).reshape(-1)[0])
             future.actions.append(action)
             obs, _, terminated, truncated, info = env.step(action)
@@ -171,7 +241,7 @@ def parse(argv: list[str] | None) -> tuple[argparse.Namespace, str, dict[str, An
                    help="a value model's spec, as for sb3-crowdnav evaluate (default: pretrained:apg_warehouse)")
     p.add_argument("--foresight", choices=FORESIGHTS, default="next", help="what the model is told (default: next)")
     p.add_argument("--steps", type=positive_int,
-                   help="--foresight braking: steps of the people's real paths (default: 6)")
+                   help="--foresight braking, plans: steps of the people's real paths (default: 6)")
     p.add_argument("--charge-standing", action="store_true",
                    help="--foresight braking: charge contact while the robot stands too")
     p.add_argument("--pedestrian-model", choices=propagation.PropagationModel.PEDESTRIAN_MODELS,
@@ -183,8 +253,10 @@ def parse(argv: list[str] | None) -> tuple[argparse.Namespace, str, dict[str, An
     env_id = args.env or "CrowdNavWarehouse-v0"
     steps_given, args.steps = args.steps, args.steps or 6
     try:
-        if args.foresight != "braking" and (steps_given is not None or args.charge_standing):
-            raise UsageError("--steps and --charge-standing belong to --foresight braking")
+        if args.foresight in ("none", "next") and (steps_given is not None or args.charge_standing):
+            raise UsageError("--steps and --charge-standing belong to --foresight braking (--steps also to plans)")
+        if args.foresight == "plans" and args.charge_standing:
+            raise UsageError("--charge-standing belongs to --foresight braking (plans charge contact while standing)")
         kwargs = env_kwargs_from_args(args)
         check_env(env_id, kwargs, single_crowd(args))
     except (UsageError, ValueError) as exc:
@@ -203,8 +275,8 @@ def main(argv: list[str] | None = None) -> None:
         lookahead = getattr(getattr(policy, "policy", None), "propagation", None)
         if lookahead is None:
             raise ValueError("it has no lookahead to tell the future to (a value model's spec is needed)")
-        if args.foresight == "braking" and not lookahead.stopping_check:
-            raise ValueError("--foresight braking needs a model with the stopping check; it has none")
+        if args.foresight in ("braking", "plans") and not lookahead.stopping_check:
+            raise ValueError(f"--foresight {args.foresight} needs a model with the stopping check; it has none")
     except (TypeError, ValueError) as exc:
         print(f"foresight_bound.py: error: --policy {args.policy!r}: {exc}", file=sys.stderr)
         raise SystemExit(2) from None
@@ -212,12 +284,14 @@ def main(argv: list[str] | None = None) -> None:
         policy = with_lookahead(policy, {"pedestrian_model": args.pedestrian_model})
     seeds = list(range(args.seed_offset, args.seed_offset + args.episodes))
     pending: dict[str, Any] = {"paths": None}
-    with braking_foresight(pending, args.charge_standing) if args.foresight == "braking" else nullcontext():
+    with braking_foresight(pending, args.charge_standing) if args.foresight in ("braking", "plans") else nullcontext():
         try:
             outcomes = play(policy, env, twin, seeds, args.foresight, args.steps, pending)
         except RuntimeError as exc:
             raise SystemExit(f"foresight_bound.py: error: {exc}") from None
     told = args.foresight
+    if told == "plans":
+        told += f" ({args.steps} steps)"
     if told == "braking":
         told += f" ({args.steps} steps{', standing charged' if args.charge_standing else ''})"
     if args.pedestrian_model:

@@ -92,7 +92,7 @@ def test_braking_charges_only_inside_the_block_and_once():
 
 
 @pytest.mark.parametrize("argv", [["--steps", "6"], ["--charge-standing", "--foresight", "next"], ["--episodes", "0"],
-                                  ["--foresight", "far"]])
+                                  ["--foresight", "far"], ["--foresight", "plans", "--charge-standing"]])
 def test_bad_input_exits_2_with_one_line(argv, capsys):
     with pytest.raises(SystemExit) as exc:
         probe.main(argv)
@@ -105,3 +105,50 @@ def test_a_policy_without_a_lookahead_is_refused(capsys):
         probe.main(["--policy", "orca", "--episodes", "1"])
     assert exc.value.code == 2
     assert "no lookahead" in capsys.readouterr().err
+
+
+def _open_floor_obs(env):
+    """A warehouse observation with no rack or wall segment observed (the planner's rack test has nothing to meet)."""
+    obs, _ = env.reset(seed=3)
+    return {**obs, "obstacles_mask": np.zeros_like(obs["obstacles_mask"])}
+
+
+def test_a_planner_with_people_all_around_is_doomed_and_with_nobody_near_is_not():
+    env = gym.make("CrowdNavWarehouse-v0")
+    obs = _open_floor_obs(env)
+    world, n, steps = env.unwrapped.world, env.unwrapped.sim.num_humans, 4
+    centre = obs["robot"][:2].astype(np.float64)
+    mask = np.zeros_like(obs["humans_mask"])
+    mask[:n] = 1.0
+    obs = {**obs, "humans_mask": mask}
+    ring = centre + 0.5 * np.stack([np.cos(np.arange(n) * 2 * np.pi / n), np.sin(np.arange(n) * 2 * np.pi / n)], 1)
+    radii = np.full(n, 0.3)
+    standing = np.broadcast_to(ring, (steps + 1, n, 2))
+    assert probe.doomed_actions(world, obs, standing, radii, steps).all()
+    far = np.broadcast_to(centre + 50.0, (steps + 1, n, 2))
+    assert not probe.doomed_actions(world, obs, far, radii, steps).any()
+    hidden = {**obs, "humans_mask": np.zeros_like(mask)}  # people the robot does not observe are not foreseen
+    assert not probe.doomed_actions(world, hidden, standing, radii, steps).any()
+
+
+def test_the_planners_charge_replaces_the_check_at_the_first_step_only():
+    check = propagation.braking_hits
+    path = np.zeros((3, 1, 2, 2))
+    args = (np.array([0.3]), [np.full((1, 1, 2), 50.0)], [np.zeros((1, 1, 2))], np.array([[0.3]]),
+            np.array([[True]]), 0.25)
+    pending = {"paths": None, "doomed": np.array([True, False])}
+    with probe.braking_foresight(pending, False):
+        np.testing.assert_array_equal(propagation.braking_hits(path, *args)[0], [True, False])
+        np.testing.assert_array_equal(propagation.braking_hits(path, *args), check(path, *args))  # used once
+    assert propagation.braking_hits is check
+
+
+def test_plans_play_an_episode():
+    env, twin = gym.make("CrowdNavWarehouse-v0"), gym.make("CrowdNavWarehouse-v0")
+    from sb3_crowdnav.evaluation.runner import make_policy
+
+    policy = make_policy("pretrained:apg_warehouse", env.unwrapped)
+    pending = {"paths": None}
+    with probe.braking_foresight(pending, False):
+        outcomes = probe.play(policy, env, twin, [2_000_001], "plans", 4, pending)
+    assert sum(outcomes.values()) == 1
