@@ -22,6 +22,8 @@ before each decision, is told where the people it observes will really be:
   straight on; the stop) meets an observed person's real path (the robot standing included) or an observed rack or
   wall segment. It asks of an action only that some short plan after it stays clear, where the stopping check asks
   that braking does (the check's charge for racks, a braking path into one, stays).
+* ``--foresight predicted-plans``: the same planner's charge without foresight: the observed people's paths
+  predicted at constant velocity (the lookahead's own prediction), for comparison.
 
 The real future comes from a second env: reset from the episode's seed, the episode's actions replayed, then
 stepped once more (``next``), or on with the stop command (``braking``, ``plans``: the people's paths are those of
@@ -61,7 +63,7 @@ from sb3_crowdnav.sim.observation import HUMAN_DIM, Human, ObservationSchema, Ro
 from sb3_crowdnav.sim.rewards import closest_approach
 from sb3_crowdnav.training.callbacks import VALIDATION_SEED_OFFSET
 
-FORESIGHTS = ("none", "next", "braking", "plans")
+FORESIGHTS = ("none", "next", "braking", "plans", "predicted-plans")
 
 
 class Foresight:
@@ -209,6 +211,15 @@ def play(policy: Any, env: Any, twin: Any, seeds: list[int], foresight: str, ste
             elif foresight == "braking":
                 rows = future.ahead(steps + 1, STOP_ACTION)
                 expected, pending["paths"] = rows[0], rows[:, :, Human.POS]
+            elif foresight == "predicted-plans":
+                sim, mask = env.unwrapped.sim, obs["humans_mask"]
+                humans = np.asarray(obs["humans"], dtype=np.float64)
+                latest = ObservationSchema(humans.size // (mask.size * HUMAN_DIM), mask.size).humans_view(
+                    humans[None])[0, -1, : sim.num_humans]  # (n, 5) as observed (doomed_actions reads the observed)
+                ahead = np.arange(steps + 1)[:, None, None] * sim.scene.time_step
+                pending["doomed"] = doomed_actions(policy.policy.world, obs,
+                                                   latest[None, :, Human.POS] + ahead * latest[None, :, Human.VEL],
+                                                   latest[:, Human.RADIUS], steps)
             elif foresight == "plans":
                 rows = future.ahead(steps, STOP_ACTION)
                 sim = env.unwrapped.sim
@@ -255,7 +266,7 @@ def parse(argv: list[str] | None) -> tuple[argparse.Namespace, str, dict[str, An
     try:
         if args.foresight in ("none", "next") and (steps_given is not None or args.charge_standing):
             raise UsageError("--steps and --charge-standing belong to --foresight braking (--steps also to plans)")
-        if args.foresight == "plans" and args.charge_standing:
+        if args.foresight in ("plans", "predicted-plans") and args.charge_standing:
             raise UsageError("--charge-standing belongs to --foresight braking (plans charge contact while standing)")
         kwargs = env_kwargs_from_args(args)
         check_env(env_id, kwargs, single_crowd(args))
@@ -275,7 +286,7 @@ def main(argv: list[str] | None = None) -> None:
         lookahead = getattr(getattr(policy, "policy", None), "propagation", None)
         if lookahead is None:
             raise ValueError("it has no lookahead to tell the future to (a value model's spec is needed)")
-        if args.foresight in ("braking", "plans") and not lookahead.stopping_check:
+        if args.foresight not in ("none", "next") and not lookahead.stopping_check:
             raise ValueError(f"--foresight {args.foresight} needs a model with the stopping check; it has none")
     except (TypeError, ValueError) as exc:
         print(f"foresight_bound.py: error: --policy {args.policy!r}: {exc}", file=sys.stderr)
@@ -284,13 +295,13 @@ def main(argv: list[str] | None = None) -> None:
         policy = with_lookahead(policy, {"pedestrian_model": args.pedestrian_model})
     seeds = list(range(args.seed_offset, args.seed_offset + args.episodes))
     pending: dict[str, Any] = {"paths": None}
-    with braking_foresight(pending, args.charge_standing) if args.foresight in ("braking", "plans") else nullcontext():
+    with braking_foresight(pending, args.charge_standing) if args.foresight not in ("none", "next") else nullcontext():
         try:
             outcomes = play(policy, env, twin, seeds, args.foresight, args.steps, pending)
         except RuntimeError as exc:
             raise SystemExit(f"foresight_bound.py: error: {exc}") from None
     told = args.foresight
-    if told == "plans":
+    if told in ("plans", "predicted-plans"):
         told += f" ({args.steps} steps)"
     if told == "braking":
         told += f" ({args.steps} steps{', standing charged' if args.charge_standing else ''})"
