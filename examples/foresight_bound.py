@@ -197,12 +197,14 @@ def doomed_actions(world: Any, obs: dict[str, np.ndarray], people: np.ndarray, r
 
 def play(policy: Any, env: Any, twin: Any, seeds: list[int], foresight: str, steps: int,
          pending: dict[str, Any]) -> Counter:
-    """The episodes of ``seeds``; their outcomes (success, people, obstacles, timeout). ``pending`` is the dict of
-    :func:`braking_foresight` (``--foresight braking``)."""
+    """The episodes of ``seeds``; their outcomes (success, people, obstacles, timeout) and, with a planner's charge,
+    ``cornered``: the collisions with a decision among their last ``steps`` at which every action was charged (no plan
+    of the set clear). ``pending`` is the dict of :func:`braking_foresight`."""
     outcomes: Counter = Counter()
     for seed in seeds:
         obs, _ = env.reset(seed=seed)
         future = Foresight(twin, seed)
+        no_plan: list[bool] = []  # per decision, with a planner's charge: every action charged
         while True:
             expected = None
             if foresight == "next":
@@ -227,6 +229,8 @@ def play(policy: Any, env: Any, twin: Any, seeds: list[int], foresight: str, ste
                 expected = rows[0]
                 pending["doomed"] = doomed_actions(policy.policy.world, obs, np.concatenate([now, rows[:, :, Human.POS]]),
                                                    rows[0, :, Human.RADIUS], steps)
+            if pending.get("doomed") is not None:
+                no_plan.append(bool(pending["doomed"].all()))
             action = int(np.asarray(policy.predict(obs, deterministic=True)[0]).reshape(-1)[0])
             future.actions.append(action)
             obs, _, terminated, truncated, info = env.step(action)
@@ -241,6 +245,7 @@ def play(policy: Any, env: Any, twin: Any, seeds: list[int], foresight: str, ste
         outcome = info["outcome"]
         if outcome == "collision":
             outcome = "obstacles" if info.get("collision_with", "human") != "human" else "people"
+            outcomes["cornered"] += any(no_plan[-steps:])
         outcomes[outcome] += 1
     return outcomes
 
@@ -310,7 +315,9 @@ def main(argv: list[str] | None = None) -> None:
     world = f"{env_id} {kwargs}" if kwargs else env_id
     print(f"{args.policy}, foresight {told}, {world}, {args.episodes} episodes from seed {args.seed_offset:,}: "
           f"success / people / obstacles / timeouts {outcomes['success']} / {outcomes['people']} / "
-          f"{outcomes['obstacles']} / {outcomes['timeout']}")
+          f"{outcomes['obstacles']} / {outcomes['timeout']}"
+          + (f"; collisions with no clear plan in their last {args.steps} decisions: {outcomes['cornered']}"
+             if args.foresight in ("plans", "predicted-plans") else ""))
 
 
 if __name__ == "__main__":
