@@ -74,7 +74,9 @@ class Foresight:
     """
 
     def __init__(self, env: Any, seed: int) -> None:
-        self.env, self.seed, self.actions = env, int(seed), []
+        self.env = env
+        self.seed = int(seed)
+        self.actions: list[int] = []  # the episode's actions so far
 
     def ahead(self, steps: int, then: int) -> np.ndarray:
         """(steps, n, 5): the people's rows of the next ``steps`` steps (position, velocity, radius), the first of the
@@ -114,11 +116,13 @@ def braking_foresight(pending: dict[str, Any], charge_standing: bool) -> Iterato
     check = propagation.braking_hits
 
     def hits(path, radius, starts, velocities, human_radius, mask, time_step):
-        doomed, pending["doomed"] = pending.get("doomed"), None
+        doomed = pending.get("doomed")
+        pending["doomed"] = None  # (used once)
         if doomed is not None and path.shape[1] == 1:
             return doomed[None, :].copy()
         hit = check(path, radius, starts, velocities, human_radius, mask, time_step)
-        paths, pending["paths"] = pending["paths"], None
+        paths = pending["paths"]
+        pending["paths"] = None
         if paths is None or path.shape[1] != 1:  # a deeper step of the search: the check as it is
             return hit
         if path.shape[0] < paths.shape[0]:  # the robot stands at the braking's end
@@ -168,7 +172,8 @@ def doomed_actions(world: Any, obs: dict[str, np.ndarray], people: np.ndarray, r
     robot = np.asarray(obs["robot"], dtype=np.float64)
     fractions, directions = world.action_table(1.0)
     speeds = robot[Robot.V_PREF] * fractions
-    n_actions, n = speeds.size, people.shape[1]
+    n_actions = speeds.size
+    n = people.shape[1]
     straight = np.where(np.arange(n_actions) < N_ACTIONS, np.arange(n_actions) - np.arange(n_actions) % N_DIRECTIONS,
                         np.arange(n_actions))  # the action of the same speed, direction 0 (the stop stays the stop)
     stop = int(np.flatnonzero(speeds == 0)[0]) if (speeds == 0).any() else int(np.argmin(speeds))
@@ -212,9 +217,11 @@ def play(policy: Any, env: Any, twin: Any, seeds: list[int], foresight: str, ste
                 obs = with_next_velocities(obs, expected)
             elif foresight == "braking":
                 rows = future.ahead(steps + 1, STOP_ACTION)
-                expected, pending["paths"] = rows[0], rows[:, :, Human.POS]
+                expected = rows[0]
+                pending["paths"] = rows[:, :, Human.POS]
             elif foresight == "predicted-plans":
-                sim, mask = env.unwrapped.sim, obs["humans_mask"]
+                sim = env.unwrapped.sim
+                mask = obs["humans_mask"]
                 humans = np.asarray(obs["humans"], dtype=np.float64)
                 latest = ObservationSchema(humans.size // (mask.size * HUMAN_DIM), mask.size).humans_view(
                     humans[None])[0, -1, : sim.num_humans]  # (n, 5) as observed (doomed_actions reads the observed)
@@ -267,7 +274,8 @@ def parse(argv: list[str] | None) -> tuple[argparse.Namespace, str, dict[str, An
                    help=f"seed of the first episode (default: {VALIDATION_SEED_OFFSET:,}, the validation seeds)")
     args = p.parse_args(argv)
     env_id = args.env or "CrowdNavWarehouse-v0"
-    steps_given, args.steps = args.steps, args.steps or 6
+    steps_given = args.steps
+    args.steps = args.steps or 6
     try:
         if args.foresight in ("none", "next") and (steps_given is not None or args.charge_standing):
             raise UsageError("--steps and --charge-standing belong to --foresight braking (--steps also to plans)")
@@ -285,7 +293,8 @@ def main(argv: list[str] | None = None) -> None:
     from sb3_crowdnav.nn import configure_cpu
 
     configure_cpu(num_threads=1)
-    env, twin = make_env(env_id, kwargs), make_env(env_id, kwargs)
+    env = make_env(env_id, kwargs)
+    twin = make_env(env_id, kwargs)  # the replay's env
     try:
         policy = make_policy(args.policy, env.unwrapped)
         lookahead = getattr(getattr(policy, "policy", None), "propagation", None)
