@@ -99,13 +99,11 @@ class Foresight:
 
 def with_next_velocities(obs: dict[str, np.ndarray], rows: np.ndarray) -> dict[str, np.ndarray]:
     """``obs`` with the observed people's newest velocities replaced by those of ``rows`` (n, 5), their next step."""
-    mask = obs["humans_mask"]
-    humans = obs["humans"].copy()
-    view = ObservationSchema(humans.size // (mask.size * HUMAN_DIM), mask.size).humans_view(humans[None])[0]
+    told = {**obs, "humans": obs["humans"].copy()}
     n = rows.shape[0]
-    seen = mask[:n] > 0.5
-    view[-1, :n][seen, Human.VEL] = rows[seen][:, Human.VEL]
-    return {**obs, "humans": humans}
+    seen = obs["humans_mask"][:n] > 0.5
+    _humans(told)[-1, :n][seen, Human.VEL] = rows[seen][:, Human.VEL]
+    return told
 
 
 @contextmanager
@@ -130,15 +128,7 @@ def braking_foresight(pending: dict[str, Any], charge_standing: bool) -> Iterato
         n = paths.shape[1]
         reach = human_radius[0, :n] + float(np.asarray(radius).reshape(-1)[0])
         observed = np.asarray(mask, dtype=bool)[0, :n]
-        extra = np.zeros(hit.shape, dtype=bool)
-        for j in range(paths.shape[0] - 1):
-            off0 = path[j][:, :, None] - paths[j][None, None]  # (1, A, n, 2)
-            off1 = path[j + 1][:, :, None] - paths[j + 1][None, None]
-            origin = np.zeros_like(off0)
-            near = (closest_approach(off0, off1, origin, origin) < reach) & observed
-            if not charge_standing:
-                near &= (np.sum((path[j + 1] - path[j]) ** 2, axis=-1) > propagation.STANDING_STEP ** 2)[..., None]
-            extra |= near.any(axis=-1)
+        extra = _crossings(path[: paths.shape[0]], paths[:, observed], reach[observed], moving_only=not charge_standing)
         return hit | extra
 
     propagation.braking_hits = hits
@@ -148,16 +138,27 @@ def braking_foresight(pending: dict[str, Any], charge_standing: bool) -> Iterato
         propagation.braking_hits = check
 
 
-def _crossings(path: np.ndarray, people: np.ndarray, reach: np.ndarray) -> np.ndarray:
+def _crossings(path: np.ndarray, people: np.ndarray, reach: np.ndarray, moving_only: bool = False) -> np.ndarray:
     """(...) bool: the robot's ``path`` (K + 1, ..., 2) comes within ``reach`` (n,) of the people's ``people``
-    (K + 1, n, 2) in some step (the closest approach of the two straight motions of each step)."""
+    (K + 1, n, 2) in some step (the closest approach of the two straight motions of each step); with
+    ``moving_only``, only in the steps that move the robot (the stopping check's rule)."""
     hit = np.zeros(path.shape[1:-1], dtype=bool)
     for j in range(path.shape[0] - 1):
         off0 = path[j][..., None, :] - people[j]
         off1 = path[j + 1][..., None, :] - people[j + 1]
         origin = np.zeros_like(off0)
-        hit |= (closest_approach(off0, off1, origin, origin) < reach).any(axis=-1)
+        near = (closest_approach(off0, off1, origin, origin) < reach).any(axis=-1)
+        if moving_only:
+            near &= np.sum((path[j + 1] - path[j]) ** 2, axis=-1) > propagation.STANDING_STEP ** 2
+        hit |= near
     return hit
+
+
+def _humans(obs: dict[str, np.ndarray]) -> np.ndarray:
+    """(T, M, 5): a view of the observation's people (``humans`` holds T * M * 5 values, M the mask's size)."""
+    mask = obs["humans_mask"]
+    humans = obs["humans"]
+    return ObservationSchema(humans.size // (mask.size * HUMAN_DIM), mask.size).humans_view(humans[None])[0]
 
 
 def doomed_actions(world: Any, obs: dict[str, np.ndarray], people: np.ndarray, radii: np.ndarray,
@@ -221,10 +222,8 @@ def play(policy: Any, env: Any, twin: Any, seeds: list[int], foresight: str, ste
                 pending["paths"] = rows[:, :, Human.POS]
             elif foresight == "predicted-plans":
                 sim = env.unwrapped.sim
-                mask = obs["humans_mask"]
-                humans = np.asarray(obs["humans"], dtype=np.float64)
-                latest = ObservationSchema(humans.size // (mask.size * HUMAN_DIM), mask.size).humans_view(
-                    humans[None])[0, -1, : sim.num_humans]  # (n, 5) as observed (doomed_actions reads the observed)
+                # (n, 5) as observed (doomed_actions reads the observed)
+                latest = _humans(obs)[-1, : sim.num_humans].astype(np.float64)
                 ahead = np.arange(steps + 1)[:, None, None] * sim.scene.time_step
                 pending["doomed"] = doomed_actions(policy.policy.world, obs,
                                                    latest[None, :, Human.POS] + ahead * latest[None, :, Human.VEL],
