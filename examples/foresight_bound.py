@@ -63,7 +63,9 @@ from sb3_crowdnav.sim.observation import HUMAN_DIM, Human, ObservationSchema, Ro
 from sb3_crowdnav.sim.rewards import closest_approach
 from sb3_crowdnav.training.callbacks import VALIDATION_SEED_OFFSET
 
-FORESIGHTS = ("none", "next", "braking", "plans", "predicted-plans")
+PLANNERS = ("plans", "predicted-plans")  # a planner's charge on the people's paths
+CHECKED = ("braking", *PLANNERS)  # through the lookahead's stopping check
+FORESIGHTS = ("none", "next", *CHECKED)
 
 
 class Foresight:
@@ -276,9 +278,9 @@ def parse(argv: list[str] | None) -> tuple[argparse.Namespace, str, dict[str, An
     steps_given = args.steps
     args.steps = args.steps or 6
     try:
-        if args.foresight in ("none", "next") and (steps_given is not None or args.charge_standing):
+        if args.foresight not in CHECKED and (steps_given is not None or args.charge_standing):
             raise UsageError("--steps and --charge-standing belong to --foresight braking (--steps also to plans)")
-        if args.foresight in ("plans", "predicted-plans") and args.charge_standing:
+        if args.foresight in PLANNERS and args.charge_standing:
             raise UsageError("--charge-standing belongs to --foresight braking (plans charge contact while standing)")
         kwargs = env_kwargs_from_args(args)
         check_env(env_id, kwargs, single_crowd(args))
@@ -299,7 +301,7 @@ def main(argv: list[str] | None = None) -> None:
         lookahead = getattr(getattr(policy, "policy", None), "propagation", None)
         if lookahead is None:
             raise ValueError("it has no lookahead to tell the future to (a value model's spec is needed)")
-        if args.foresight not in ("none", "next") and not lookahead.stopping_check:
+        if args.foresight in CHECKED and not lookahead.stopping_check:
             raise ValueError(f"--foresight {args.foresight} needs a model with the stopping check; it has none")
     except (TypeError, ValueError) as exc:
         print(f"foresight_bound.py: error: --policy {args.policy!r}: {exc}", file=sys.stderr)
@@ -308,13 +310,13 @@ def main(argv: list[str] | None = None) -> None:
         policy = with_lookahead(policy, {"pedestrian_model": args.pedestrian_model})
     seeds = list(range(args.seed_offset, args.seed_offset + args.episodes))
     pending: dict[str, Any] = {"paths": None}
-    with braking_foresight(pending, args.charge_standing) if args.foresight not in ("none", "next") else nullcontext():
+    with braking_foresight(pending, args.charge_standing) if args.foresight in CHECKED else nullcontext():
         try:
             outcomes = play(policy, env, twin, seeds, args.foresight, args.steps, pending)
         except RuntimeError as exc:
             raise SystemExit(f"foresight_bound.py: error: {exc}") from None
     told = args.foresight
-    if told in ("plans", "predicted-plans"):
+    if told in PLANNERS:
         told += f" ({args.steps} steps)"
     if told == "braking":
         told += f" ({args.steps} steps{', standing charged' if args.charge_standing else ''})"
@@ -325,7 +327,7 @@ def main(argv: list[str] | None = None) -> None:
           f"success / people / obstacles / timeouts {outcomes['success']} / {outcomes['people']} / "
           f"{outcomes['obstacles']} / {outcomes['timeout']}"
           + (f"; collisions with no clear plan in their last {args.steps} decisions: {outcomes['cornered']}"
-             if args.foresight in ("plans", "predicted-plans") else ""))
+             if args.foresight in PLANNERS else ""))
 
 
 if __name__ == "__main__":
