@@ -10,10 +10,17 @@ with ``crowd="social_force"`` against its ORCA crowd (a fixed action and random 
 alternating), as a ratio (skipped when JuPedSim is not installed). Usage::
 
     python benchmarks/env_speed.py [--steps 20000] [--repeats 3] [--reward crowdnav] [--breakdown] [--profile] [--cpu]
+                                   [--variants]
 
 A second table compares the crowd models of ``CrowdNav-v0`` in the same run: the ORCA crowd and ``crowd="replay"``
 of a synthetic recording of as many people (generated on the fly: each walks back and forth across a 10 m street at
 1.3 m/s, everyone present all the time, 0.4 s per sample), with the ratio replay / ORCA.
+
+``--variants`` prints, instead of the tables, the default warehouse beside variants of it as ratios of ``CrowdNav-v0``'s
+steps/s (same run, the three robots): every picker seeing the robot (``robot_visible=1.0``: one RVO2 simulator instead of
+two for a crowd of seeing and distracted pickers), the pickers' ORCA obstacle horizon at 2 s instead of 5 s
+(``orca_time_horizon_obst=2.0``, a change of how the pickers walk), and the paper's robot with and without that horizon:
+what the parts of the default cost.
 
 ``--breakdown`` adds, per row and env, the steps per episode and the time of a reset and of a step without it.
 ``--cpu`` measures every rate and time in CPU seconds of this process (``time.process_time``) instead of wall-clock
@@ -35,9 +42,15 @@ from sb3_crowdnav import OrcaPolicy
 from sb3_crowdnav.sim.recording import write_recording
 
 FIXED_ACTION = 4 * 16  # full speed, straight on
+# the warehouse before issue #31's defaults: the paper's robot (80 actions, no limits), pickers who never see it, seen
+# through racks at any range
+PAPER_ROBOT = dict(actions="paper", max_acceleration=None, max_turn_rate=None, robot_visible=False, occlusion=False,
+                   people_sensor_range=None)
 
 
 RANDOM = "random"
+ROBOTS = (("fixed action", 1, lambda e: None), ("random x 8", 1, lambda e: RANDOM),
+          ("ORCA robot", 4, lambda e: OrcaPolicy.from_env(e, mapping="constrained")))  # (label, steps divided by, policy)
 
 
 def run(env: gym.Env, steps: int, policy: OrcaPolicy | str | None, seed: int = 0,
@@ -95,9 +108,8 @@ def compare_crowds(args: argparse.Namespace, orca: gym.Env, directory: str) -> N
     replay = gym.make("CrowdNav-v0", crowd="replay", crowd_kwargs={"path": str(path)}, reward=args.reward,
                       max_humans=max(10, args.num_humans)).unwrapped
     print(f"\n{'robot':<14}{'ORCA crowd':>16}{'replay':>16}{'ratio':>8}   (CrowdNav-v0, {args.num_humans} people)")
-    for label, steps, make in (("fixed action", args.steps, lambda e: None),
-                               ("random x 8", args.steps, lambda e: RANDOM),
-                               ("ORCA robot", args.steps // 4, lambda e: OrcaPolicy.from_env(e, mapping="constrained"))):
+    for label, part, make in ROBOTS:
+        steps = args.steps // part
         simulated, replayed = best([orca, replay], steps, [make(orca), make(replay)], args.repeats, args.cpu)
         print(f"{label:<14}{simulated:>12,.0f} /s{replayed:>12,.0f} /s{replayed / simulated:>8.2f}")
         if args.breakdown:
@@ -114,6 +126,7 @@ def main() -> None:
     parser.add_argument("--breakdown", action="store_true", help="also time resets and steps apart")
     parser.add_argument("--profile", action="store_true", help="cProfile the warehouse's random x 8 run instead")
     parser.add_argument("--cpu", action="store_true", help="CPU time of this process instead of wall-clock time")
+    parser.add_argument("--variants", action="store_true", help="the default warehouse beside variants of it instead")
     args = parser.parse_args()
 
     env = gym.make("CrowdNav-v0", num_humans=args.num_humans, reward=args.reward).unwrapped
@@ -126,17 +139,17 @@ def main() -> None:
         prof.runcall(run, warehouse, args.steps, RANDOM)
         pstats.Stats(prof).sort_stats("cumulative").print_stats(30)
         return
+    if args.variants:
+        variants(args, env)
+        return
     print(f"{args.num_humans} pedestrians/pickers, reward={args.reward!r}, best of {args.repeats} runs, resets included, "
           f"{'CPU' if args.cpu else 'wall-clock'} time")
     # the warehouse with its defaults (a robot with a stop and acceleration and turn-rate limits, pickers who mostly see
     # it), and as before issue #31 (the paper's robot, 80 actions, no limits, pickers who never see it, seen through racks)
-    paper = gym.make("CrowdNavWarehouse-v0", num_humans=args.num_humans, reward=args.reward, actions="paper",
-                     max_acceleration=None, max_turn_rate=None, robot_visible=False, occlusion=False,
-                     people_sensor_range=None).unwrapped
+    paper = gym.make("CrowdNavWarehouse-v0", num_humans=args.num_humans, reward=args.reward, **PAPER_ROBOT).unwrapped
     print(f"{'robot':<14}{'CrowdNav-v0':>16}{'warehouse':>16}{'ratio':>8}{'paper robot':>16}{'ratio':>8}")
-    for label, steps, make in (("fixed action", args.steps, lambda e: None),
-                               ("random x 8", args.steps, lambda e: RANDOM),
-                               ("ORCA robot", args.steps // 4, lambda e: OrcaPolicy.from_env(e, mapping="constrained"))):
+    for label, part, make in ROBOTS:
+        steps = args.steps // part
         envs = [env, warehouse, paper]
         open_floor, hall, hall_paper = best(envs, steps, [make(e) for e in envs], args.repeats, args.cpu)
         print(f"{label:<14}{open_floor:>12,.0f} /s{hall:>12,.0f} /s{hall / open_floor:>8.2f}"
@@ -147,6 +160,22 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as directory:
         compare_crowds(args, env, directory)
     crowd_models(args, env, warehouse)
+
+
+def variants(args: argparse.Namespace, env: gym.Env) -> None:
+    """The default warehouse and variants of it, each as a ratio of ``CrowdNav-v0``'s steps/s (same run)."""
+    kinds = {"default warehouse": {}, "every picker sees": {"robot_visible": 1.0},
+             "obstacle horizon 2 s": {"orca_time_horizon_obst": 2.0}, "paper robot": PAPER_ROBOT,
+             "paper robot, 2 s": {**PAPER_ROBOT, "orca_time_horizon_obst": 2.0}}
+    envs = [env] + [gym.make("CrowdNavWarehouse-v0", num_humans=args.num_humans, reward=args.reward, **kwargs).unwrapped
+                    for kwargs in kinds.values()]
+    rates = {label: best(envs, args.steps // part, [make(e) for e in envs], args.repeats, args.cpu)
+             for label, part, make in ROBOTS}
+    print(f"{args.num_humans} pedestrians/pickers, reward={args.reward!r}, best of {args.repeats} runs, resets included, "
+          f"{'CPU' if args.cpu else 'wall-clock'} time; ratios of CrowdNav-v0's steps/s")
+    print(f"{'env':<22}" + "".join(f"{label:>22}" for label in rates))
+    for i, name in enumerate(["CrowdNav-v0", *kinds]):
+        print(f"{name:<22}" + "".join(f"{r[i]:>13,.0f} /s{r[i] / r[0]:>5.2f}" for r in rates.values()))
 
 
 def crowd_models(args: argparse.Namespace, env: gym.Env, warehouse: gym.Env) -> None:
