@@ -19,8 +19,9 @@ of a synthetic recording of as many people (generated on the fly: each walks bac
 ``--variants`` prints, instead of the tables, the default warehouse beside variants of it as ratios of ``CrowdNav-v0``'s
 steps/s (same run, the three robots): every picker seeing the robot (``robot_visible=1.0``: one RVO2 simulator instead of
 two for a crowd of seeing and distracted pickers), the pickers' ORCA obstacle horizon at 2 s instead of 5 s
-(``orca_time_horizon_obst=2.0``, a change of how the pickers walk), and the paper's robot with and without that horizon:
-what the parts of the default cost.
+(``orca_time_horizon_obst=2.0``, a change of how the pickers walk), the paper's robot, the paper's robot with the
+default's people sensor (racks hide pickers, 8 m), and the paper's robot with that horizon: what the parts of the
+default cost.
 
 ``--breakdown`` adds, per row and env, the steps per episode and the time of a reset and of a step without it.
 ``--cpu`` measures every rate and time in CPU seconds of this process (``time.process_time``) instead of wall-clock
@@ -40,12 +41,9 @@ import numpy as np
 import sb3_crowdnav  # noqa: F401  (registers the envs)
 from sb3_crowdnav import OrcaPolicy
 from sb3_crowdnav.sim.recording import write_recording
+from sb3_crowdnav.sim.warehouse.config import PAPER_WAREHOUSE, PEOPLE_SENSOR_RANGE
 
 FIXED_ACTION = 4 * 16  # full speed, straight on
-# the warehouse before issue #31's defaults: the paper's robot (80 actions, no limits), pickers who never see it, seen
-# through racks at any range
-PAPER_ROBOT = dict(actions="paper", max_acceleration=None, max_turn_rate=None, robot_visible=False, occlusion=False,
-                   people_sensor_range=None)
 
 
 RANDOM = "random"
@@ -146,7 +144,7 @@ def main() -> None:
           f"{'CPU' if args.cpu else 'wall-clock'} time")
     # the warehouse with its defaults (a robot with a stop and acceleration and turn-rate limits, pickers who mostly see
     # it), and as before issue #31 (the paper's robot, 80 actions, no limits, pickers who never see it, seen through racks)
-    paper = gym.make("CrowdNavWarehouse-v0", num_humans=args.num_humans, reward=args.reward, **PAPER_ROBOT).unwrapped
+    paper = gym.make("CrowdNavWarehouse-v0", num_humans=args.num_humans, reward=args.reward, **PAPER_WAREHOUSE).unwrapped
     print(f"{'robot':<14}{'CrowdNav-v0':>16}{'warehouse':>16}{'ratio':>8}{'paper robot':>16}{'ratio':>8}")
     for label, part, make in ROBOTS:
         steps = args.steps // part
@@ -164,9 +162,11 @@ def main() -> None:
 
 def variants(args: argparse.Namespace, env: gym.Env) -> None:
     """The default warehouse and variants of it, each as a ratio of ``CrowdNav-v0``'s steps/s (same run)."""
+    sensor = {"occlusion": True, "people_sensor_range": PEOPLE_SENSOR_RANGE}  # the default's
     kinds = {"default warehouse": {}, "every picker sees": {"robot_visible": 1.0},
-             "obstacle horizon 2 s": {"orca_time_horizon_obst": 2.0}, "paper robot": PAPER_ROBOT,
-             "paper robot, 2 s": {**PAPER_ROBOT, "orca_time_horizon_obst": 2.0}}
+             "obstacle horizon 2 s": {"orca_time_horizon_obst": 2.0}, "paper robot": PAPER_WAREHOUSE,
+             "paper robot, sensor": {**PAPER_WAREHOUSE, **sensor},
+             "paper robot, 2 s": {**PAPER_WAREHOUSE, "orca_time_horizon_obst": 2.0}}
     envs = [env] + [gym.make("CrowdNavWarehouse-v0", num_humans=args.num_humans, reward=args.reward, **kwargs).unwrapped
                     for kwargs in kinds.values()]
     rates = {label: best(envs, args.steps // part, [make(e) for e in envs], args.repeats, args.cpu)
