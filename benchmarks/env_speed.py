@@ -23,7 +23,8 @@ two for a crowd of seeing and distracted pickers), the pickers' ORCA obstacle ho
 default's people sensor (racks hide pickers, 8 m), and the paper's robot with that horizon: what the parts of the
 default cost.
 
-``--breakdown`` adds, per row and env, the steps per episode and the time of a reset and of a step without it.
+``--breakdown`` adds, per row and env, the steps per episode and the time of a reset and of a step without it
+(with the tables only: ``--profile`` and ``--variants`` are refused with it and with each other).
 ``--cpu`` measures every rate and time in CPU seconds of this process (``time.process_time``) instead of wall-clock
 seconds: steadier on a machine that other jobs load.
 """
@@ -126,6 +127,10 @@ def main() -> None:
     parser.add_argument("--cpu", action="store_true", help="CPU time of this process instead of wall-clock time")
     parser.add_argument("--variants", action="store_true", help="the default warehouse beside variants of it instead")
     args = parser.parse_args()
+    modes = [flag for flag in ("profile", "variants") if getattr(args, flag)]  # each instead of the tables
+    if len(modes) > 1 or (modes and args.breakdown):
+        parser.error(f"--{modes[0]} replaces the tables: it takes neither --breakdown nor "
+                     f"--{'variants' if modes[0] == 'profile' else 'profile'}")
 
     env = gym.make("CrowdNav-v0", num_humans=args.num_humans, reward=args.reward).unwrapped
     warehouse = gym.make("CrowdNavWarehouse-v0", num_humans=args.num_humans, reward=args.reward).unwrapped
