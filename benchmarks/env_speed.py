@@ -123,14 +123,13 @@ def main() -> None:
     parser.add_argument("--reward", default="crowdnav", choices=["crowdnav", "comfort", "comfort_angular"])
     parser.add_argument("--num-humans", type=int, default=6)
     parser.add_argument("--breakdown", action="store_true", help="also time resets and steps apart")
-    parser.add_argument("--profile", action="store_true", help="cProfile the warehouse's random x 8 run instead")
+    instead = parser.add_mutually_exclusive_group()  # each replaces the tables
+    instead.add_argument("--profile", action="store_true", help="cProfile the warehouse's random x 8 run instead")
     parser.add_argument("--cpu", action="store_true", help="CPU time of this process instead of wall-clock time")
-    parser.add_argument("--variants", action="store_true", help="the default warehouse beside variants of it instead")
+    instead.add_argument("--variants", action="store_true", help="the default warehouse beside variants of it instead")
     args = parser.parse_args()
-    modes = [flag for flag in ("profile", "variants") if getattr(args, flag)]  # each instead of the tables
-    if len(modes) > 1 or (modes and args.breakdown):
-        parser.error(f"--{modes[0]} replaces the tables: it takes neither --breakdown nor "
-                     f"--{'variants' if modes[0] == 'profile' else 'profile'}")
+    if args.breakdown and (args.profile or args.variants):
+        parser.error("--breakdown belongs to the tables, which --profile and --variants replace")
 
     env = gym.make("CrowdNav-v0", num_humans=args.num_humans, reward=args.reward).unwrapped
     warehouse = gym.make("CrowdNavWarehouse-v0", num_humans=args.num_humans, reward=args.reward).unwrapped
